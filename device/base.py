@@ -1,0 +1,95 @@
+"""The one protocol every source implements, and source specs (ARCHITECTURE.md "Sources")."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from types import TracebackType
+from typing import Protocol, runtime_checkable
+from urllib.parse import parse_qsl
+
+from measure import Frame
+
+from .errors import SourceError
+
+
+@dataclass(frozen=True)
+class SourceInfo:
+    """What a source is: kind ("sim", "oak", "v4l2", "replay", "middlebury", "usb"), name, serial, size, fps."""
+
+    kind: str
+    name: str
+    serial: str = ""
+    width: int = 0
+    height: int = 0
+    fps: float = 0.0
+    state: str = ""
+    extra: dict = field(default_factory=dict)
+
+
+@runtime_checkable
+class Source(Protocol):
+    info: SourceInfo
+
+    def open(self) -> None: ...
+
+    def read(self, timeout_s: float = 1.0) -> Frame: ...
+
+    def close(self) -> None: ...
+
+    def __enter__(self) -> Source: ...
+
+    def __exit__(self, *exc: object) -> None: ...
+
+
+class SourceBase:
+    """Context-manager plumbing shared by all sources: ``with src: src.read()``."""
+
+    info: SourceInfo
+
+    @property
+    def is_open(self) -> bool:
+        return getattr(self, "_open", False)
+
+    def open(self) -> None:
+        self._open = True
+
+    def close(self) -> None:
+        self._open = False
+
+    def __enter__(self):
+        if not self.is_open:
+            self.open()
+        return self
+
+    def __exit__(
+        self, exc_type: type[BaseException] | None, exc: BaseException | None, tb: TracebackType | None
+    ) -> None:
+        self.close()
+
+
+@dataclass(frozen=True)
+class SourceSpec:
+    """A parsed spec string ``kind[:target][?key=value&...]``, e.g. ``sim:poster?distance=4``."""
+
+    kind: str
+    target: str = ""
+    params: dict[str, str] = field(default_factory=dict)
+
+    @classmethod
+    def parse(cls, spec: str) -> SourceSpec:
+        if not isinstance(spec, str) or not spec.strip():
+            raise SourceError("empty source spec; use e.g. 'sim', 'oak', 'v4l2:/dev/video0' or 'replay:DIR'")
+        spec = spec.strip()
+        head, _, query = spec.partition("?")
+        kind, _, target = head.partition(":")
+        try:
+            params = dict(parse_qsl(query, keep_blank_values=True, strict_parsing=bool(query)))
+        except ValueError as exc:
+            raise SourceError(f"cannot parse the options {query!r} of source spec {spec!r}; write key=value&key=value") from exc
+        return cls(kind=kind.lower(), target=target, params=params)
+
+    def __str__(self) -> str:
+        s = self.kind + (f":{self.target}" if self.target else "")
+        if self.params:
+            s += "?" + "&".join(f"{k}={v}" for k, v in self.params.items())
+        return s

@@ -1,0 +1,33 @@
+"""Shared fixtures and the `hardware` / `browser` skips."""
+
+from __future__ import annotations
+
+import os
+import shutil
+from pathlib import Path
+
+import pytest
+
+ROOT = Path(__file__).resolve().parents[1]
+SHARED = Path(os.environ.get("DEPTHRULER_SHARED", ROOT.parent / "shared"))
+MIDDLEBURY = SHARED / "data" / "middlebury"
+CHROMIUM = "/usr/bin/chromium"
+
+
+def pytest_collection_modifyitems(config: pytest.Config, items: list[pytest.Item]) -> None:
+    hardware = os.environ.get("DEPTHRULER_HARDWARE") == "1"
+    skip_hw = pytest.mark.skip(reason="needs a camera: set DEPTHRULER_HARDWARE=1 with a device attached")
+    has_chromium = shutil.which(CHROMIUM) is not None or Path(CHROMIUM).exists()
+    skip_browser = pytest.mark.skip(reason="needs Debian's chromium at /usr/bin/chromium (apt-get install chromium)")
+    for item in items:
+        if "hardware" in item.keywords and not hardware:
+            item.add_marker(skip_hw)
+        if "browser" in item.keywords and not has_chromium:
+            item.add_marker(skip_browser)
+
+
+@pytest.fixture(scope="session")
+def middlebury_dir() -> Path:
+    if not MIDDLEBURY.is_dir():
+        pytest.fail(f"Middlebury scenes not found at {MIDDLEBURY}; set DEPTHRULER_SHARED to the shared/ folder")
+    return MIDDLEBURY

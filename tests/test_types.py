@@ -1,0 +1,73 @@
+import math
+
+import numpy as np
+import pytest
+
+from measure import Frame, MeasureError, MeasureOptions, PinholeCamera, measure_distance
+
+
+def make_frame(w=64, h=48, d=10.0, **kw):
+    cam = PinholeCamera(fx=100.0, fy=100.0, cx=(w - 1) / 2, cy=(h - 1) / 2, width=w, height=h)
+    return Frame(
+        image=np.zeros((h, w, 3), np.uint8),
+        disparity=np.full((h, w), d, np.float32),
+        camera=cam,
+        baseline_m=0.1,
+        **kw,
+    )
+
+
+def test_depth_from_disparity():
+    f = make_frame(d=10.0)
+    assert np.allclose(f.depth(), 100.0 * 0.1 / 10.0)
+    f2 = make_frame(d=np.nan)
+    assert np.isnan(f2.depth()).all()
+
+
+def test_camera_scaled_roundtrip():
+    cam = PinholeCamera(800.0, 800.0, 639.5, 359.5, 1280, 720)
+    half = cam.scaled(640, 360)
+    assert half.fx == 400.0 and half.cx == pytest.approx(319.5)
+    assert half.scaled(1280, 720) == cam
+
+
+@pytest.mark.parametrize(
+    "kw, match",
+    [
+        (dict(disparity=np.zeros((48, 64), np.float64)), "float32"),
+        (dict(disparity=np.zeros((48, 63), np.float32)), "63x48"),
+        (dict(image=np.zeros((48, 64), np.uint8)), "uint8 BGR"),
+        (dict(baseline_m=math.nan), "baseline_m"),
+        (dict(baseline_m=-0.1), "positive"),
+        (dict(confidence=np.zeros((48, 64), np.float64)), "confidence"),
+    ],
+)
+def test_frame_rejects_bad_arrays(kw, match):
+    w, h = 64, 48
+    base = dict(
+        image=np.zeros((h, w, 3), np.uint8),
+        disparity=np.zeros((h, w), np.float32),
+        camera=PinholeCamera(100.0, 100.0, 32.0, 24.0, w, h),
+        baseline_m=0.1,
+    )
+    base.update(kw)
+    with pytest.raises(MeasureError, match=match):
+        Frame(**base)
+
+
+def test_camera_rejects_nonfinite():
+    with pytest.raises(MeasureError, match="fx"):
+        PinholeCamera(math.inf, 100.0, 1.0, 1.0, 10, 10)
+
+
+def test_options_validate():
+    with pytest.raises(MeasureError, match="method"):
+        MeasureOptions(method="magic")
+    with pytest.raises(MeasureError, match="odd"):
+        MeasureOptions(window=4)
+
+
+def test_basic_on_fronto_parallel_plane():
+    f = make_frame(d=10.0)  # Z = 1 m everywhere
+    m = measure_distance(f, (10, 20), (50, 20), MeasureOptions(method="basic"))
+    assert m.distance_m == pytest.approx(40 / 100.0 * 1.0)
