@@ -1,0 +1,132 @@
+"""Disparity from a rectified stereo pair with OpenCV's semi-global matching.
+
+Output convention (ARCHITECTURE.md): float32 disparity in pixels of the left image, NaN where
+SGBM found no match; confidence in [0, 1].
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+MODES = ("sgbm", "sgbm_3way", "hh", "hh4")
+
+
+@dataclass(frozen=True)
+class SGBMConfig:
+    """Parameters of cv2.StereoSGBM (pixels). P1/P2 default to the usual 8·cn·bs² and 32·cn·bs²
+    (OpenCV's own defaults are 0, which disables smoothness)."""
+
+    num_disparities: int = 64
+    block_size: int = 5
+    mode: str = "sgbm_3way"
+    p1: int | None = None
+    p2: int | None = None
+    uniqueness: int = 10
+    speckle_window: int = 100
+    speckle_range: int = 2
+    disp12_max_diff: int = 1
+    min_disparity: int = 0
+    pre_filter_cap: int = 63
+    wls: bool = False
+    wls_lambda: float = 500.0
+    wls_sigma: float = 0.8
+    lr_confidence: bool = False
+
+    def __post_init__(self) -> None:
+        if self.num_disparities <= 0 or self.num_disparities % 16:
+            raise ValueError(f"num_disparities={self.num_disparities} must be a positive multiple of 16")
+        if self.block_size < 1 or self.block_size % 2 == 0:
+            raise ValueError(f"block_size={self.block_size} must be a positive odd number")
+        if self.mode not in MODES:
+            raise ValueError(f"mode={self.mode!r} is unknown; use one of {', '.join(MODES)}")
+        if self.p1 is not None and self.p2 is not None and not (0 < self.p1 < self.p2):
+            raise ValueError(f"need 0 < p1 < p2, got p1={self.p1}, p2={self.p2}")
+
+
+def round_up_disparities(ndisp: int) -> int:
+    """The smallest multiple of 16 that covers ``ndisp`` disparities (SGBM's constraint)."""
+    return max(16, int(np.ceil(ndisp / 16.0)) * 16)
+
+
+def make_matcher(config: SGBMConfig, channels: int = 3):
+    import cv2
+
+    bs = config.block_size
+    modes = {
+        "sgbm": cv2.STEREO_SGBM_MODE_SGBM,
+        "sgbm_3way": cv2.STEREO_SGBM_MODE_SGBM_3WAY,
+        "hh": cv2.STEREO_SGBM_MODE_HH,
+        "hh4": cv2.STEREO_SGBM_MODE_HH4,
+    }
+    return cv2.StereoSGBM.create(
+        minDisparity=config.min_disparity,
+        numDisparities=config.num_disparities,
+        blockSize=bs,
+        P1=config.p1 if config.p1 is not None else 8 * channels * bs * bs,
+        P2=config.p2 if config.p2 is not None else 32 * channels * bs * bs,
+        disp12MaxDiff=config.disp12_max_diff,
+        preFilterCap=config.pre_filter_cap,
+        uniquenessRatio=config.uniqueness,
+        speckleWindowSize=config.speckle_window,
+        speckleRange=config.speckle_range,
+        mode=modes[config.mode],
+    )
+
+
+def compute_disparity(
+    left_bgr: np.ndarray, right_bgr: np.ndarray, config: SGBMConfig = SGBMConfig()
+) -> tuple[np.ndarray, np.ndarray]:
+    """Disparity (px, float32, NaN = no match) and confidence (float32 in [0, 1]) of a rectified pair.
+
+    Confidence is the left-right consistency ``clip(1 - |dL(x) - dR(x - dL)| / 2, 0, 1)`` when
+    ``lr_confidence`` or ``wls`` asks for the right matcher, else 1 where SGBM matched and 0 elsewhere.
+    """
+    import cv2
+
+    if left_bgr.shape != right_bgr.shape or left_bgr.dtype != np.uint8:
+        raise ValueError(
+            f"left and right must be uint8 images of one size, got {left_bgr.shape} {left_bgr.dtype} "
+            f"and {right_bgr.shape} {right_bgr.dtype}"
+        )
+    channels = 1 if left_bgr.ndim == 2 else left_bgr.shape[2]
+    left_matcher = make_matcher(config, channels)
+    raw_left = left_matcher.compute(left_bgr, right_bgr)
+    invalid = raw_left < config.min_disparity * 16
+    need_right = config.wls or config.lr_confidence
+    raw_right = None
+    if need_right:
+        right_matcher = cv2.ximgproc.createRightMatcher(left_matcher)
+        raw_right = right_matcher.compute(right_bgr, left_bgr)
+    if config.wls:
+        wls = cv2.ximgproc.createDisparityWLSFilter(left_matcher)
+        wls.setLambda(config.wls_lambda)
+        wls.setSigmaColor(config.wls_sigma)
+        filtered = wls.filter(raw_left, left_bgr, disparity_map_right=raw_right)
+        # WLS fills holes by diffusion and can push values negative: keep only plausible ones.
+        invalid = filtered < config.min_disparity * 16
+        raw_left = filtered
+    disparity = raw_left.astype(np.float32) / 16.0
+    disparity[invalid] = np.nan
+    if raw_right is not None:
+        confidence = lr_consistency(disparity, -raw_right.astype(np.float32) / 16.0)
+    else:
+        confidence = (~invalid).astype(np.float32)
+    return disparity, confidence
+
+
+def lr_consistency(disp_left: np.ndarray, disp_right: np.ndarray) -> np.ndarray:
+    """Left-right check as a confidence in [0, 1]: 1 - |dL(x) - dR(x - dL(x))| / 2, 0 where unmatched.
+
+    ``disp_right`` is the right view's disparity as a positive number (right-to-left match).
+    """
+    h, w = disp_left.shape
+    xs = np.arange(w, dtype=np.float32)[None, :] - np.nan_to_num(disp_left, nan=0.0)
+    xr = np.clip(np.rint(xs), 0, w - 1).astype(np.intp)
+    rows = np.arange(h)[:, None]
+    dr = disp_right[rows, xr]
+    diff = np.abs(disp_left - dr)
+    conf = np.clip(1.0 - diff / 2.0, 0.0, 1.0).astype(np.float32)
+    conf[~np.isfinite(disp_left) | ~np.isfinite(dr) | (dr <= 0) | (xs < 0)] = 0.0
+    return conf
