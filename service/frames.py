@@ -1,0 +1,272 @@
+"""Frames of the live stream: a bounded ring buffer with ids, and the capture thread that fills it.
+
+A measurement names the id of the frame it was clicked on, so the live stream moving on never
+changes the frame under a click; frozen frames are kept out of eviction (up to a bound).
+The capture thread survives any source error: it reports the state and message, closes the
+source and reopens it with exponential backoff.
+"""
+
+from __future__ import annotations
+
+import itertools
+import threading
+import time
+import uuid
+from collections import OrderedDict
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from typing import Any
+
+from device import Source, SourceInfo
+from measure import Frame
+
+
+class FrameGone(KeyError):
+    """The frame id was evicted from the ring buffer (HTTP 410)."""
+
+
+class FrameUnknown(KeyError):
+    """The frame id was never issued (HTTP 404)."""
+
+
+@dataclass
+class RingFrame:
+    """One buffered frame: its id, a uuid that names it in storage, and cached encodings."""
+
+    id: int
+    frame: Frame
+    uid: str = field(default_factory=lambda: uuid.uuid4().hex)
+    received: float = field(default_factory=time.time)
+    frozen: bool = False
+    cache: dict[str, bytes] = field(default_factory=dict)
+    lock: threading.Lock = field(default_factory=threading.Lock)
+
+    def encoded(self, key: str, encode: Callable[[Frame], bytes]) -> bytes:
+        """``encode(frame)`` computed once per frame (the page polls the same frame repeatedly)."""
+        with self.lock:
+            if key not in self.cache:
+                self.cache[key] = encode(self.frame)
+            return self.cache[key]
+
+
+class FrameRing:
+    """Bounded, thread-safe buffer of frames keyed by increasing ids.
+
+    At most ``capacity`` unfrozen frames are kept (oldest evicted first); at most ``max_frozen``
+    frames are frozen, freezing one more releases the oldest frozen one back to the live pool.
+    """
+
+    def __init__(self, capacity: int = 64, max_frozen: int = 16) -> None:
+        if capacity < 1 or max_frozen < 1:
+            raise ValueError(f"ring capacity ({capacity}) and max_frozen ({max_frozen}) must be at least 1")
+        self.capacity = capacity
+        self.max_frozen = max_frozen
+        self._frames: OrderedDict[int, RingFrame] = OrderedDict()
+        self._ids = itertools.count(1)
+        self._next = 1
+        self._cond = threading.Condition()
+
+    def push(self, frame: Frame, *, frozen: bool = False, uid: str | None = None) -> RingFrame:
+        with self._cond:
+            fid = next(self._ids)
+            self._next = fid + 1
+            entry = RingFrame(id=fid, frame=frame, frozen=frozen)
+            if uid:
+                entry.uid = uid
+            self._frames[fid] = entry
+            if frozen:
+                self._limit_frozen(keep=fid)
+            self._evict()
+            self._cond.notify_all()
+            return entry
+
+    def _evict(self) -> None:
+        live = [fid for fid, e in self._frames.items() if not e.frozen]
+        for fid in live[: max(0, len(live) - self.capacity)]:
+            del self._frames[fid]
+
+    def _limit_frozen(self, keep: int) -> None:
+        frozen = [fid for fid, e in self._frames.items() if e.frozen and fid != keep]
+        for fid in frozen[: max(0, len(frozen) + 1 - self.max_frozen)]:
+            self._frames[fid].frozen = False
+
+    def get(self, fid: int) -> RingFrame:
+        with self._cond:
+            entry = self._frames.get(fid)
+            if entry is not None:
+                return entry
+            if 1 <= fid < self._next:
+                raise FrameGone(
+                    f"frame {fid} was evicted from the ring buffer (it keeps the last {self.capacity} frames); "
+                    "freeze a frame before measuring on it, or take the latest frame"
+                )
+            raise FrameUnknown(f"frame {fid} does not exist yet; the latest id is {self._next - 1}")
+
+    def latest(self) -> RingFrame | None:
+        with self._cond:
+            return self._frames[next(reversed(self._frames))] if self._frames else None
+
+    def wait_latest(self, after: int = 0, timeout_s: float = 5.0) -> RingFrame | None:
+        """The newest frame with an id above ``after``, waiting up to ``timeout_s`` for it."""
+        deadline = time.monotonic() + timeout_s
+        with self._cond:
+            while True:
+                entry = self._frames[next(reversed(self._frames))] if self._frames else None
+                if entry is not None and entry.id > after:
+                    return entry
+                left = deadline - time.monotonic()
+                if left <= 0:
+                    return None
+                self._cond.wait(left)
+
+    def freeze(self, fid: int, frozen: bool = True) -> RingFrame:
+        with self._cond:
+            entry = self.get(fid)
+            entry.frozen = frozen
+            if frozen:
+                self._limit_frozen(keep=fid)
+            else:
+                self._evict()
+            return entry
+
+    def __len__(self) -> int:
+        with self._cond:
+            return len(self._frames)
+
+    @property
+    def frozen_ids(self) -> list[int]:
+        with self._cond:
+            return [fid for fid, e in self._frames.items() if e.frozen]
+
+
+SourceFactory = Callable[[], Source]
+FrameSink = Callable[[Frame], None]
+
+
+class Capture:
+    """Reads frames from a source into a :class:`FrameRing` on a daemon thread.
+
+    States: "connecting" (first open), "streaming", "disconnected" (after an error, waiting to
+    retry), "reconnecting" (reopening), "stopped". Any exception from the source is caught, its
+    message kept for ``status()``, and the source reopened after a backoff that doubles from
+    ``backoff_initial_s`` up to ``backoff_max_s``; it resets after a successful frame.
+    """
+
+    def __init__(
+        self,
+        factory: SourceFactory,
+        ring: FrameRing,
+        *,
+        spec: str = "",
+        fps: float = 15.0,
+        backoff_initial_s: float = 0.5,
+        backoff_max_s: float = 10.0,
+        read_timeout_s: float = 2.0,
+    ) -> None:
+        self.factory = factory
+        self.ring = ring
+        self.spec = spec
+        self.period_s = 1.0 / fps
+        self.backoff_initial_s = backoff_initial_s
+        self.backoff_max_s = backoff_max_s
+        self.read_timeout_s = read_timeout_s
+        self.sinks: list[FrameSink] = []
+        self._lock = threading.Lock()
+        self._stop = threading.Event()
+        self._thread: threading.Thread | None = None
+        self._state = "connecting"
+        self._message = ""
+        self._info: SourceInfo | None = None
+        self._frames = 0
+        self._retries = 0
+        self._next_retry: float | None = None
+        self._times: list[float] = []
+
+    def start(self) -> None:
+        self._thread = threading.Thread(target=self._run, name="depthruler-capture", daemon=True)
+        self._thread.start()
+
+    def stop(self, timeout_s: float = 5.0) -> None:
+        self._stop.set()
+        if self._thread is not None:
+            self._thread.join(timeout_s)
+        self._set(state="stopped")
+
+    def _set(self, **kw: Any) -> None:
+        with self._lock:
+            for k, v in kw.items():
+                setattr(self, "_" + k, v)
+
+    def status(self) -> dict[str, Any]:
+        with self._lock:
+            info = self._info
+            times = list(self._times)
+            fps = (len(times) - 1) / (times[-1] - times[0]) if len(times) > 1 and times[-1] > times[0] else 0.0
+            retry_in = max(0.0, self._next_retry - time.monotonic()) if self._next_retry is not None else None
+            return {
+                "state": self._state,
+                "message": self._message,
+                "spec": self.spec,
+                "kind": info.kind if info else "",
+                "name": info.name if info else "",
+                "serial": info.serial if info else "",
+                "width": info.width if info else 0,
+                "height": info.height if info else 0,
+                "fps": info.fps if info else 0.0,
+                "measured_fps": round(fps, 2),
+                "frames": self._frames,
+                "retries": self._retries,
+                "retry_in_s": retry_in,
+            }
+
+    @property
+    def info(self) -> SourceInfo | None:
+        with self._lock:
+            return self._info
+
+    def _run(self) -> None:
+        backoff = self.backoff_initial_s
+        first = True
+        while not self._stop.is_set():
+            src: Source | None = None
+            try:
+                self._set(state="connecting" if first else "reconnecting", next_retry=None)
+                src = self.factory()
+                src.open()
+                self._set(info=src.info)
+                while not self._stop.is_set():
+                    t0 = time.monotonic()
+                    frame = src.read(self.read_timeout_s)
+                    self._deliver(frame, src.info)
+                    backoff = self.backoff_initial_s
+                    self._stop.wait(max(0.0, self.period_s - (time.monotonic() - t0)))
+            except Exception as exc:  # noqa: BLE001 — any source failure must leave the service up
+                message = f"{type(exc).__name__}: {exc}"
+                with self._lock:
+                    self._state = "disconnected"
+                    self._message = message
+                    self._retries += 1
+                    self._next_retry = time.monotonic() + backoff
+            finally:
+                first = False
+                if src is not None:
+                    try:
+                        src.close()
+                    except Exception:  # noqa: BLE001 — closing a dead device may fail too; we reopen anyway
+                        pass
+            if self._stop.is_set():
+                break
+            self._stop.wait(backoff)
+            backoff = min(self.backoff_max_s, backoff * 2)
+
+    def _deliver(self, frame: Frame, info: SourceInfo) -> None:
+        self.ring.push(frame)
+        now = time.monotonic()
+        with self._lock:
+            self._state = "streaming"
+            self._message = ""
+            self._info = info
+            self._frames += 1
+            self._times = (self._times + [now])[-30:]
+        for sink in list(self.sinks):
+            sink(frame)

@@ -1,0 +1,329 @@
+"""API tests of the measuring service on a small fake plane source (fast, exact ground truth)."""
+
+from __future__ import annotations
+
+import csv
+import io
+import json
+import threading
+import time
+from concurrent.futures import ThreadPoolExecutor
+
+import numpy as np
+import pytest
+from fastapi.testclient import TestClient
+
+from device import SourceBase, SourceDisconnected, SourceInfo, SourceNotFound, SourceTimeout
+from measure import Frame, PinholeCamera
+from service.app import create_app
+
+W, H, FX, BASELINE, DISP = 320, 240, 300.0, 0.1, 15.0
+Z = FX * BASELINE / DISP  # 2.0 m: every pixel sees a fronto-parallel wall
+
+
+def plane_frame(index: int) -> Frame:
+    yy, xx = np.mgrid[0:H, 0:W]
+    image = np.stack([(xx * 255 // W), (yy * 255 // H), np.full_like(xx, (index * 37) % 256)], -1).astype(np.uint8)
+    disparity = np.full((H, W), DISP, np.float32)
+    disparity[:8, :8] = np.nan  # a hole, so the colour map has "no data" to paint
+    cam = PinholeCamera(fx=FX, fy=FX, cx=(W - 1) / 2, cy=(H - 1) / 2, width=W, height=H)
+    return Frame(image, disparity, cam, BASELINE, timestamp=index / 30, meta={"source": "plane", "index": index})
+
+
+def true_length(p1, p2) -> float:
+    return float(np.hypot(p2[0] - p1[0], p2[1] - p1[1]) * Z / FX)
+
+
+class PlaneSource(SourceBase):
+    """A wall at 2 m; optionally disconnects after ``fail_after`` frames and refuses ``refuse`` reopenings."""
+
+    def __init__(self, fail_after: int | None = None, state: dict | None = None) -> None:
+        self.info = SourceInfo(kind="plane", name="Fake plane", serial="F1", width=W, height=H, fps=30.0)
+        self.fail_after = fail_after
+        self.state = state if state is not None else {}
+        self.n = 0
+
+    def open(self) -> None:
+        refuse = self.state.get("refuse", 0)
+        if refuse:
+            self.state["refuse"] = refuse - 1
+            raise SourceNotFound("fake plane unplugged; plug it back in")
+        super().open()
+
+    def read(self, timeout_s: float = 1.0) -> Frame:
+        gate = self.state.get("gate")
+        if gate is not None and not gate.acquire(timeout=timeout_s):
+            raise SourceTimeout("fake plane: no frame released by the test")
+        self.n += 1
+        if self.fail_after is not None and self.n > self.fail_after:
+            raise SourceDisconnected("fake plane: cable pulled (XLink error)")
+        return plane_frame(self.n)
+
+
+def make_client(tmp_path, factory=PlaneSource, **kw) -> TestClient:
+    kw.setdefault("capture_fps", 200.0)
+    kw.setdefault("reconnect_initial_s", 0.02)
+    kw.setdefault("reconnect_max_s", 0.1)
+    return TestClient(create_app(factory, db_path=tmp_path / "h.db", **kw))
+
+
+def latest(client: TestClient, after: int = 0) -> dict:
+    r = client.get("/api/frames/latest", params={"after": after, "wait": 5})
+    assert r.status_code == 200, r.text
+    return r.json()
+
+
+def measure(client, fid, p1, p2, **options):
+    return client.post("/api/measure", json={"frame_id": fid, "p1": list(p1), "p2": list(p2), "options": options})
+
+
+def test_measure_on_named_frame_and_history(tmp_path):
+    with make_client(tmp_path) as c:
+        assert c.get("/api/health").json()["status"] == "ok"
+        f = latest(c)
+        assert (f["width"], f["height"]) == (W, H) and {"id", "timestamp"} <= f.keys()
+        p1, p2 = (60.0, 120.0), (260.0, 150.0)
+        r = measure(c, f["id"], p1, p2, method="basic")
+        assert r.status_code == 200, r.text
+        m = r.json()
+        assert m["frame_id"] == f["id"] and m["p1"] == list(p1) and m["method"] == "basic"
+        assert m["distance_m"] == pytest.approx(true_length(p1, p2), rel=1e-6)
+        assert {"id", "created", "uncertainty_m", "samples_px", "support", "fit", "warnings"} <= m.keys()
+        listed = c.get("/api/measurements").json()
+        assert [x["id"] for x in listed] == [m["id"]]
+        assert c.get(f"/api/measurements/{m['id']}/thumb.png").content[:8] == b"\x89PNG\r\n\x1a\n"
+        png = c.get(f"/api/frames/{f['id']}/color.png")
+        assert png.status_code == 200 and png.headers["content-type"] == "image/png"
+        disp = c.get(f"/api/frames/{f['id']}/disparity.png")
+        assert disp.status_code == 200 and disp.content[:4] == b"\x89PNG"
+        import cv2
+
+        img = cv2.imdecode(np.frombuffer(png.content, np.uint8), cv2.IMREAD_COLOR)
+        np.testing.assert_array_equal(img, plane_frame(_index_of(c, f)).image)  # lossless, that exact frame
+        dimg = cv2.imdecode(np.frombuffer(disp.content, np.uint8), cv2.IMREAD_COLOR)
+        assert (dimg[:8, :8] == 0).all() and dimg[100, 100].any()  # hole black, data coloured
+
+
+def _index_of(client, f) -> int:
+    return client.get(f"/api/frames/{f['id']}").json()["meta"]["index"]
+
+
+def test_measurement_uses_exactly_the_named_frame(tmp_path):
+    """A frame whose disparity differs from the live ones: the answer must come from it alone."""
+    with make_client(tmp_path) as c:
+        ring = c.app.state.ring
+        base = plane_frame(0)
+        near = Frame(base.image, np.full((H, W), 2 * DISP, np.float32), base.camera, BASELINE, meta={"source": "near"})
+        entry = ring.push(near, frozen=True)
+        latest(c, after=entry.id + 3)  # the stream moved on
+        m = measure(c, entry.id, (10, 10), (310, 10), method="basic").json()
+        assert m["distance_m"] == pytest.approx(true_length((10, 10), (310, 10)) / 2, rel=1e-6)
+
+
+def test_evicted_frame_is_410_and_frozen_survives(tmp_path):
+    state = {"gate": threading.Semaphore(0)}  # the test releases frames one by one: no race with eviction
+    with make_client(tmp_path, factory=lambda: PlaneSource(state=state), ring_size=4) as c:
+        state["gate"].release(1)
+        old = latest(c)
+        state["gate"].release(1)
+        kept = latest(c, after=old["id"])
+        assert c.post(f"/api/frames/{kept['id']}/freeze").json()["frozen"] is True
+        state["gate"].release(10)
+        latest(c, after=kept["id"] + 9)
+        r = measure(c, old["id"], (10, 10), (20, 20), method="basic")
+        assert r.status_code == 410 and "evicted" in r.json()["detail"]
+        assert c.get(f"/api/frames/{old['id']}/color.png").status_code == 410
+        assert measure(c, kept["id"], (10, 10), (20, 20), method="basic").status_code == 200
+        assert measure(c, 10**9, (10, 10), (20, 20)).status_code == 404
+        assert c.delete(f"/api/frames/{kept['id']}/freeze").json()["frozen"] is False
+        assert c.get(f"/api/frames/{kept['id']}").status_code == 410  # unfrozen, it was the oldest: evicted
+
+
+@pytest.mark.parametrize(
+    "body, fragment",
+    [
+        ({"p1": [-1, 10], "p2": [20, 20]}, "outside"),
+        ({"p1": [10, 10], "p2": [W, 20]}, "outside"),
+        ({"p1": [10, 10], "p2": [20, H + 5]}, "outside"),
+        ({"p1": ["10", 10], "p2": [20, 20]}, "p1"),
+        ({"p1": [10], "p2": [20, 20]}, "p1"),
+        ({"p1": [10, 10], "p2": [20, 20], "frame_id": "abc"}, "frame_id"),
+        ({"p1": [10, 10], "p2": [20, 20], "options": {"method": "magic"}}, "method"),
+        ({"p1": [10, 10], "p2": [20, 20], "options": {"window": 4}}, None),
+        ({"p1": [10, 10], "p2": [20, 20], "options": {"bogus": 1}}, "bogus"),
+        ({"p1": [10, 10], "p2": [10, 10]}, "same pixel"),
+    ],
+)
+def test_bad_input_is_422_with_message(tmp_path, body, fragment):
+    with make_client(tmp_path) as c:
+        fid = latest(c)["id"]
+        payload = {"frame_id": fid, **body}
+        r = c.post("/api/measure", json=payload)
+        assert r.status_code == 422, r.text
+        assert isinstance(r.json()["detail"], str) and r.json()["detail"]
+        if fragment:
+            assert fragment in r.json()["detail"]
+        assert c.get("/api/measurements").json() == []
+
+
+def test_nan_and_infinity_are_422(tmp_path):
+    with make_client(tmp_path) as c:
+        fid = latest(c)["id"]
+        for raw in (
+            f'{{"frame_id": {fid}, "p1": [NaN, 10], "p2": [20, 20]}}',
+            f'{{"frame_id": {fid}, "p1": [10, 10], "p2": [Infinity, 20]}}',
+            "not json at all",
+        ):
+            r = c.post("/api/measure", content=raw, headers={"content-type": "application/json"})
+            assert r.status_code == 422, raw
+            json.dumps(r.json(), allow_nan=False)  # the error itself is valid JSON
+
+
+def test_token_protects_api(tmp_path):
+    with make_client(tmp_path, token="s3cret") as c:
+        assert c.get("/api/health").status_code == 200  # supervisors need no token
+        r = c.get("/api/source")
+        assert r.status_code == 401 and "token" in r.json()["detail"]
+        assert c.get("/api/source", headers={"Authorization": "Bearer wrong"}).status_code == 401
+        assert c.get("/api/source", params={"token": "wrong"}).status_code == 401
+        assert c.get("/api/source", headers={"Authorization": "Bearer s3cret"}).status_code == 200
+        f = c.get("/api/frames/latest", params={"token": "s3cret", "wait": 5})
+        assert f.status_code == 200
+        assert c.get("/").status_code == 200  # the page itself is static
+
+
+def test_restart_keeps_history_and_reopens_frame(tmp_path):
+    with make_client(tmp_path) as c:
+        f = latest(c)
+        first = measure(c, f["id"], (30, 40), (290, 200), method="basic").json()
+        second = measure(c, f["id"], (30, 40), (130, 40), method="basic").json()
+        gone = measure(c, f["id"], (20, 5), (100, 5), method="basic").json()
+        assert c.delete(f"/api/measurements/{gone['id']}").status_code == 200
+        assert c.delete(f"/api/measurements/{gone['id']}").status_code == 404
+    with make_client(tmp_path) as c:  # a new app on the same database
+        listed = c.get("/api/measurements").json()
+        assert [m["id"] for m in listed] == [second["id"], first["id"]]
+        assert listed[1]["distance_m"] == pytest.approx(first["distance_m"])
+        assert listed[1]["p2"] == [290, 200]
+        opened = c.post(f"/api/measurements/{first['id']}/open").json()
+        fid = opened["frame"]["id"]
+        assert opened["frame"]["frozen"] and opened["measurement"]["id"] == first["id"]
+        again = measure(c, fid, (30, 40), (290, 200), method="basic").json()
+        assert again["distance_m"] == pytest.approx(first["distance_m"], rel=1e-9)
+        rows = list(csv.DictReader(io.StringIO(c.get("/api/measurements.csv").text)))
+        assert [int(r["id"]) for r in rows] == [first["id"], second["id"], again["id"]]
+        assert float(rows[0]["distance_m"]) == pytest.approx(first["distance_m"])
+        assert c.get("/api/measurements", params={"format": "csv"}).text == c.get("/api/measurements.csv").text
+    # the deleted measurement's frame is shared with kept ones, so it stays; one file per frame
+    assert len(list((tmp_path / "h-frames").glob("*.npz"))) == 1
+
+
+def test_disconnecting_source_is_reported_and_retried(tmp_path):
+    state = {"refuse": 0}
+    seen: set[str] = set()
+
+    def factory():
+        return PlaneSource(fail_after=3, state=state)
+
+    with make_client(tmp_path, factory=factory, reconnect_initial_s=0.05) as c:
+        deadline = time.monotonic() + 10
+        while time.monotonic() < deadline and not {"disconnected", "streaming"} <= seen:
+            s = c.get("/api/source").json()
+            seen.add(s["state"])
+            if s["state"] == "disconnected":
+                assert "cable pulled" in s["message"]
+            time.sleep(0.005)
+        assert {"disconnected", "streaming"} <= seen
+        state["refuse"] = 3  # the next reopenings fail too: still no crash, message says so
+        deadline = time.monotonic() + 10
+        while time.monotonic() < deadline:
+            s = c.get("/api/source").json()
+            if "unplugged" in s["message"]:
+                break
+            time.sleep(0.005)
+        assert "unplugged" in s["message"] and s["state"] in ("disconnected", "reconnecting")
+        start = c.get("/api/source").json()["retries"]
+        latest(c, after=latest(c)["id"])  # frames flow again after the retries
+        assert c.get("/api/source").json()["retries"] >= start
+        assert c.get("/api/health").json()["status"] == "ok"
+
+
+def test_source_that_never_opens_keeps_service_up(tmp_path):
+    with TestClient(create_app("nosuchkind:x", db_path=tmp_path / "x.db", reconnect_initial_s=0.02)) as c:
+        deadline = time.monotonic() + 5
+        while c.get("/api/source").json()["retries"] < 2 and time.monotonic() < deadline:
+            time.sleep(0.01)
+        s = c.get("/api/source").json()
+        assert s["state"] in ("disconnected", "reconnecting") and "unknown source kind" in s["message"]
+        r = c.get("/api/frames/latest")
+        assert r.status_code == 503 and "nosuchkind" in r.json()["detail"]
+        assert c.get("/api/health").status_code == 200
+
+
+def test_concurrent_measurements_no_errors(tmp_path):
+    """Quick version of bench/bench_service_load.py: 80 measurements from 8 clients on a live stream."""
+    with make_client(tmp_path, capture_fps=30.0) as c:
+        latest(c)  # the stream is up
+        rng = np.random.default_rng(0)
+        errors: list[str] = []
+        lock = threading.Lock()
+
+        def one(i: int) -> float:
+            fid = c.get("/api/frames/latest").json()["id"]
+            c.post(f"/api/frames/{fid}/freeze")
+            p1 = (float(rng.uniform(10, 150)), float(rng.uniform(10, 230)))
+            p2 = (float(rng.uniform(170, 310)), float(rng.uniform(10, 230)))
+            r = measure(c, fid, p1, p2, method="basic")
+            if r.status_code != 200:
+                with lock:
+                    errors.append(r.text)
+                return float("nan")
+            return abs(r.json()["distance_m"] - true_length(p1, p2))
+
+        with ThreadPoolExecutor(8) as pool:
+            diffs = list(pool.map(one, range(80)))
+        assert errors == []
+        assert max(diffs) < 1e-6
+        assert len(c.get("/api/measurements").json()) == 80
+
+
+def test_recording_start_stop(tmp_path):
+    from device.recording import open_recording
+
+    with make_client(tmp_path, capture_fps=50.0) as c:
+        latest(c)
+        out = tmp_path / "rec"
+        r = c.post("/api/recordings", json={"action": "start", "out": str(out)})
+        assert r.status_code == 200 and r.json()["active"], r.text
+        assert c.post("/api/recordings", json={"action": "start"}).status_code == 409
+        deadline = time.monotonic() + 10
+        while c.get("/api/recordings").json()["frames"] < 5 and time.monotonic() < deadline:
+            time.sleep(0.02)
+        stopped = c.post("/api/recordings", json={"action": "stop"}).json()
+        assert not stopped["active"] and stopped["frames"] >= 5 and stopped["error"] == ""
+        assert c.post("/api/recordings", json={"action": "stop"}).status_code == 409
+        assert c.post("/api/recordings", json={"action": "pause"}).status_code == 422
+        rec = open_recording(out)
+        assert len(rec) == stopped["frames"]
+        f = rec.frame(len(rec) - 1)
+        assert f.meta["source"] == "plane"
+        np.testing.assert_array_equal(f.image, plane_frame(f.meta["index"]).image)
+        np.testing.assert_allclose(f.disparity[8:, 8:], DISP)
+
+
+def test_ring_evicts_oldest_live_and_bounds_frozen():
+    from service.frames import FrameGone, FrameRing, FrameUnknown
+
+    ring = FrameRing(capacity=3, max_frozen=2)
+    ids = [ring.push(plane_frame(i)).id for i in range(3)]
+    ring.freeze(ids[0])
+    for i in range(5):
+        ring.push(plane_frame(10 + i))
+    assert ring.get(ids[0]).frozen  # frozen outlives 5 newer frames in a ring of 3
+    with pytest.raises(FrameGone, match="evicted"):
+        ring.get(ids[1])
+    with pytest.raises(FrameUnknown):
+        ring.get(999)
+    a, b = ring.push(plane_frame(20), frozen=True).id, ring.push(plane_frame(21), frozen=True).id
+    assert ring.frozen_ids == [a, b]  # the third frozen frame released the oldest one
+    assert len(ring) == 2 + 3

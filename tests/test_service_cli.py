@@ -1,0 +1,103 @@
+"""`depthruler measure` headless on a recording, and `serve`'s source resolution."""
+
+from __future__ import annotations
+
+import json
+from dataclasses import replace
+
+import numpy as np
+import pytest
+from typer.testing import CliRunner
+
+from device import SourceInfo
+from device.recording import RecordingWriter
+from service.cli import app
+from test_service import DISP, H, W, plane_frame, true_length
+
+
+@pytest.fixture
+def recording(tmp_path):
+    """Three frames of a wall at 2, 1 and 0.667 m (disparity 15, 30, 45 px)."""
+    out = tmp_path / "rec"
+    with RecordingWriter(out, SourceInfo(kind="plane", name="Fake plane", width=W, height=H, fps=30.0)) as rec:
+        for i in range(3):
+            f = plane_frame(i)
+            rec.write(replace(f, disparity=np.full((H, W), DISP * (i + 1), np.float32)))
+    return out
+
+
+def test_measure_on_named_frame_of_recording(recording):
+    p1, p2 = (40.0, 30.0), (280.0, 200.0)
+    runner = CliRunner()
+    for n in (0, 2):
+        result = runner.invoke(
+            app, ["measure", f"replay:{recording}", "--p1", "40,30", "--p2", "280,200", "--frame", str(n), "--method", "basic", "--json"]
+        )
+        assert result.exit_code == 0, result.output
+        out = json.loads(result.stdout)
+        assert out["frame"] == n and out["method"] == "basic"
+        assert out["distance_m"] == pytest.approx(true_length(p1, p2) / (n + 1), rel=1e-3)  # 1/64 px disparity steps
+    text = runner.invoke(app, ["measure", f"replay:{recording}", "--p1", "40,30", "--p2", "280,200", "--method", "basic"])
+    assert text.exit_code == 0 and "distance " in text.stdout and "method basic" in text.stdout
+    assert f"distance {true_length(p1, p2):.4f} m" in text.stdout
+
+
+@pytest.mark.parametrize(
+    "args, fragment, code",
+    [
+        (["--p1", "40;30", "--p2", "280,200"], "X,Y", 2),
+        (["--p1", "nan,30", "--p2", "280,200"], "finite", 2),
+        (["--p1", "40,30", "--p2", "900,200"], "outside", 1),
+        (["--p1", "40,30", "--p2", "280,200", "--method", "magic"], "method", 2),
+        (["--p1", "40,30", "--p2", "280,200", "--frame", "7"], "frame 7", 1),
+    ],
+)
+def test_measure_bad_input(recording, args, fragment, code):
+    result = CliRunner().invoke(app, ["measure", f"replay:{recording}", *args])
+    assert result.exit_code == code, result.output
+    assert fragment in result.output
+
+
+def test_measure_unknown_source():
+    result = CliRunner().invoke(app, ["measure", "kinect:0", "--p1", "1,1", "--p2", "5,5"])
+    assert result.exit_code == 1 and "unknown source kind" in result.output
+
+
+def test_auto_source_falls_back_to_simulator(monkeypatch):
+    import device
+
+    from service import cli_serve
+
+    monkeypatch.setattr(device, "list_devices", lambda: [SourceInfo(kind="v4l2", name="webcam")])
+    assert cli_serve.auto_source() == "sim"
+    monkeypatch.setattr(device, "list_devices", lambda: [SourceInfo(kind="oak", name="OAK-D", extra={"spec": "oak:18443"})])
+    assert cli_serve.auto_source() == "oak:18443"
+
+    def broken():
+        raise RuntimeError("libusb missing")
+
+    monkeypatch.setattr(device, "list_devices", broken)
+    assert cli_serve.auto_source() == "sim"
+
+
+def test_serve_flags_override_config(tmp_path, monkeypatch):
+    import uvicorn
+    from fastapi.testclient import TestClient
+
+    calls = {}
+    monkeypatch.setattr(uvicorn, "run", lambda app, **kw: calls.update(app=app, **kw))
+    monkeypatch.setenv("DEPTHRULER_TOKEN", "tok")
+    cfg = tmp_path / "c.toml"
+    cfg.write_text(f'[server]\nport = 9100\ndb = "{tmp_path / "cfg.db"}"\n[source]\nkind = "replay"\npath = "/nowhere"\n')
+    result = CliRunner().invoke(
+        app, ["serve", "--config", str(cfg), "--host", "0.0.0.0", "--port", "9200", "--source", "kinect:0"]
+    )
+    assert result.exit_code == 0, result.output
+    assert calls["host"] == "0.0.0.0" and calls["port"] == 9200
+    assert "source kinect:0" in result.output  # --source beats the file's [source]
+    assert (tmp_path / "cfg.db").exists()  # the file's db, not overridden
+    with TestClient(calls["app"]) as c:
+        assert c.get("/api/source").status_code == 401
+        assert c.get("/api/source", headers={"Authorization": "Bearer tok"}).json()["spec"] == "kinect:0"
+    result = CliRunner().invoke(app, ["serve", "--source", "sim", "--host", "0.0.0.0", "--token", "", "--db", str(tmp_path / "o.db")])
+    assert "without a token" in result.output
