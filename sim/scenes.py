@@ -1,0 +1,327 @@
+"""Analytic scenes of the simulated rig, ray-cast from the reference camera, with their measurable targets.
+
+World frame: floor at Y = 0, Y down (heights are negative Y), Z away from the camera, metres. The
+reference camera stands at ``CAMERA_HEIGHT_M`` above the floor directly over the world origin and is
+pitched so that the measured target sits in the middle of the image. Distances are those of the
+target's front surface from the camera, along Z (the paper's 2, 4, 6 and 7 m, or anything between).
+
+A :class:`View` caches one ray-cast (depth, object ids) and the colour renders of every lighting
+preset per (scene, pose, image size), so a new frame only costs the sensor noise.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from functools import lru_cache
+
+import numpy as np
+
+from measure import PinholeCamera
+
+from .raycast import Box, Capsule, Pose, Primitive, Rect, Surface, cast
+from .textures import LIGHTING, albedo, pattern
+from .truth import Truth
+
+CAMERA_HEIGHT_M = 1.4
+REFERENCE_FX_AT_1280 = 1000.0  # focal length (px) of the reference camera at 1280 px long side: 65 deg HFOV
+
+SCENES: tuple[str, ...] = ("poster", "person", "doorway", "boxes", "table")
+TARGETS: dict[str, tuple[str, ...]] = {  # the first one is the scene's default target
+    "poster": ("poster-width", "poster-length"),
+    "person": ("person-height",),
+    "doorway": ("doorway",),
+    "boxes": ("box-gap", "box-width"),
+    "table": ("table-width",),
+}
+
+
+class SceneError(ValueError):
+    """A scene cannot be built or viewed as asked; the message says which parameter to change."""
+
+
+@dataclass(frozen=True)
+class SceneParams:
+    """What to build: scene name, target distance (m), yaw of the target about the vertical (deg),
+    in-plane roll of the poster (deg), image size (px) and the texture seed."""
+
+    scene: str = "poster"
+    distance_m: float = 4.0
+    yaw_deg: float = 0.0
+    roll_deg: float = 0.0
+    width: int = 1280
+    height: int = 720
+    texture_seed: int = 0
+
+    def __post_init__(self) -> None:
+        if self.scene not in SCENES:
+            raise SceneError(f"unknown scene {self.scene!r}; use one of {', '.join(SCENES)}")
+        if not (0.8 <= self.distance_m <= 20.0):
+            raise SceneError(f"distance_m={self.distance_m} is out of range; use 0.8 to 20 m (the paper: 2, 4, 6, 7)")
+        if not (-60.0 <= self.yaw_deg <= 60.0):
+            raise SceneError(f"yaw_deg={self.yaw_deg} is out of range; use -60 to 60 degrees")
+        if not (16 <= self.width <= 4096 and 16 <= self.height <= 4096):
+            raise SceneError(f"image size {self.width}x{self.height} is out of range; use 16..4096 px per side")
+
+
+@dataclass(frozen=True)
+class TargetSpec:
+    """A measurable length: true world end points, the object(s) each end lies on, and whether it is a gap."""
+
+    name: str
+    e1: tuple[float, float, float]
+    e2: tuple[float, float, float]
+    objs1: tuple[str, ...]
+    objs2: tuple[str, ...]
+    is_gap: bool
+
+
+@dataclass(frozen=True)
+class SceneSpec:
+    prims: tuple[Primitive, ...]
+    targets: dict[str, TargetSpec]
+    aim_height_m: float
+
+
+def reference_camera(width: int, height: int) -> PinholeCamera:
+    """The reference (colour) camera: square pixels, fx = 1000 px at a 1280 px long side, centred."""
+    f = REFERENCE_FX_AT_1280 * max(width, height) / 1280.0
+    return PinholeCamera(fx=f, fy=f, cx=(width - 1) / 2.0, cy=(height - 1) / 2.0, width=width, height=height)
+
+
+class _Placer:
+    """Maps a target's local coordinates (x right, h up, z back) into the world: yaw about the vertical
+    axis through (0, *, distance)."""
+
+    def __init__(self, distance: float, yaw_deg: float) -> None:
+        self.d = distance
+        s, c = math.sin(math.radians(yaw_deg)), math.cos(math.radians(yaw_deg))
+        self.lx = np.array([c, 0.0, -s])
+        self.lz = np.array([s, 0.0, c])
+        self.yaw = math.radians(yaw_deg)
+
+    def __call__(self, x: float, h: float, z: float = 0.0) -> tuple[float, float, float]:
+        p = np.array([0.0, -h, self.d]) + x * self.lx + z * self.lz
+        return (float(p[0]), float(p[1]), float(p[2]))
+
+    def vec(self, v: np.ndarray) -> tuple[float, float, float]:
+        return tuple(float(a) for a in v)  # type: ignore[return-value]
+
+
+def _floor() -> Rect:
+    return Rect((0.0, 0.0, 0.0), (1.0, 0.0, 0.0), (0.0, 0.0, 1.0), (40.0, 40.0), "wood", "floor")
+
+
+def _wall(place: _Placer, z: float, material: str = "paint", obj: str = "wall", half_width: float = 10.0) -> Rect:
+    down = np.array([0.0, 1.0, 0.0])
+    return Rect(place(0.0, 2.5, z), place.vec(place.lx), place.vec(down), (half_width, 2.5), material, obj)
+
+
+def _poster(p: SceneParams) -> SceneSpec:
+    w, l = 0.594, 0.841  # A1 portrait
+    place = _Placer(p.distance_m, p.yaw_deg)
+    ly = np.array([0.0, 1.0, 0.0])
+    r = math.radians(p.roll_deg)
+    u = math.cos(r) * place.lx + math.sin(r) * ly
+    v = -math.sin(r) * place.lx + math.cos(r) * ly
+    centre = np.array(place(0.0, CAMERA_HEIGHT_M)) - 0.002 * place.lz  # 2 mm proud of the wall
+    poster = Rect(place.vec(centre), place.vec(u), place.vec(v), (w / 2, l / 2), "poster", "poster")
+    c = centre
+    targets = {
+        "poster-width": TargetSpec("poster-width", place.vec(c - w / 2 * u), place.vec(c + w / 2 * u), ("poster",), ("poster",), False),
+        "poster-length": TargetSpec("poster-length", place.vec(c - l / 2 * v), place.vec(c + l / 2 * v), ("poster",), ("poster",), False),
+    }
+    return SceneSpec((_floor(), _wall(place, 0.0), poster), targets, CAMERA_HEIGHT_M)
+
+
+def _person(p: SceneParams, height_m: float = 1.75) -> SceneSpec:
+    place = _Placer(p.distance_m, p.yaw_deg)
+    s = height_m / 1.75
+    cap = lambda x0, h0, x1, h1, r, mat: Capsule(place(x0 * s, h0 * s), place(x1 * s, h1 * s), r * s, mat, "person")  # noqa: E731
+    prims: list[Primitive] = [
+        _floor(),
+        _wall(_Placer(p.distance_m, 0.0), 1.0),
+        cap(-0.10, 0.075, -0.10, 0.85, 0.075, "jeans"),
+        cap(0.10, 0.075, 0.10, 0.85, 0.075, "jeans"),
+        Box(place(0.0, 1.15 * s), (0.19 * s, 0.30 * s, 0.11 * s), "shirt", "person", yaw_rad=place.yaw),
+        cap(-0.25, 1.40, -0.30, 0.85, 0.05, "shirt"),
+        cap(0.25, 1.40, 0.30, 0.85, 0.05, "shirt"),
+        cap(0.0, 1.45, 0.0, 1.55, 0.05, "skin"),
+        cap(0.0, 1.64, 0.0, 1.64, 0.11, "skin"),
+    ]
+    for x in (-0.10, 0.10):  # shoes: their front bottom edges stand on the floor, where people click
+        prims.append(Box(place(x * s, 0.035 * s, -0.06 * s), (0.05 * s, 0.035 * s, 0.13 * s), "shoe", "person", yaw_rad=place.yaw))
+    targets = {
+        "person-height": TargetSpec(
+            "person-height", place(0.0, height_m), place(-0.10 * s, 0.0, -0.19 * s), ("person",), ("person",), False
+        )
+    }
+    return SceneSpec(tuple(prims), targets, height_m / 2)
+
+
+def _doorway(p: SceneParams, width_m: float = 0.9, height_m: float = 2.05) -> SceneSpec:
+    place = _Placer(p.distance_m, p.yaw_deg)
+    down = place.vec(np.array([0.0, 1.0, 0.0]))
+    lx = place.vec(place.lx)
+    half = width_m / 2
+    prims = (
+        _floor(),
+        Rect(place(-(half + 4.0), 2.5), lx, down, (4.0, 2.5), "paint", "wall"),
+        Rect(place(half + 4.0, 2.5), lx, down, (4.0, 2.5), "paint", "wall"),
+        Rect(place(0.0, (height_m + 5.0) / 2), lx, down, (half, (5.0 - height_m) / 2), "paint", "wall"),
+        _wall(place, 3.0, "wallpaper", "back-wall", 12.0),
+    )
+    targets = {"doorway": TargetSpec("doorway", place(-half, 1.2), place(half, 1.2), ("wall",), ("wall",), True)}
+    return SceneSpec(prims, targets, 1.2)
+
+
+def _boxes(p: SceneParams, size=(0.5, 0.6, 0.4), gap_m: float = 0.6) -> SceneSpec:
+    place = _Placer(p.distance_m, p.yaw_deg)
+    w, h, d = size
+    off = gap_m / 2 + w / 2
+    prims = (
+        _floor(),
+        _wall(_Placer(p.distance_m, 0.0), 2.0),
+        Box(place(-off, h / 2, d / 2), (w / 2, h / 2, d / 2), "cardboard", "box-left", yaw_rad=place.yaw),
+        Box(place(off, h / 2, d / 2), (w / 2, h / 2, d / 2), "cardboard", "box-right", yaw_rad=place.yaw),
+    )
+    g = gap_m / 2
+    targets = {
+        "box-gap": TargetSpec("box-gap", place(-g, h / 2), place(g, h / 2), ("box-left",), ("box-right",), True),
+        "box-width": TargetSpec("box-width", place(-g - w, h / 2), place(-g, h / 2), ("box-left",), ("box-left",), False),
+    }
+    return SceneSpec(prims, targets, h / 2)
+
+
+def _table(p: SceneParams, top=(1.2, 0.75), height_m: float = 0.75, thickness_m: float = 0.04) -> SceneSpec:
+    place = _Placer(p.distance_m, p.yaw_deg)
+    tw, td = top
+    leg_h = height_m - thickness_m
+    prims: list[Primitive] = [
+        _floor(),
+        _wall(_Placer(p.distance_m, 0.0), 1.5),
+        Box(place(0.0, height_m - thickness_m / 2, td / 2), (tw / 2, thickness_m / 2, td / 2), "wood", "table", yaw_rad=place.yaw),
+    ]
+    for x in (-(tw / 2 - 0.05), tw / 2 - 0.05):
+        for z in (0.05, td - 0.05):
+            prims.append(Box(place(x, leg_h / 2, z), (0.025, leg_h / 2, 0.025), "wood", "table", yaw_rad=place.yaw))
+    hm = height_m - thickness_m / 2
+    targets = {"table-width": TargetSpec("table-width", place(-tw / 2, hm), place(tw / 2, hm), ("table",), ("table",), False)}
+    return SceneSpec(tuple(prims), targets, height_m)
+
+
+_BUILDERS = {"poster": _poster, "person": _person, "doorway": _doorway, "boxes": _boxes, "table": _table}
+
+
+def build_scene(params: SceneParams) -> SceneSpec:
+    """The primitives and targets of a scene (world frame, metres)."""
+    return _BUILDERS[params.scene](params)
+
+
+def resolve_target(scene: str, target: str | None) -> str:
+    """The full target name for ``scene`` ("width" or "poster-width" both work); None = the default."""
+    allowed = TARGETS[scene]
+    if target is None or target == "":
+        return allowed[0]
+    for name in allowed:
+        if target in (name, name.split("-", 1)[-1]):
+            return name
+    raise SceneError(f"scene {scene!r} has no target {target!r}; use one of {', '.join(allowed)}")
+
+
+@dataclass(frozen=True, eq=False)  # hashed by identity: views are cached and hold arrays
+class View:
+    """One ray-cast of a scene: camera, pose, depth (m, NaN = nothing hit), object ids, colour renders."""
+
+    params: SceneParams
+    camera: PinholeCamera
+    pose: Pose
+    depth: np.ndarray  # H x W float64, read-only
+    obj: np.ndarray  # H x W int16 index into objects, -1 = nothing
+    objects: tuple[str, ...]
+    renders: dict[str, np.ndarray]  # lighting -> H x W x 3 uint8 BGR, read-only
+    spec: SceneSpec
+
+    def truth(self, target: str | None = None) -> Truth:
+        """Ground truth of ``target``: the surface points at the pixel centres nearest to the true end
+        points that lie on the target's object (inward for objects, outward for gaps)."""
+        name = resolve_target(self.params.scene, target)
+        t = self.spec.targets[name]
+        e = self.pose.project(self.camera, np.array([t.e1, t.e2]))
+        if not np.all(np.isfinite(e)):
+            raise SceneError(f"target {name} is behind the camera; increase distance_m")
+        direction = (e[1] - e[0]) / max(float(np.linalg.norm(e[1] - e[0])), 1e-9)
+        sign = -1.0 if t.is_gap else 1.0
+        px1 = self._end_pixel(e[0], sign * direction, t.objs1, name)
+        px2 = self._end_pixel(e[1], -sign * direction, t.objs2, name)
+        p1, p2 = self._camera_point(px1), self._camera_point(px2)
+        return Truth(
+            depth_m=self.depth,
+            p1_m=tuple(map(float, p1)),
+            p2_m=tuple(map(float, p2)),
+            p1_px=(float(px1[0]), float(px1[1])),
+            p2_px=(float(px2[0]), float(px2[1])),
+            length_m=float(np.linalg.norm(p1 - p2)),
+            target=name,
+            is_gap=t.is_gap,
+        )
+
+    def _end_pixel(self, start: np.ndarray, step: np.ndarray, objs: tuple[str, ...], name: str) -> tuple[int, int]:
+        ids = [self.objects.index(o) for o in objs if o in self.objects]
+        h, w = self.depth.shape
+        margin = 2
+        for k in range(0, 120):
+            x, y = np.rint(start + 0.5 * k * step).astype(int)
+            if margin <= x < w - margin and margin <= y < h - margin and self.obj[y, x] in ids:
+                return int(x), int(y)
+        raise SceneError(
+            f"target {name} of scene {self.params.scene!r} is not fully visible in a {w}x{h} image at "
+            f"{self.params.distance_m} m; move further away (larger distance) or use a portrait image "
+            f"(width={min(w, h)}, height={max(w, h)})"
+        )
+
+    def _camera_point(self, px: tuple[int, int]) -> np.ndarray:
+        # From the world hit point, independently of the depth map: tests then check the two agree.
+        x, y = px
+        cam = self.camera
+        ray = self.pose.R @ np.array([(x - cam.cx) / cam.fx, (y - cam.cy) / cam.fy, 1.0])
+        world = self.pose.C + self.depth[y, x] * ray
+        return self.pose.to_camera(world)
+
+
+def _shade(surfaces: tuple[Surface, ...], patterns: list[np.ndarray], shape: tuple[int, int], lighting: str) -> np.ndarray:
+    """Lambert shading of the visible textured surfaces."""
+    light = LIGHTING[lighting]
+    h, w = shape
+    img = np.empty((h * w, 3), np.float32)
+    img[:] = np.array([0.95, 0.85, 0.75], np.float32)  # what lies beyond every surface: a pale sky
+    to_light = -np.asarray(light.light_dir, np.float64)
+    to_light /= np.linalg.norm(to_light)
+    gain = light.exposure * np.asarray(light.tint, np.float32)
+    for surf, pat in zip(surfaces, patterns):
+        alb = albedo(surf.prim.material, pat, light.contrast)
+        lambert = np.maximum(surf.normals @ to_light, 0.0).astype(np.float32)  # one value for a plane
+        img[surf.index] = alb * (light.ambient + light.diffuse * lambert)[..., None] * gain
+    return (np.clip(img, 0, 1) * 255.0 + 0.5).astype(np.uint8).reshape(h, w, 3)
+
+
+@lru_cache(maxsize=32)  # ~18 MB each at 1280x720
+def get_view(params: SceneParams, shift_m: float = 0.0) -> View:
+    """The cached ray-cast of ``params`` from the reference camera, or from a camera ``shift_m`` metres to
+    its right (same orientation: a rectified stereo partner)."""
+    spec = build_scene(params)
+    camera = reference_camera(params.width, params.height)
+    pitch = math.atan2(CAMERA_HEIGHT_M - spec.aim_height_m, params.distance_m)
+    pose = Pose.looking((0.0, -CAMERA_HEIGHT_M, 0.0), pitch)
+    if shift_m:
+        pose = pose.shifted(shift_m)
+    hits = cast(spec.prims, camera, pose)
+    depth = np.where(np.isfinite(hits.depth), hits.depth, np.nan)
+    objects = tuple(dict.fromkeys(p.obj for p in spec.prims))
+    lut = np.array([objects.index(p.obj) for p in spec.prims] + [-1], np.int16)
+    obj = lut[hits.prim]  # prim == -1 picks the trailing -1
+    patterns = [pattern(s.prim.material, s.uv, seed=params.texture_seed) for s in hits.surfaces]
+    renders = {name: _shade(hits.surfaces, patterns, depth.shape, name) for name in LIGHTING}
+    for a in (depth, obj, *renders.values()):
+        a.setflags(write=False)
+    return View(params, camera, pose, depth, obj, objects, renders, spec)

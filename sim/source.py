@@ -1,0 +1,191 @@
+"""The simulated rig as a Source: ``open_source("sim:poster?distance=6&lighting=outdoor&seed=3")``.
+
+Spec keys: distance (m), lighting, contention, quantization, seed, fps (0 = as fast as read),
+width, height, target, yaw (deg), roll (deg), mode ("model": the sensor model; "stereo": rendered
+left/right images through OpenCV SGBM), and any SensorModel field by name (e.g. noise_px=0.3).
+The scene names the spec target: "sim" alone is a poster at 4 m under indoor light.
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass, field, fields, replace
+
+import numpy as np
+
+from device.base import SourceBase, SourceInfo, SourceSpec
+from device.errors import SourceError, SourceNotFound, SourceTimeout
+from measure import Frame
+
+from .scenario import make_model, simulate_frame
+from .scenes import SCENES, SceneError, SceneParams, get_view, resolve_target
+from .sensor import SensorError, SensorModel
+from .textures import LIGHTING
+
+MODES = ("model", "stereo")
+
+
+@dataclass(frozen=True)
+class SimConfig:
+    """What the simulated source shows and how fast (see the module docstring for the spec keys)."""
+
+    scene: str = "poster"
+    target: str | None = None
+    distance_m: float = 4.0
+    lighting: str = "indoor"
+    contention: float = 0.5
+    quantization: float = 0.25
+    seed: int = 0
+    fps: float = 10.0
+    width: int = 1280
+    height: int = 720
+    yaw_deg: float = 0.0
+    roll_deg: float = 0.0
+    mode: str = "model"
+    sensor: tuple[tuple[str, object], ...] = field(default_factory=tuple)  # extra SensorModel overrides
+
+    def __post_init__(self) -> None:
+        if self.scene not in SCENES:
+            raise SourceNotFound(f"unknown sim scene {self.scene!r}; use one of {', '.join(SCENES)} (e.g. 'sim:person')")
+        if self.mode not in MODES:
+            raise SourceError(f"sim mode={self.mode!r} is unknown; use one of {', '.join(MODES)}")
+        if self.fps < 0:
+            raise SourceError(f"sim fps={self.fps} must be >= 0 (0 = as fast as frames are read)")
+
+    def scene_params(self) -> SceneParams:
+        return SceneParams(self.scene, self.distance_m, self.yaw_deg, self.roll_deg, self.width, self.height)
+
+    def sensor_model(self) -> SensorModel:
+        return make_model(self.lighting, contention=self.contention, quantization=self.quantization, **dict(self.sensor))
+
+
+_KEYS = {  # spec key -> (SimConfig field, parser)
+    "distance": ("distance_m", float),
+    "lighting": ("lighting", str),
+    "contention": ("contention", float),
+    "quantization": ("quantization", float),
+    "seed": ("seed", int),
+    "fps": ("fps", float),
+    "width": ("width", int),
+    "height": ("height", int),
+    "target": ("target", str),
+    "yaw": ("yaw_deg", float),
+    "roll": ("roll_deg", float),
+    "mode": ("mode", str),
+}
+
+
+def _parse_bool(text: str) -> bool:
+    if text.lower() in ("1", "true", "yes", "on"):
+        return True
+    if text.lower() in ("0", "false", "no", "off"):
+        return False
+    raise ValueError(f"{text!r} is not a boolean (use 1/0, true/false)")
+
+
+def _sensor_parsers() -> dict[str, object]:
+    out: dict[str, object] = {}
+    for f in fields(SensorModel):
+        kind = str(f.type)
+        out[f.name] = _parse_bool if kind == "bool" else int if kind == "int" else str if kind == "str" else float
+    return out
+
+
+def config_from_spec(spec: SourceSpec) -> SimConfig:
+    """Parse ``sim[:scene][?key=value...]``; bad keys or values raise SourceError naming the allowed ones."""
+    sensor_parsers = _sensor_parsers()
+    kwargs: dict[str, object] = {"scene": spec.target or "poster"}
+    sensor: dict[str, object] = {}
+    for key, text in spec.params.items():
+        if key in _KEYS:
+            name, parse = _KEYS[key]
+            store, parse_fn = kwargs, parse
+        elif key in sensor_parsers and key not in ("lighting", "contention", "quantization"):
+            name, store, parse_fn = key, sensor, sensor_parsers[key]
+        else:
+            allowed = sorted(set(_KEYS) | (set(sensor_parsers) - {"lighting", "contention", "quantization"}))
+            raise SourceError(f"unknown sim option {key!r} in {str(spec)!r}; use any of: {', '.join(allowed)}")
+        try:
+            store[name] = parse_fn(text)  # type: ignore[operator]
+        except ValueError as exc:
+            raise SourceError(f"sim option {key}={text!r} is not valid: {exc}") from exc
+    lighting = kwargs.get("lighting", "indoor")
+    if lighting not in LIGHTING:
+        raise SourceError(f"sim lighting={lighting!r} is unknown; use one of {', '.join(LIGHTING)}")
+    config = SimConfig(**kwargs, sensor=tuple(sorted(sensor.items())))  # type: ignore[arg-type]
+    try:  # fail at parse time, not at the first read
+        config.scene_params()
+        resolve_target(config.scene, config.target)
+        config.sensor_model()
+    except (SceneError, SensorError) as exc:
+        raise SourceError(f"sim source {str(spec)!r}: {exc}") from exc
+    return config
+
+
+class SimSource(SourceBase):
+    """Frames of the simulated rig, forever: same scene, fresh sensor noise per frame, paced at ``fps``."""
+
+    def __init__(self, config: SimConfig = SimConfig()) -> None:
+        self.config = config
+        self.model = config.sensor_model()
+        self.info = SourceInfo(
+            kind="sim",
+            name=f"simulated rig: {config.scene} at {config.distance_m:g} m, {config.lighting}",
+            serial=f"sim-{config.scene}-{config.seed}",
+            width=config.width,
+            height=config.height,
+            fps=config.fps,
+            state="closed",
+            extra={"mode": config.mode, "baseline_m": self.model.baseline_wide_m},
+        )
+        self._index = 0
+        self._t0 = 0.0
+
+    def open(self) -> None:
+        try:
+            view = get_view(self.config.scene_params())
+            view.truth(self.config.target)
+        except SceneError as exc:
+            raise SourceError(f"sim source cannot show this scene: {exc}") from exc
+        self._index = 0
+        self._t0 = time.monotonic()
+        self.info = _with_state(self.info, "streaming")
+        super().open()
+
+    def close(self) -> None:
+        self.info = _with_state(self.info, "closed")
+        super().close()
+
+    def read(self, timeout_s: float = 1.0) -> Frame:
+        if not self.is_open:
+            raise SourceError("the sim source is not open; call open() or use it as a context manager")
+        cfg = self.config
+        if cfg.fps > 0:
+            due = self._t0 + self._index / cfg.fps
+            wait = due - time.monotonic()
+            if wait > timeout_s:
+                time.sleep(max(timeout_s, 0.0))
+                raise SourceTimeout(f"next sim frame is due in {wait:.3f} s, after the {timeout_s} s timeout; "
+                                    "read with a longer timeout or a higher fps")
+            if wait > 0:
+                time.sleep(wait)
+        i = self._index
+        self._index += 1
+        rng = np.random.default_rng([cfg.seed, i])
+        meta = {"frame_index": i, "seed": cfg.seed, "mode": cfg.mode}
+        if cfg.mode == "stereo":
+            from .stereo import stereo_frame
+
+            frame, _ = stereo_frame(cfg.scene_params(), self.model, rng, target=cfg.target, meta=meta)
+        else:
+            frame, _ = simulate_frame(cfg.scene_params(), self.model, rng, target=cfg.target, meta=meta)
+        return frame
+
+
+def _with_state(info: SourceInfo, state: str) -> SourceInfo:
+    return replace(info, state=state)
+
+
+def from_spec(spec: SourceSpec) -> SimSource:
+    """The (unopened) sim source a spec names, e.g. ``sim:doorway?distance=6&lighting=mixed``."""
+    return SimSource(config_from_spec(spec))
