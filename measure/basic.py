@@ -1,0 +1,44 @@
+"""The paper's "Basic" baseline: window-median disparity at each end point, Eq. 2, |P1 - P2|."""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+from .sampling import backproject, window_disparities
+from .types import Frame
+from .uncertainty import disparity_quantum, endpoint_depth_sigma, window_depth_sigma
+
+
+@dataclass(frozen=True)
+class BasicEnds:
+    """End points (m; NaN where the window has no valid disparity) and their distance."""
+
+    p1_m: np.ndarray
+    p2_m: np.ndarray
+    distance_m: float
+    uncertainty_m: float
+    z_sigma: tuple[float, float]  # standard error (m) of each end point's depth
+    click1: tuple[float, float]
+    click2: tuple[float, float]
+
+    @property
+    def ok(self) -> bool:
+        return math.isfinite(self.distance_m)
+
+
+def basic_ends(frame: Frame, xy1: tuple[float, float], xy2: tuple[float, float], window: int) -> BasicEnds:
+    """Median of the valid disparities in a ``window`` x ``window`` box at each click, Eq. 2."""
+    w1 = window_disparities(frame, xy1[0], xy1[1], window)
+    w2 = window_disparities(frame, xy2[0], xy2[1], window)
+    d = np.array([np.median(w1) if w1.size else np.nan, np.median(w2) if w2.size else np.nan])
+    pts = backproject(frame, np.array([xy1[0], xy2[0]]), np.array([xy1[1], xy2[1]]), d)
+    dist = float(np.linalg.norm(pts[0] - pts[1]))
+    q = disparity_quantum(np.concatenate([w1, w2]))
+    fb = frame.camera.fx * frame.baseline_m
+    s1 = window_depth_sigma(w1, float(pts[0, 2]), fb, q)
+    s2 = window_depth_sigma(w2, float(pts[1, 2]), fb, q)
+    sigma = endpoint_depth_sigma(pts[0], pts[1], s1, s2) if math.isfinite(dist) else math.nan
+    return BasicEnds(pts[0], pts[1], dist, sigma, (s1, s2), xy1, xy2)

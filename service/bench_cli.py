@@ -1,0 +1,39 @@
+"""`depthruler bench [NAME]`: run the benchmark scripts in bench/ (each bench_*.py has a main())."""
+
+from __future__ import annotations
+
+import typer
+
+BENCH_DIR_NAME = "bench"
+
+
+def _bench_dir():
+    from pathlib import Path
+
+    return Path(__file__).resolve().parents[1] / BENCH_DIR_NAME
+
+
+def discover() -> dict[str, object]:
+    """Benchmark name (file name without ``bench_`` and ``.py``) -> path, sorted by name."""
+    return {p.stem.removeprefix("bench_"): p for p in sorted(_bench_dir().glob("bench_*.py"))}
+
+
+def bench(name: str = typer.Argument("all", help="benchmark to run (e.g. 'measure'), or 'all'")) -> None:
+    """Run the benchmarks in bench/ and print their results (figures go to bench/RESULTS.md)."""
+    import importlib.util
+
+    found = discover()
+    if not found:
+        raise typer.BadParameter(f"no bench_*.py scripts in {_bench_dir()}")
+    if name != "all" and name not in found:
+        raise typer.BadParameter(f"unknown benchmark {name!r}; choose one of: all, {', '.join(found)}")
+    for key, path in found.items():
+        if name not in ("all", key):
+            continue
+        spec = importlib.util.spec_from_file_location(f"depthruler_bench_{key}", path)
+        module = importlib.util.module_from_spec(spec)
+        spec.loader.exec_module(module)
+        if not hasattr(module, "main"):
+            raise typer.BadParameter(f"{path} has no main(); every bench script needs one")
+        typer.echo(f"## {key} ({path.name})")
+        module.main()

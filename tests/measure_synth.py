@@ -1,0 +1,172 @@
+"""A small synthetic rig for the measurement-core tests (independent of sim/).
+
+A tilted rectangular poster in front of a fronto-parallel wall, seen by a pinhole camera with
+registered disparity: Gaussian disparity noise, quantization, foreground fattening at the
+poster's border, a band of "contention" outliers (the other stereo pair's wrong match) around
+the border, random holes. Ground truth: the poster's edge-to-edge segment in 3D.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from measure import Frame, PinholeCamera
+
+W, H = 960, 540
+FX = 750.0
+BASELINE = 0.1
+
+
+@dataclass(frozen=True)
+class Case:
+    frame: Frame
+    p1_m: np.ndarray
+    p2_m: np.ndarray
+    click1: tuple[float, float]
+    click2: tuple[float, float]
+    true_px1: tuple[float, float]
+    true_px2: tuple[float, float]
+
+    @property
+    def length_m(self) -> float:
+        return float(np.linalg.norm(self.p2_m - self.p1_m))
+
+
+def camera(w: int = W, h: int = H, fx: float = FX) -> PinholeCamera:
+    return PinholeCamera(fx=fx, fy=fx, cx=(w - 1) / 2, cy=(h - 1) / 2, width=w, height=h)
+
+
+def rotation(yaw_deg: float, pitch_deg: float, roll_deg: float = 0.0) -> np.ndarray:
+    y, p, r = np.radians([yaw_deg, pitch_deg, roll_deg])
+    ry = np.array([[np.cos(y), 0, np.sin(y)], [0, 1, 0], [-np.sin(y), 0, np.cos(y)]])
+    rx = np.array([[1, 0, 0], [0, np.cos(p), -np.sin(p)], [0, np.sin(p), np.cos(p)]])
+    rz = np.array([[np.cos(r), -np.sin(r), 0], [np.sin(r), np.cos(r), 0], [0, 0, 1]])
+    return ry @ rx @ rz
+
+
+def project(cam: PinholeCamera, p: np.ndarray) -> tuple[float, float]:
+    return (float(cam.fx * p[0] / p[2] + cam.cx), float(cam.fy * p[1] / p[2] + cam.cy))
+
+
+def poster_depth(cam: PinholeCamera, center: np.ndarray, rot: np.ndarray, half: tuple[float, float], wall_z: float | None):
+    """Per-pixel true depth (m) and a poster mask (NaN depth where nothing is hit)."""
+    xs = (np.arange(cam.width) - cam.cx) / cam.fx
+    ys = (np.arange(cam.height) - cam.cy) / cam.fy
+    rx, ry = np.meshgrid(xs, ys)
+    n = rot[:, 2]
+    t = (n @ center) / (n[0] * rx + n[1] * ry + n[2])
+    px, py, pz = t * rx - center[0], t * ry - center[1], t - center[2]
+    lu = px * rot[0, 0] + py * rot[1, 0] + pz * rot[2, 0]
+    lw = px * rot[0, 1] + py * rot[1, 1] + pz * rot[2, 1]
+    poster = (np.abs(lu) <= half[0]) & (np.abs(lw) <= half[1]) & (t > 0)
+    depth = np.where(poster, t, np.nan if wall_z is None else wall_z)
+    return depth, poster
+
+
+def degrade(
+    depth: np.ndarray,
+    poster: np.ndarray,
+    rng: np.random.Generator,
+    *,
+    fb: float,
+    noise_px: float = 0.15,
+    quantization: float | None = 0.25,
+    contention: float = 0.5,
+    band_px: int = 15,
+    fatten_px: int = 3,
+    holes: float = 0.03,
+) -> np.ndarray:
+    """Disparity (float32 px, NaN = none) of a true depth map, with the sensor's faults."""
+    import cv2
+
+    d = fb / depth
+    background = np.where(poster, np.nan, depth)
+    k = np.ones((2 * band_px + 3, 2 * band_px + 3), np.uint8)
+    fg_disp = cv2.dilate(np.where(poster, d, 0).astype(np.float32), k)
+    bg = np.where(poster, 0, fb / np.where(poster, 1.0, depth)).astype(np.float32)
+    background = fb / np.maximum(cv2.dilate(bg, k), 1e-6)
+    if fatten_px > 0:
+        k = np.ones((2 * fatten_px + 1, 2 * fatten_px + 1), np.uint8)
+        grown = cv2.dilate(poster.astype(np.uint8), k).astype(bool)
+        fg = cv2.dilate(np.where(poster, d, 0).astype(np.float32), k)
+        d = np.where(grown & ~poster, fg, d)
+    d = d + rng.normal(0.0, noise_px, d.shape)
+    if contention > 0 and band_px > 0:
+        k = np.ones((2 * band_px + 1, 2 * band_px + 1), np.uint8)
+        band = cv2.dilate(poster.astype(np.uint8), k).astype(bool) & ~cv2.erode(poster.astype(np.uint8), k).astype(bool)
+        wrong = band & (rng.random(d.shape) < contention)
+        # The other pair's wrong match near a depth edge is the surface on the other side
+        # of the edge (poster <-> wall), as in mixed windows; the rest are gross errors.
+        swap = np.where(poster, fb / (background + 1e-9), fg_disp) + rng.normal(0.0, noise_px, d.shape)
+        gross = d * rng.uniform(0.6, 1.4, d.shape)
+        d = np.where(wrong, np.where(rng.random(d.shape) < 0.5, swap, gross), d)
+    if quantization:
+        d = np.round(d / quantization) * quantization
+    d[rng.random(d.shape) < holes] = np.nan
+    return d.astype(np.float32)
+
+
+def poster_case(
+    distance_m: float,
+    rng: np.random.Generator,
+    *,
+    target: str = "width",
+    yaw_deg: float = 0.0,
+    pitch_deg: float = 0.0,
+    half: tuple[float, float] = (0.5, 0.35),
+    wall_gap_m: float = 2.0,
+    jitter_px: float = 3.0,
+    **degrade_kw,
+) -> Case:
+    """A poster at ``distance_m`` (its centre), measured across its width or height edge to edge."""
+    cam = camera()
+    center = np.array([rng.uniform(-0.1, 0.1) * distance_m, rng.uniform(-0.05, 0.05) * distance_m, distance_m])
+    rot = rotation(yaw_deg, pitch_deg)
+    depth, poster = poster_depth(cam, center, rot, half, distance_m + wall_gap_m)
+    disp = degrade(depth, poster, rng, fb=cam.fx * BASELINE, **degrade_kw)
+    s = rng.uniform(-0.6, 0.6)
+    if target == "width":
+        a, b = np.array([-half[0], s * half[1], 0]), np.array([half[0], s * half[1], 0])
+    else:
+        a, b = np.array([s * half[0], -half[1], 0]), np.array([s * half[0], half[1], 0])
+    p1, p2 = center + rot @ a, center + rot @ b
+    t1, t2 = project(cam, p1), project(cam, p2)
+    j = rng.normal(0.0, jitter_px, 4)
+    c1 = (min(max(t1[0] + j[0], 0), W - 1), min(max(t1[1] + j[1], 0), H - 1))
+    c2 = (min(max(t2[0] + j[2], 0), W - 1), min(max(t2[1] + j[3], 0), H - 1))
+    frame = Frame(image=np.zeros((H, W, 3), np.uint8), disparity=disp, camera=cam, baseline_m=BASELINE)
+    return Case(frame, p1, p2, c1, c2, t1, t2)
+
+
+def accuracy(truth: float, measured: float) -> float:
+    """A = 100 - 100 |g - m| / g (the paper's per-measurement accuracy)."""
+    return 100.0 - 100.0 * abs(truth - measured) / truth
+
+
+# A small camera for plane-only frames (fast to build, used by the unit tests).
+SMALL_W, SMALL_H, SMALL_F, SMALL_B = 320, 240, 300.0, 0.1
+SMALL_CAM = PinholeCamera(SMALL_F, SMALL_F, (SMALL_W - 1) / 2, (SMALL_H - 1) / 2, SMALL_W, SMALL_H)
+
+
+def plane_frame(normal, k, *, quantum=None, noise=0.0, seed=0, outliers=0.0) -> Frame:
+    """Disparity of the plane normal . P = k seen by SMALL_CAM (optionally noisy/quantized/with outliers)."""
+    rng = np.random.default_rng(seed)
+    xs, ys = np.meshgrid((np.arange(SMALL_W) - SMALL_CAM.cx) / SMALL_F, (np.arange(SMALL_H) - SMALL_CAM.cy) / SMALL_F)
+    z = k / (normal[0] * xs + normal[1] * ys + normal[2])
+    d = SMALL_F * SMALL_B / z + rng.normal(0, noise, z.shape) if noise else SMALL_F * SMALL_B / z
+    if outliers:
+        bad = rng.random(d.shape) < outliers
+        d = np.where(bad, d * rng.uniform(0.5, 1.5, d.shape), d)
+    if quantum:
+        d = np.round(d / quantum) * quantum
+    return Frame(np.zeros((SMALL_H, SMALL_W, 3), np.uint8), d.astype(np.float32), SMALL_CAM, SMALL_B)
+
+
+def true_length(frame: Frame, normal, k, p1, p2) -> float:
+    pts = []
+    for x, y in (p1, p2):
+        r = np.array([(x - SMALL_CAM.cx) / SMALL_F, (y - SMALL_CAM.cy) / SMALL_F, 1.0])
+        pts.append(r * k / (np.asarray(normal) @ r))
+    return float(np.linalg.norm(pts[1] - pts[0]))
