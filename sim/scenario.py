@@ -11,7 +11,7 @@ import numpy as np
 
 from measure import Frame
 
-from .scenes import SceneParams, get_view, resolve_target
+from .scenes import BOARD_M, STANDOFFS_M, SceneParams, get_view, resolve_target
 from .sensor import SensorError, SensorModel, sense
 from .textures import LIGHTING
 from .truth import ClickModel, Truth
@@ -85,20 +85,33 @@ def scenario(
     yaw_deg: float = 0.0,
     roll_deg: float = 0.0,
     clicks: ClickModel = ClickModel(),
+    mount: str = "stand",
+    board_m: tuple[float, float] = BOARD_M,
+    standoff_m: float | None = None,
     **sensor_overrides: Any,
 ) -> tuple[Frame, Truth, tuple[tuple[float, float], tuple[float, float]]]:
     """A simulated frame, its ground truth and a person's two clicks near the target's end points.
 
-    The geometry is cached per (scene, distance, pose, size): ``seed`` changes only the sensor noise,
-    outliers, holes and the clicks, so thousands of calls cost little more than the noise. Extra
+    The geometry is cached per (scene, distance, pose, size, poster mount): ``seed`` changes the sensor
+    noise, outliers, holes and the clicks, and for a poster on its stand (``mount="stand"``, the
+    paper's free-standing target board) how far in front of the wall it stands (one of
+    ``STANDOFFS_M`` unless ``standoff_m`` is given), so thousands of calls cost little more than the
+    noise. ``mount="wall"`` glues the poster flat on the wall instead; ``board_m`` is the poster's
+    (width, length) in metres (default A0 portrait, an assumption: the paper does not give it). Extra
     keyword arguments override SensorModel fields (e.g. ``noise_px=0.5``, ``outlier_model="baseline"``).
     Raises sim.SceneError / sim.SensorError (both ValueError) with the allowed values on bad input.
     """
+    # spawn(3)'s first two children equal spawn(2)'s: adding the stand-off stream left noise and clicks as they were.
+    sensor_seq, click_seq, scene_seq = np.random.SeedSequence(seed).spawn(3)
+    poster: dict[str, Any] = {}
+    if scene == "poster":
+        if standoff_m is None:
+            standoff_m = STANDOFFS_M[int(np.random.default_rng(scene_seq).integers(len(STANDOFFS_M)))]
+        poster = dict(mount=mount, board_w_m=float(board_m[0]), board_l_m=float(board_m[1]), standoff_m=float(standoff_m))
     params = SceneParams(scene=scene, distance_m=float(distance_m), yaw_deg=float(yaw_deg), roll_deg=float(roll_deg),
-                         width=int(width), height=int(height))
+                         width=int(width), height=int(height), **poster)
     target = resolve_target(scene, target)
     model = make_model(lighting, contention=float(contention), quantization=float(quantization), **sensor_overrides)
-    sensor_seq, click_seq = np.random.SeedSequence(seed).spawn(2)
     frame, truth = simulate_frame(params, model, np.random.default_rng(sensor_seq), target=target,
                                   timestamp=0.0, meta={"seed": seed})
     pts = clicks.clicks(truth, np.random.default_rng(click_seq), params.width, params.height)

@@ -5,6 +5,11 @@ reference camera stands at ``CAMERA_HEIGHT_M`` above the floor directly over the
 pitched so that the measured target sits in the middle of the image. Distances are those of the
 target's front surface from the camera, along Z (the paper's 2, 4, 6 and 7 m, or anything between).
 
+The poster is the paper's "oriented target board" (Figures 1-2): by default a rigid board on two thin
+legs, standing ``standoff_m`` in front of the wall at any yaw and roll, so its whole outline is a depth
+edge (where the sensor model puts its contended band and edge fattening, and where a tap just off
+the board meets the wall behind). ``mount="wall"`` keeps the older poster glued flat on the wall.
+
 A :class:`View` caches one ray-cast (depth, object ids) and the colour renders of every lighting
 preset per (scene, pose, image size), so a new frame only costs the sensor noise.
 """
@@ -40,10 +45,22 @@ class SceneError(ValueError):
     """A scene cannot be built or viewed as asked; the message says which parameter to change."""
 
 
+MOUNTS: tuple[str, ...] = ("stand", "wall")
+# The paper's target (Figures 1-2, "an oriented target board", errors "along the boundaries of the
+# target (especially at the bottom edge)") is a board standing free, with depth edges all round. Its
+# size is not published: A0 portrait (841 x 1189 mm) is an assumption, a common size for a printed
+# measurement board that still fits a 1280x720 frame at 2 m (595 px tall).
+BOARD_M: tuple[float, float] = (0.841, 1.189)
+# How far a free-standing board is in front of the wall (m); scenario() draws one per seed.
+STANDOFFS_M: tuple[float, ...] = (0.5, 1.0, 1.5)
+
+
 @dataclass(frozen=True)
 class SceneParams:
     """What to build: scene name, target distance (m), yaw of the target about the vertical (deg),
-    in-plane roll of the poster (deg), image size (px) and the texture seed."""
+    in-plane roll of the poster (deg), image size (px), the texture seed, and for the poster: how it is
+    mounted ("stand": a rigid board on two thin legs, ``standoff_m`` in front of the wall, so its whole
+    outline is a depth edge; "wall": glued flat on the wall, no depth edge), its width and length (m)."""
 
     scene: str = "poster"
     distance_m: float = 4.0
@@ -52,6 +69,10 @@ class SceneParams:
     width: int = 1280
     height: int = 720
     texture_seed: int = 0
+    mount: str = "stand"
+    board_w_m: float = BOARD_M[0]
+    board_l_m: float = BOARD_M[1]
+    standoff_m: float = 1.0
 
     def __post_init__(self) -> None:
         if self.scene not in SCENES:
@@ -62,6 +83,12 @@ class SceneParams:
             raise SceneError(f"yaw_deg={self.yaw_deg} is out of range; use -60 to 60 degrees")
         if not (16 <= self.width <= 4096 and 16 <= self.height <= 4096):
             raise SceneError(f"image size {self.width}x{self.height} is out of range; use 16..4096 px per side")
+        if self.mount not in MOUNTS:
+            raise SceneError(f"mount={self.mount!r} is unknown; use one of {', '.join(MOUNTS)}")
+        if not (0.05 <= self.board_w_m <= 3.0 and 0.05 <= self.board_l_m <= 3.0):
+            raise SceneError(f"board size {self.board_w_m} x {self.board_l_m} m is out of range; use 0.05 to 3 m per side")
+        if not (0.1 <= self.standoff_m <= 5.0):
+            raise SceneError(f"standoff_m={self.standoff_m} is out of range; use 0.1 to 5 m in front of the wall")
 
 
 @dataclass(frozen=True)
@@ -118,20 +145,30 @@ def _wall(place: _Placer, z: float, material: str = "paint", obj: str = "wall", 
 
 
 def _poster(p: SceneParams) -> SceneSpec:
-    w, l = 0.594, 0.841  # A1 portrait
+    w, l = p.board_w_m, p.board_l_m
     place = _Placer(p.distance_m, p.yaw_deg)
     ly = np.array([0.0, 1.0, 0.0])
     r = math.radians(p.roll_deg)
     u = math.cos(r) * place.lx + math.sin(r) * ly
-    v = -math.sin(r) * place.lx + math.cos(r) * ly
-    centre = np.array(place(0.0, CAMERA_HEIGHT_M)) - 0.002 * place.lz  # 2 mm proud of the wall
-    poster = Rect(place.vec(centre), place.vec(u), place.vec(v), (w / 2, l / 2), "poster", "poster")
-    c = centre
+    v = -math.sin(r) * place.lx + math.cos(r) * ly  # down the board's length
+    c = np.array(place(0.0, CAMERA_HEIGHT_M))
+    if p.mount == "wall":
+        c = c - 0.002 * place.lz  # 2 mm proud of the wall
+        background: tuple[Primitive, ...] = (_wall(place, 0.0),)
+    else:
+        # The wall stays square to the camera; a turned board keeps clear of it by at least 10 cm.
+        reach = max(abs((su * w / 2 * u + sv * l / 2 * v)[2]) for su in (-1, 1) for sv in (-1, 1))
+        legs = tuple(
+            Capsule(place.vec(top), (float(top[0]), 0.0, float(top[2])), 0.015, "shoe", "stand")
+            for top in (c + sx * w / 4 * u + l / 4 * v + 0.03 * place.lz for sx in (-1, 1))
+        )  # behind the board, down to the floor: only their lower part shows, under the bottom edge
+        background = (_wall(_Placer(p.distance_m, 0.0), max(p.standoff_m, reach + 0.1)), *legs)
+    poster = Rect(place.vec(c), place.vec(u), place.vec(v), (w / 2, l / 2), "poster", "poster")
     targets = {
         "poster-width": TargetSpec("poster-width", place.vec(c - w / 2 * u), place.vec(c + w / 2 * u), ("poster",), ("poster",), False),
         "poster-length": TargetSpec("poster-length", place.vec(c - l / 2 * v), place.vec(c + l / 2 * v), ("poster",), ("poster",), False),
     }
-    return SceneSpec((_floor(), _wall(place, 0.0), poster), targets, CAMERA_HEIGHT_M)
+    return SceneSpec((_floor(), *background, poster), targets, CAMERA_HEIGHT_M)
 
 
 def _person(p: SceneParams, height_m: float = 1.75) -> SceneSpec:
@@ -320,7 +357,8 @@ def get_view(params: SceneParams, shift_m: float = 0.0) -> View:
     objects = tuple(dict.fromkeys(p.obj for p in spec.prims))
     lut = np.array([objects.index(p.obj) for p in spec.prims] + [-1], np.int16)
     obj = lut[hits.prim]  # prim == -1 picks the trailing -1
-    patterns = [pattern(s.prim.material, s.uv, seed=params.texture_seed) for s in hits.surfaces]
+    poster_mm = (int(round(params.board_w_m * 1000)), int(round(params.board_l_m * 1000)))  # print fills the board
+    patterns = [pattern(s.prim.material, s.uv, seed=params.texture_seed, poster_mm=poster_mm) for s in hits.surfaces]
     renders = {name: _shade(hits.surfaces, patterns, depth.shape, name) for name in LIGHTING}
     for a in (depth, obj, *renders.values()):
         a.setflags(write=False)

@@ -22,6 +22,10 @@ Effects, each a field of :class:`SensorModel` (the effect disappears at 0 / Fals
   ``mismatch_min_px``..``mismatch_max_px`` either way (a wrong match along the epipolar line);
   ``"baseline"`` converts the other pair's disparity with the wrong baseline (depth scaled by the ratio);
 - edge fattening: foreground disparity bleeds ``edge_fattening_px`` into the background;
+- a depth edge (for the contended band and the fattening) is a step of more than ``edge_jump_px``
+  between neighbouring pixels' true disparity, or surface next to nothing. No smooth surface of the
+  scenes comes near 0.5 px per pixel (the floor changes by ~0.04 px per row), while a board 0.5 m in
+  front of a wall at 7 m still steps by ~0.6 px;
 - holes (NaN): ``hole_fraction`` of low-texture pixels (blocks of ``hole_block_px``), occlusions, and
   ``stray_hole_fraction`` everywhere; ``stray_outlier_fraction`` of random disparities everywhere;
 - quantization of the output to multiples of ``quantization`` px (1 = integer disparity, 0 = none);
@@ -68,6 +72,7 @@ class SensorModel:
     mismatch_min_px: float = 2.0  # smallest wrong-match offset (px)
     mismatch_max_px: float = 8.0  # largest wrong-match offset (px)
     edge_fattening_px: int = 3  # foreground bleeds this far (px) into the background at depth edges
+    edge_jump_px: float = 0.5  # a disparity step (px) between neighbouring pixels this large is a depth edge
     noise_px: float | None = None  # Gaussian disparity noise sigma (px); None = the lighting preset's
     hole_fraction: float | None = None  # share of low-texture pixels without data; None = the preset's
     hole_block_px: int = 4  # holes come in blocks of this size (px)
@@ -89,6 +94,8 @@ class SensorModel:
             raise SensorError(f"hole_fraction={self.hole_fraction} must lie in [0, 1]")
         if not (self.baseline_wide_m > 0 and self.baseline_narrow_m > 0):
             raise SensorError("baseline_wide_m and baseline_narrow_m must be positive (metres)")
+        if not self.edge_jump_px > 0:
+            raise SensorError(f"edge_jump_px={self.edge_jump_px} must be > 0 (pixels of disparity)")
         if self.quantization < 0 or (self.noise_px is not None and self.noise_px < 0):
             raise SensorError("quantization and noise_px must be >= 0 (pixels)")
         if not (0 <= self.mismatch_min_px <= self.mismatch_max_px):
@@ -186,7 +193,7 @@ class _Geometry:
 
 @lru_cache(maxsize=48)  # per (scene, pose, size): ~9 MB each at 1280x720
 def _geometry_maps(view: View, baseline_wide_m: float, baseline_narrow_m: float, fattening_px: int,
-                   band_px: int, occlusion_holes: bool) -> _Geometry:
+                   band_px: int, occlusion_holes: bool, jump_px: float) -> _Geometry:
     """The lighting-independent static maps: true and fattened disparity, edge band, occlusions."""
     import cv2
 
@@ -202,12 +209,12 @@ def _geometry_maps(view: View, baseline_wide_m: float, baseline_narrow_m: float,
         # (along the epipolar line) by k px, vertically by about half of that.
         kernel = np.ones((2 * (k // 2) + 1, 2 * k + 1), np.uint8)
         dil = cv2.dilate(d0, kernel)
-        d_fat = np.where(valid & (dil - d0 > 1.0), dil, d_true).astype(np.float32)
+        d_fat = np.where(valid & (dil - d0 > jump_px), dil, d_true).astype(np.float32)
     else:
         d_fat = d_true.copy()
     jump = np.zeros((h, w), bool)
-    jump[:, 1:] |= ~(np.abs(d0[:, 1:] - d0[:, :-1]) <= 1.0) | (valid[:, 1:] != valid[:, :-1])
-    jump[1:, :] |= ~(np.abs(d0[1:, :] - d0[:-1, :]) <= 1.0) | (valid[1:, :] != valid[:-1, :])
+    jump[:, 1:] |= ~(np.abs(d0[:, 1:] - d0[:, :-1]) <= jump_px) | (valid[:, 1:] != valid[:, :-1])
+    jump[1:, :] |= ~(np.abs(d0[1:, :] - d0[:-1, :]) <= jump_px) | (valid[1:, :] != valid[:-1, :])
     b = band_px
     band = cv2.dilate(jump.astype(np.uint8), np.ones((2 * b + 1, 2 * b + 1), np.uint8)).astype(bool) if b else jump
     band &= valid
@@ -229,7 +236,7 @@ def static_maps(view: View, model: SensorModel) -> StaticMaps:
     import cv2
 
     geo = _geometry_maps(view, model.baseline_wide_m, model.baseline_narrow_m, model.edge_fattening_px,
-                         model.contention_band_px, model.occlusion_holes)
+                         model.contention_band_px, model.occlusion_holes, model.edge_jump_px)
     h, w = view.depth.shape
     valid = np.isfinite(geo.d_true)
     gray = cv2.cvtColor(view.renders[model.lighting], cv2.COLOR_BGR2GRAY).astype(np.float32)

@@ -1,8 +1,10 @@
 """The simulated rig as a Source: ``open_source("sim:poster?distance=6&lighting=outdoor&seed=3")``.
 
 Spec keys: distance (m), lighting, contention, quantization, seed, fps (0 = as fast as read),
-width, height, target, yaw (deg), roll (deg), mode ("model": the sensor model; "stereo": rendered
-left/right images through OpenCV SGBM), and any SensorModel field by name (e.g. noise_px=0.3).
+width, height, target, yaw (deg), roll (deg), mount ("stand" | "wall": the poster board on its legs
+or glued on the wall), standoff (m, the board in front of the wall; fixed per source), board_w and
+board_l (m, the poster's size), mode ("model": the sensor model; "stereo": rendered left/right images
+through OpenCV SGBM), and any SensorModel field by name (e.g. noise_px=0.3).
 The scene names the spec target: "sim" alone is a poster at 4 m under indoor light.
 """
 
@@ -18,7 +20,7 @@ from device.errors import SourceError, SourceNotFound, SourceTimeout
 from measure import Frame
 
 from .scenario import make_model, simulate_frame
-from .scenes import SCENES, SceneError, SceneParams, get_view, resolve_target
+from .scenes import BOARD_M, SCENES, SceneError, SceneParams, get_view, resolve_target
 from .sensor import SensorError, SensorModel
 from .textures import LIGHTING
 
@@ -41,6 +43,10 @@ class SimConfig:
     height: int = 720
     yaw_deg: float = 0.0
     roll_deg: float = 0.0
+    mount: str = "stand"
+    standoff_m: float = 1.0
+    board_w_m: float = BOARD_M[0]
+    board_l_m: float = BOARD_M[1]
     mode: str = "model"
     sensor: tuple[tuple[str, object], ...] = field(default_factory=tuple)  # extra SensorModel overrides
 
@@ -53,7 +59,9 @@ class SimConfig:
             raise SourceError(f"sim fps={self.fps} must be >= 0 (0 = as fast as frames are read)")
 
     def scene_params(self) -> SceneParams:
-        return SceneParams(self.scene, self.distance_m, self.yaw_deg, self.roll_deg, self.width, self.height)
+        poster = dict(mount=self.mount, standoff_m=self.standoff_m, board_w_m=self.board_w_m,
+                      board_l_m=self.board_l_m) if self.scene == "poster" else {}
+        return SceneParams(self.scene, self.distance_m, self.yaw_deg, self.roll_deg, self.width, self.height, **poster)
 
     def sensor_model(self) -> SensorModel:
         return make_model(self.lighting, contention=self.contention, quantization=self.quantization, **dict(self.sensor))
@@ -71,6 +79,10 @@ _KEYS = {  # spec key -> (SimConfig field, parser)
     "target": ("target", str),
     "yaw": ("yaw_deg", float),
     "roll": ("roll_deg", float),
+    "mount": ("mount", str),
+    "standoff": ("standoff_m", float),
+    "board_w": ("board_w_m", float),
+    "board_l": ("board_l_m", float),
     "mode": ("mode", str),
 }
 

@@ -48,6 +48,7 @@ class ClickModel:
     jitter_px: one-sigma Gaussian scatter of a finger tap around the aimed point;
     off_object_prob: chance that a click lands just beyond the end point (off the object for an object,
     inside the opening for a gap), as happens on a touch screen; off_object_px: how far beyond, at most.
+    Off a free-standing object (the poster board on its stand, a person) that is the background behind it.
     """
 
     jitter_px: float = 2.5

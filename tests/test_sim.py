@@ -12,14 +12,14 @@ import sim
 from device import SourceError, SourceNotFound, SourceTimeout, open_source
 from measure import MeasureOptions, measure_distance
 from sim.scenes import SceneParams, get_view
-from sim.sensor import SensorModel, sense
+from sim.sensor import SensorModel, sense, static_maps
 from sim.stereo import stereo_error, stereo_frame, true_disparity
 
 QUIET = dict(noise_px=0.0, contention=0.0, quantization=0.0, hole_fraction=0.0, stray_hole_fraction=0.0,
              stray_outlier_fraction=0.0, edge_fattening_px=0)
 NOMINAL = {  # target -> (true size of the object in metres, allowed relative gap to the pixel-centre truth)
-    "poster-width": (0.594, 0.03),
-    "poster-length": (0.841, 0.02),
+    "poster-width": (sim.BOARD_M[0], 0.03),
+    "poster-length": (sim.BOARD_M[1], 0.02),
     "person-height": (1.75, 0.03),
     "doorway": (0.90, 0.03),
     "box-gap": (0.60, 0.03),
@@ -190,15 +190,16 @@ def test_robust_method_separates_gaps_from_posters(scene, target, expected):
 
 
 def test_clicks_land_near_the_end_points_and_sometimes_off_the_object():
-    view = get_view(SceneParams("poster", 4.0))
-    poster = view.objects.index("poster")
     dists, off = [], 0
     for seed in range(150):
         _, truth, (c1, c2) = sim.scenario("poster", distance_m=4.0, seed=seed)
         for c, p in ((c1, truth.p1_px), (c2, truth.p2_px)):
             dists.append(np.hypot(c[0] - p[0], c[1] - p[1]))
             assert float(c[0]).is_integer() and float(c[1]).is_integer()
-            off += view.obj[int(c[1]), int(c[0])] != poster
+            step = truth.depth_m[int(c[1]), int(c[0])] - truth.depth_m[int(p[1]), int(p[0])]
+            # Off the free-standing board is the background behind it (>= 0.5 m); on it, the board.
+            assert step >= 0.45 or abs(step) < 0.3
+            off += step >= 0.45
     assert 1.5 <= np.median(dists) <= 6.0 and max(dists) < 25
     assert 0.2 <= off / 300 <= 0.75  # at an edge, jitter alone puts about half the taps off the object
     assert sim.scenario("poster", seed=9)[2] == sim.scenario("poster", seed=9)[2]
@@ -236,6 +237,14 @@ def test_source_streams_frames_with_truth():
         f = default.read()
         assert f.meta["truth"].target == "poster-width" and f.meta["lighting"] == "indoor"
         assert abs(f.meta["truth"].p1_m[2] - 4.0) < 0.01
+    with open_source("sim:poster?mount=wall&board_w=0.594&board_l=0.841&fps=0&width=640&height=360") as glued:
+        t = glued.read().meta["truth"]
+        assert abs(t.length_m - 0.594) <= 0.03 * 0.594
+        assert abs(np.nanmax(t.depth_m[:, 320]) - t.p1_m[2]) < 0.02  # nothing stands behind it but the wall
+    with open_source("sim:poster?standoff=1.5&fps=0&width=640&height=360") as stand:
+        t = stand.read().meta["truth"]
+        assert abs(t.length_m - sim.BOARD_M[0]) <= 0.03 * sim.BOARD_M[0]
+        assert abs(np.nanmax(t.depth_m[:, 320]) - t.p1_m[2] - 1.5) < 0.02
     with open_source("sim:doorway?noise_px=0.5&outlier_model=baseline&fps=0&width=640&height=360") as custom:
         assert custom.model.noise_px == 0.5 and custom.read().meta["truth"].is_gap
 
@@ -257,7 +266,8 @@ def test_source_paces_at_fps_and_times_out():
     [("sim:castle", SourceNotFound, "poster"), ("sim?distance=far", SourceError, "distance"),
      ("sim?bogus=1", SourceError, "contention"), ("sim?lighting=moon", SourceError, "outdoor"),
      ("sim:person?distance=2", SourceError, "portrait"), ("sim?mode=lidar", SourceError, "stereo"),
-     ("sim?confidence=maybe", SourceError, "boolean"), ("sim:poster?target=height", SourceError, "poster-length")],
+     ("sim?confidence=maybe", SourceError, "boolean"), ("sim:poster?target=height", SourceError, "poster-length"),
+     ("sim?mount=ceiling", SourceError, "stand"), ("sim?standoff=9", SourceError, "standoff")],
 )
 def test_source_rejects_bad_specs(spec, error, hint):
     with pytest.raises(error, match=hint):
@@ -273,9 +283,12 @@ def test_source_read_before_open_is_an_error():
 
 
 @pytest.mark.slow
-@pytest.mark.parametrize("scene,lighting,min_within_1px", [("poster", "indoor", 0.75), ("boxes", "outdoor", 0.85)])
-def test_rendered_stereo_through_real_sgbm(scene, lighting, min_within_1px):
-    params = SceneParams(scene, 3.0, width=640, height=360)
+@pytest.mark.parametrize("scene,mount,lighting,min_within_1px",
+                         [("poster", "wall", "indoor", 0.75), ("boxes", "stand", "outdoor", 0.85)])
+def test_rendered_stereo_through_real_sgbm(scene, mount, lighting, min_within_1px):
+    # The poster glued on the wall: SGBM on a flat, textured scene (the free-standing board adds a
+    # textureless wall 1 m behind it, which SGBM matches worse; mount only matters to the poster).
+    params = SceneParams(scene, 3.0, width=640, height=360, mount=mount)
     model = SensorModel(lighting=lighting)
     frame, truth = stereo_frame(params, model, np.random.default_rng(0))
     err = stereo_error(frame.disparity, true_disparity(params, model))
@@ -287,7 +300,7 @@ def test_rendered_stereo_through_real_sgbm(scene, lighting, min_within_1px):
 
 @pytest.mark.parametrize("yaw,roll", [(40.0, 0.0), (-25.0, 30.0)])
 def test_posed_poster_keeps_its_true_size(yaw, roll):
-    for target, size in (("poster-width", 0.594), ("poster-length", 0.841)):
+    for target, size in (("poster-width", sim.BOARD_M[0]), ("poster-length", sim.BOARD_M[1])):
         frame, truth, _ = sim.scenario("poster", target=target, distance_m=3.0, yaw_deg=yaw, roll_deg=roll,
                                        width=640, height=360)
         p1, p2 = backproject(truth, truth.p1_px, frame.camera), backproject(truth, truth.p2_px, frame.camera)
@@ -312,7 +325,7 @@ def test_odd_image_sizes_with_a_ray_along_the_horizon():
     # 361 rows put one row's rays exactly parallel to the floor of a level camera (poster scene).
     frame, truth, _ = sim.scenario("poster", distance_m=5.0, width=641, height=361)
     assert frame.disparity.shape == (361, 641) and np.isfinite(frame.disparity).mean() > 0.5
-    assert abs(truth.length_m - 0.594) < 0.03
+    assert abs(truth.length_m - sim.BOARD_M[0]) < 0.03
 
 
 def test_pixels_that_see_nothing_have_no_depth_and_no_disparity():
@@ -321,3 +334,68 @@ def test_pixels_that_see_nothing_have_no_depth_and_no_disparity():
     sky = np.isnan(truth.depth_m)
     assert sky[0].all() and not sky[-1].any()
     assert np.isnan(frame.disparity[sky]).all()
+
+
+def _outline_step_m(view) -> tuple[np.ndarray, np.ndarray]:
+    """Pixels just outside the poster, and how much farther (m) they are than the poster pixels beside them."""
+    poster = view.obj == view.objects.index("poster")
+    ring = maximum_filter(poster, size=3) & ~poster
+    beside = maximum_filter(np.where(poster, view.depth, 0.0), size=3)
+    return ring, (view.depth - beside)[ring]
+
+
+@pytest.mark.parametrize("distance,yaw,roll", [(2.0, 0.0, 0.0), (7.0, 0.0, 0.0), (4.0, -20.0, 3.0), (6.0, 35.0, -10.0)])
+@pytest.mark.parametrize("standoff", sim.STANDOFFS_M)
+def test_board_on_its_stand_has_a_depth_edge_all_round(distance, yaw, roll, standoff):
+    view = get_view(SceneParams("poster", distance, yaw, roll, standoff_m=standoff))
+    ring, step = _outline_step_m(view)
+    assert ring.sum() > 400
+    # Behind every side of the outline lies the wall (the stand-off behind the board's centre; a turned
+    # board's near side is farther from it), except where the two thin legs (3 cm behind the board)
+    # show under the bottom edge.
+    assert np.mean(step >= 0.15) > 0.97 and abs(np.median(step) - standoff) < 0.05
+    assert set(view.objects[i] for i in np.unique(view.obj[ring])) <= {"wall", "floor", "stand"}
+    assert np.all(step > 0.01)
+    # ... and the sensor model treats it as one where the disparity steps by more than edge_jump_px
+    # (all round, unless a strongly turned board's far side comes within ~0.3 m of the wall): the
+    # outline is contended, and the background beside it takes the board's disparity (edge fattening).
+    model = SensorModel()
+    st = static_maps(view, model.static_key())
+    d = view.camera.fx * model.baseline_wide_m / view.depth
+    poster = view.obj == view.objects.index("poster")
+    outer = ring & (maximum_filter(np.where(poster, d, 0.0), size=3) - d > model.edge_jump_px)
+    edge = outer[ring]
+    assert edge.mean() > (0.97 if abs(yaw) <= 20 else 0.6)
+    assert st.contended[outer].all() and st.contended[poster & maximum_filter(outer, size=3)].all()
+    fat = (st.d_fat - st.d_true)[ring]
+    assert np.mean(fat[edge] > model.edge_jump_px) > 0.9 and np.all(fat >= 0)
+
+
+def test_poster_on_the_wall_has_no_depth_edge():
+    view = get_view(SceneParams("poster", 4.0, -20.0, 3.0, mount="wall", board_w_m=0.594, board_l_m=0.841))
+    ring, step = _outline_step_m(view)
+    assert ring.sum() > 400 and np.all(np.abs(step) < 0.01)  # 2 mm proud of the wall
+    st = static_maps(view, SensorModel().static_key())
+    assert st.contended[ring].mean() < 0.5 and np.array_equal(st.d_fat[ring], st.d_true[ring])
+    _, truth, _ = sim.scenario("poster", distance_m=4.0, yaw_deg=-20.0, roll_deg=3.0, mount="wall",
+                               board_m=(0.594, 0.841), seed=3)
+    assert abs(truth.length_m - 0.594) <= 0.03 * 0.594
+
+
+def test_standoff_is_drawn_per_seed_and_bad_mounts_are_rejected():
+    behind = set()
+    for seed in range(12):
+        _, truth, _ = sim.scenario("poster", distance_m=4.0, seed=seed, width=640, height=360)
+        behind.add(round(float(np.nanmax(truth.depth_m[:, 320])) - 4.0, 3))  # the wall, straight ahead
+    # The column through the centre meets the wall above the board: Z = distance + stand-off there.
+    assert {round(b, 1) for b in behind} == set(sim.STANDOFFS_M)
+    _, fixed, _ = sim.scenario("poster", distance_m=4.0, seed=5, standoff_m=1.25, width=640, height=360)
+    assert abs(np.nanmax(fixed.depth_m[:, 320]) - 5.25) < 1e-6
+    with pytest.raises(sim.SceneError, match="stand"):
+        sim.scenario("poster", mount="ceiling")
+    with pytest.raises(sim.SceneError, match="board size"):
+        sim.scenario("poster", board_m=(0.0, 1.0))
+    with pytest.raises(sim.SceneError, match="standoff_m"):
+        sim.scenario("poster", standoff_m=-1.0)
+    with pytest.raises(sim.SensorError, match="edge_jump_px"):
+        sim.scenario("poster", edge_jump_px=0.0)
