@@ -1,0 +1,78 @@
+"""`depthruler devices` and `depthruler calibrate`. Heavy imports stay inside the commands."""
+
+from __future__ import annotations
+
+import json
+from dataclasses import asdict
+from pathlib import Path
+
+import typer
+
+
+def devices(json_out: bool = typer.Option(False, "--json", help="Print machine-readable JSON.")) -> None:
+    """List attached cameras: OAK devices (DepthAI), V4L2 nodes and USB cameras."""
+    from device.discovery import list_devices
+
+    found = list_devices()
+    if json_out:
+        typer.echo(json.dumps({"devices": [asdict(d) for d in found], "count": len(found)}, indent=2))
+        return
+    if not found:
+        typer.echo("no cameras found (no OAK over DepthAI, no /dev/video* nodes, no USB video devices).")
+        typer.echo("Plug in an OAK or a UVC stereo camera, or try the simulated rig:")
+        typer.echo("  depthruler serve --source sim")
+        return
+    for d in found:
+        size = f" {d.width}x{d.height}" if d.width else ""
+        state = f" [{d.state}]" if d.state else ""
+        spec = d.extra.get("spec", "")
+        usb_id = d.extra.get("usb_id", "")
+        details = "  ".join(x for x in (d.serial, usb_id, f"spec: {spec}" if spec else "") if x)
+        typer.echo(f"{d.kind:5} {d.name}{size}{state}  {details}".rstrip())
+
+
+def _parse_squares(text: str) -> tuple[int, int]:
+    try:
+        x, _, y = text.lower().partition("x")
+        return int(x), int(y)
+    except ValueError as exc:
+        raise typer.BadParameter(f"{text!r} is not COLSxROWS, e.g. 11x8") from exc
+
+
+def calibrate(
+    images: Path | None = typer.Option(None, "--images", help="Folder of view pairs: left/ + right/, "
+                                       "NAME_left/NAME_right, or side-by-side images with --side-by-side."),
+    live: str | None = typer.Option(None, "--live", help="Capture from a stereo pair, e.g. v4l2:/dev/video0."),
+    out: Path = typer.Option(Path("calibration.json"), "--out", "-o", help="Calibration file to write."),
+    squares: str = typer.Option("11x8", "--squares", help="ChArUco squares across x down."),
+    square_mm: float = typer.Option(30.0, "--square-mm", help="Printed square side in mm (measure it)."),
+    marker_mm: float = typer.Option(22.0, "--marker-mm", help="Printed marker side in mm."),
+    dictionary: str = typer.Option("DICT_5X5_100", "--dictionary", help="ArUco dictionary of the board."),
+    side_by_side: bool = typer.Option(False, "--side-by-side", help="Each image holds left | right halves."),
+    views: int = typer.Option(20, "--views", help="Live capture: how many distinct board views to collect."),
+    save_views: Path | None = typer.Option(None, "--save-views", help="Live capture: also save the pairs here."),
+) -> None:
+    """Calibrate a stereo pair from ChArUco board views and write the calibration JSON."""
+    from device.calibration import BoardSpec, calibrate_stereo, load_image_pairs
+    from device.errors import SourceError
+
+    if (images is None) == (live is None):
+        raise typer.BadParameter("give exactly one of --images DIR or --live SPEC")
+    sx, sy = _parse_squares(squares)
+    try:
+        board = BoardSpec(sx, sy, square_mm / 1000.0, marker_mm / 1000.0, dictionary)
+        if images is not None:
+            pairs = load_image_pairs(images, side_by_side=side_by_side)
+            typer.echo(f"{len(pairs)} view pairs from {images}")
+        else:
+            from device.calibration import capture_views
+
+            pairs = capture_views(live, board, views, save_to=save_views, progress=typer.echo)
+        calib = calibrate_stereo(pairs, board, progress=typer.echo)
+        calib.save(out)
+    except SourceError as exc:
+        typer.echo(f"error: {exc}", err=True)
+        raise typer.Exit(1) from exc
+    used = sum(v.used for v in calib.views)
+    typer.echo(f"wrote {out}: {used}/{len(calib.views)} views used, RMS {calib.rms:.3f} px, "
+               f"baseline {calib.baseline_m * 1000:.2f} mm")

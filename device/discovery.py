@@ -1,0 +1,141 @@
+"""Which cameras are attached: DepthAI devices, V4L2 nodes and USB ids (ARCHITECTURE.md "Sources").
+
+Three independent probes, each failing soft: a machine without libusb, without ``/dev/video*``
+or without DepthAI gets an empty list from that probe, never an exception, so ``depthruler
+devices`` always answers.
+"""
+
+from __future__ import annotations
+
+import os
+from pathlib import Path
+
+from .base import SourceInfo
+
+MOVIDIUS_VENDOR = 0x03E7  # Intel Movidius: every OAK (RVC2) enumerates with this vendor id
+USB_CLASS_VIDEO = 14  # bInterfaceClass of UVC cameras
+# Movidius product ids: what state the OAK is in (it re-enumerates after boot).
+OAK_PRODUCTS = {0x2485: "unbooted", 0xF63B: "booted", 0xF63C: "bootloader", 0xF63D: "flash-booted"}
+
+
+def list_devices() -> list[SourceInfo]:
+    """All attached cameras from every probe, DepthAI first (it knows device state and mxid)."""
+    return list_depthai() + list_v4l2() + list_usb()
+
+
+def list_depthai() -> list[SourceInfo]:
+    """OAK devices as DepthAI sees them, with their XLink state (unbooted, bootloader, booted...).
+
+    ``getAllConnectedDevices`` also lists devices already opened by another program (state
+    "booted"), which ``getAllAvailableDevices`` hides; telling the user it is busy beats silence.
+    """
+    os.environ.setdefault("DEPTHAI_LEVEL", "error")
+    try:
+        import depthai as dai
+
+        infos = dai.Device.getAllConnectedDevices()
+    except Exception:  # no SDK, or XLink cannot initialise (no USB access in a container)
+        return []
+    out = []
+    for info in infos:
+        state = str(getattr(info, "state", "")).rsplit(".", 1)[-1].replace("X_LINK_", "").lower()
+        protocol = str(getattr(info, "protocol", "")).rsplit(".", 1)[-1].replace("X_LINK_", "").lower()
+        platform = str(getattr(info, "platform", "")).rsplit(".", 1)[-1].replace("X_LINK_", "").lower()
+        mxid = info.getDeviceId() if hasattr(info, "getDeviceId") else getattr(info, "deviceId", "")
+        out.append(
+            SourceInfo(
+                kind="oak",
+                name=f"OAK {info.name}".strip(),
+                serial=mxid,
+                state=state,
+                extra={"protocol": protocol, "platform": platform, "spec": f"oak:{mxid}" if mxid else "oak"},
+            )
+        )
+    return out
+
+
+def list_v4l2(sys_root: Path = Path("/sys/class/video4linux"), dev_root: Path = Path("/dev")) -> list[SourceInfo]:
+    """V4L2 nodes ``/dev/video*`` with the driver's name for each (from sysfs)."""
+    try:
+        nodes = sorted(dev_root.glob("video[0-9]*"), key=lambda p: int(p.name[5:]))
+    except OSError:
+        return []
+    out = []
+    for node in nodes:
+        name = ""
+        try:
+            name = (sys_root / node.name / "name").read_text().strip()
+        except OSError:
+            pass  # node without a sysfs entry (e.g. a container bind mount): still listable
+        out.append(
+            SourceInfo(kind="v4l2", name=name or node.name, serial=str(node), extra={"spec": f"v4l2:{node}"})
+        )
+    return out
+
+
+def list_usb() -> list[SourceInfo]:
+    """USB devices that are cameras: OAKs (vendor 03e7) and UVC cameras (interface class 14).
+
+    Uses pyusb with the libusb shipped in the ``libusb-package`` wheel, so no system libusb is needed.
+    """
+    try:
+        import libusb_package
+        import usb.core
+
+        backend = libusb_package.get_libusb1_backend()
+        if backend is None:
+            return []
+        devices = list(usb.core.find(find_all=True, backend=backend))
+    except Exception:  # no libusb, no permission on /dev/bus/usb, no USB at all
+        return []
+    out = []
+    for dev in devices:
+        try:
+            info = usb_camera_info(dev)
+        except Exception:  # one odd device must not hide the others
+            continue
+        if info is not None:
+            out.append(info)
+    return out
+
+
+def usb_camera_info(dev) -> SourceInfo | None:
+    """A SourceInfo for a pyusb device if it is an OAK or a UVC camera, else None."""
+    vid, pid = int(dev.idVendor), int(dev.idProduct)
+    usb_id = f"{vid:04x}:{pid:04x}"
+    where = f"bus {getattr(dev, 'bus', '?')} address {getattr(dev, 'address', '?')}"
+    if vid == MOVIDIUS_VENDOR:
+        return SourceInfo(
+            kind="usb",
+            name="Luxonis OAK (Movidius)",
+            serial=_usb_string(dev, "serial_number"),
+            state=OAK_PRODUCTS.get(pid, "unknown"),
+            extra={"usb_id": usb_id, "where": where, "spec": "oak"},
+        )
+    if not _is_uvc(dev):
+        return None
+    name = " ".join(s for s in (_usb_string(dev, "manufacturer"), _usb_string(dev, "product")) if s)
+    return SourceInfo(
+        kind="usb",
+        name=name or f"UVC camera {usb_id}",
+        serial=_usb_string(dev, "serial_number"),
+        extra={"usb_id": usb_id, "where": where, "uvc": True},
+    )
+
+
+def _is_uvc(dev) -> bool:
+    if int(getattr(dev, "bDeviceClass", 0)) == USB_CLASS_VIDEO:
+        return True
+    for cfg in dev:
+        for intf in cfg:
+            if int(intf.bInterfaceClass) == USB_CLASS_VIDEO:
+                return True
+    return False
+
+
+def _usb_string(dev, attr: str) -> str:
+    # Reading string descriptors needs write access to the device node; without it, stay nameless.
+    try:
+        return (getattr(dev, attr) or "").strip()
+    except Exception:
+        return ""

@@ -1,0 +1,421 @@
+"""A V4L2 stereo pair (one side-by-side UVC camera or two nodes) with OpenCV SGBM, as Frames.
+
+Capture and processing are separate so tests drive the real processing with recorded or
+rendered pairs: a :class:`FrameGrabber` yields (left, right, timestamp) — :class:`V4L2Grabber`
+from cameras, :class:`ImagePairGrabber` from memory — and :class:`StereoProcessor` turns a pair
+into a :class:`measure.Frame`: rectification from the calibration file (see device/calibration.py
+for its format), SGBM (device/sgbm.py), output registered to the *rectified left* colour image.
+
+Spec: ``v4l2:/dev/video0?layout=side-by-side&calib=FILE.json[&size=1280x480&fps=30&fourcc=MJPG
+&mode=sgbm_3way&ndisp=64&block=5&wls=0&lr_confidence=1&scale=1]`` or ``v4l2:/dev/video0,/dev/video2?calib=...``
+(size is per node: both halves together for a side-by-side camera).
+"""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Sequence
+from dataclasses import dataclass, field, fields
+from pathlib import Path
+from typing import Protocol
+
+import numpy as np
+
+from measure import Frame, PinholeCamera
+
+from .base import SourceBase, SourceInfo, SourceSpec
+from .calibration import StereoCalibration, load_calibration
+from .errors import CalibrationError, SourceDisconnected, SourceError, SourceNotFound, SourceTimeout
+from .sgbm import MODES, SGBMConfig, compute_disparity
+
+LAYOUTS = ("side-by-side", "two-nodes")
+NO_CAMERA_HINT = (
+    "plug in the stereo camera and check `depthruler devices` (or `v4l2-ctl --list-devices`); "
+    "in a container pass --device /dev/videoN; or use the simulator: `depthruler serve --source sim`"
+)
+
+
+class FrameGrabber(Protocol):
+    """Where stereo pairs come from: cameras, files or memory. ``grab`` returns BGR left, right, seconds."""
+
+    def open(self) -> None: ...
+
+    def grab(self, timeout_s: float = 1.0) -> tuple[np.ndarray, np.ndarray, float]: ...
+
+    def close(self) -> None: ...
+
+
+@dataclass(frozen=True)
+class StereoPairConfig:
+    """Capture settings (per V4L2 node), calibration file and SGBM settings of a stereo pair.
+
+    Defaults give 640x480 per eye with SGBM_3WAY, no WLS, no right matcher: the configuration
+    that keeps live view at >= 10 fps on a 2-core machine (bench/RESULTS.md "## SGBM"; 1280x720
+    eyes run at about half that). ``scale`` < 1 runs rectification and SGBM on a downscaled pair
+    (faster live view; the intrinsics are scaled with it). ``max_skew_s`` bounds the timestamp gap
+    of a two-node pair (default: half a frame period).
+    """
+
+    devices: tuple[str, ...] = ("/dev/video0",)
+    layout: str = "side-by-side"
+    fourcc: str = "MJPG"
+    width: int = 1280
+    height: int = 480
+    fps: float = 30.0
+    calibration: str = ""
+    sgbm: SGBMConfig = field(default_factory=SGBMConfig)
+    scale: float = 1.0
+    max_skew_s: float | None = None
+
+    def __post_init__(self) -> None:
+        if self.layout not in LAYOUTS:
+            raise SourceError(f"layout {self.layout!r} is unknown; use one of {', '.join(LAYOUTS)}")
+        want = 1 if self.layout == "side-by-side" else 2
+        if len(self.devices) != want:
+            raise SourceError(
+                f"layout {self.layout} needs {want} device node(s), got {len(self.devices)}: {', '.join(self.devices)}"
+            )
+        if len(self.fourcc) != 4:
+            raise SourceError(f"fourcc {self.fourcc!r} must have four characters, e.g. MJPG or YUYV")
+        if self.width < 16 or self.height < 16 or (self.layout == "side-by-side" and self.width % 2):
+            raise SourceError(f"size {self.width}x{self.height} is not valid (side-by-side needs an even width)")
+        if not (0 < self.fps <= 240):
+            raise SourceError(f"fps={self.fps} must lie in (0, 240]")
+        if not (0.1 <= self.scale <= 1.0):
+            raise SourceError(f"scale={self.scale} must lie in [0.1, 1]")
+
+    @property
+    def eye_size(self) -> tuple[int, int]:
+        """Size of one camera's image as captured."""
+        if self.layout == "side-by-side":
+            return (self.width // 2, self.height)
+        return (self.width, self.height)
+
+
+class V4L2Grabber:
+    """Pairs from V4L2 through ``cv2.VideoCapture(..., CAP_V4L2)``: a side-by-side node or two nodes."""
+
+    def __init__(self, config: StereoPairConfig, read_timeout_ms: int = 2000) -> None:
+        self.config = config
+        self.read_timeout_ms = read_timeout_ms
+        self._caps: list = []
+
+    def open(self) -> None:
+        import cv2
+
+        cfg = self.config
+        for dev in cfg.devices:
+            if dev.startswith("/dev/") and not Path(dev).exists():
+                self.close()
+                raise SourceNotFound(f"no V4L2 device {dev}; {NO_CAMERA_HINT}")
+            cap = cv2.VideoCapture(dev, cv2.CAP_V4L2)
+            if not cap.isOpened():
+                cap.release()
+                self.close()
+                raise SourceNotFound(
+                    f"cannot open {dev} as a V4L2 camera (busy in another program, or a metadata node: "
+                    f"UVC cameras expose two nodes and only one captures); {NO_CAMERA_HINT}"
+                )
+            self._caps.append(cap)
+            # Order matters: many UVC drivers accept a size only after the MJPG format is chosen and
+            # silently fall back to 640x480 otherwise, so read everything back.
+            cap.set(cv2.CAP_PROP_FOURCC, cv2.VideoWriter.fourcc(*cfg.fourcc))
+            cap.set(cv2.CAP_PROP_FRAME_WIDTH, cfg.width)
+            cap.set(cv2.CAP_PROP_FRAME_HEIGHT, cfg.height)
+            cap.set(cv2.CAP_PROP_FPS, cfg.fps)
+            cap.set(cv2.CAP_PROP_BUFFERSIZE, 1)
+            # A pulled cable otherwise blocks read() for OpenCV's default 10 s before it fails.
+            cap.set(cv2.CAP_PROP_READ_TIMEOUT_MSEC, self.read_timeout_ms)
+            got = (int(cap.get(cv2.CAP_PROP_FRAME_WIDTH)), int(cap.get(cv2.CAP_PROP_FRAME_HEIGHT)))
+            if got != (cfg.width, cfg.height):
+                self.close()
+                raise SourceError(
+                    f"{dev} delivers {got[0]}x{got[1]} although {cfg.width}x{cfg.height} {cfg.fourcc} was asked; "
+                    "set size= to a mode the camera lists (`v4l2-ctl -d DEV --list-formats-ext`)"
+                )
+
+    def grab(self, timeout_s: float = 1.0) -> tuple[np.ndarray, np.ndarray, float]:
+        if not self._caps:
+            raise SourceError("the V4L2 grabber is not open")
+        if len(self._caps) == 1:
+            img, stamp = self._read(0)
+            half = img.shape[1] // 2
+            return img[:, :half], img[:, half:], stamp
+        return self._grab_paired(timeout_s)
+
+    def _read(self, i: int) -> tuple[np.ndarray, float]:
+        import cv2
+
+        cap = self._caps[i]
+        ok, img = cap.read()
+        if not ok or img is None:
+            raise SourceDisconnected(
+                f"{self.config.devices[i]} stopped delivering frames (unplugged?); check the cable and reopen the source"
+            )
+        # OpenCV's V4L2 backend reports the buffer time (CLOCK_MONOTONIC, ms); 0 when the driver gives none.
+        ms = cap.get(cv2.CAP_PROP_POS_MSEC)
+        return img, (ms / 1000.0 if ms > 0 else time.monotonic())
+
+    def _grab_paired(self, timeout_s: float) -> tuple[np.ndarray, np.ndarray, float]:
+        # Two free-running cameras: read both, then keep reading the one that lags until the
+        # timestamps agree within the skew bound (half a frame period by default).
+        skew = self.config.max_skew_s if self.config.max_skew_s is not None else 0.5 / self.config.fps
+        deadline = time.monotonic() + timeout_s
+        (left, tl), (right, tr) = self._read(0), self._read(1)
+        while abs(tl - tr) > skew:
+            if time.monotonic() > deadline:
+                raise SourceTimeout(
+                    f"no left/right frames within {skew * 1000:.0f} ms of each other for {timeout_s:.1f} s "
+                    f"(last gap {abs(tl - tr) * 1000:.0f} ms); use one fps for both cameras or raise max_skew_s"
+                )
+            if tl < tr:
+                left, tl = self._read(0)
+            else:
+                right, tr = self._read(1)
+        return left, right, (tl + tr) / 2.0
+
+    def close(self) -> None:
+        for cap in self._caps:
+            cap.release()
+        self._caps = []
+
+
+class ImagePairGrabber:
+    """Pairs from memory (recorded or rendered), through the same interface as the cameras.
+
+    Each ``grab`` returns the next pair; after the last one it raises :class:`SourceDisconnected`
+    (end of data) unless ``loop``. Timestamps are ``index / fps``.
+    """
+
+    def __init__(self, pairs: Sequence[tuple[np.ndarray, np.ndarray]], *, loop: bool = False, fps: float = 10.0):
+        if not pairs:
+            raise SourceError("ImagePairGrabber needs at least one (left, right) pair")
+        self.pairs = list(pairs)
+        self.loop = loop
+        self.fps = fps
+        self._i = 0
+
+    def open(self) -> None:
+        self._i = 0
+
+    def grab(self, timeout_s: float = 1.0) -> tuple[np.ndarray, np.ndarray, float]:
+        if self._i >= len(self.pairs):
+            if not self.loop:
+                raise SourceDisconnected(f"all {len(self.pairs)} image pairs were read; reopen to start again")
+            self._i = 0
+        left, right = self.pairs[self._i % len(self.pairs)]
+        stamp = self._i / self.fps
+        self._i += 1
+        return left, right, stamp
+
+    def close(self) -> None:
+        pass
+
+
+@dataclass(frozen=True)
+class Rectification:
+    """Rectification maps of a calibrated pair at one image size, and the rectified left camera.
+
+    ``baseline_m`` and ``doffs`` give ``Z = fx * B / (d + doffs)`` for disparities measured
+    between the rectified images (doffs is the principal point gap cx_right - cx_left).
+    """
+
+    size: tuple[int, int]
+    camera: PinholeCamera
+    baseline_m: float
+    doffs: float
+    maps: tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray] | None  # None: already rectified
+
+
+def rectification(calib: StereoCalibration, size: tuple[int, int]) -> Rectification:
+    """Rectification for images of ``size`` (w, h): ``cv2.stereoRectify`` + ``initUndistortRectifyMap``.
+
+    Intrinsics are scaled when the images have another size than at calibration (same aspect only).
+    ``calib.extra["rectified"]`` marks a pair that is already rectified (a dataset, or a camera that
+    rectifies on board): the images are used as they are, with K1's intrinsics and ``|T|``.
+    """
+    import cv2
+
+    cw, ch = calib.image_size
+    w, h = size
+    if abs(w / cw - h / ch) > 1e-3 * max(w / cw, h / ch):
+        raise CalibrationError(
+            f"images are {w}x{h} but the calibration was made at {cw}x{ch} (another aspect ratio); "
+            "capture at the calibrated size or recalibrate"
+        )
+    s = w / cw
+    scale = np.array([[s, 0, (s - 1) * 0.5], [0, s, (s - 1) * 0.5], [0, 0, 1]])  # pixel-centre convention
+    K1, K2 = scale @ calib.K1, scale @ calib.K2
+    if calib.extra.get("rectified"):
+        cam = PinholeCamera(fx=K1[0, 0], fy=K1[1, 1], cx=K1[0, 2], cy=K1[1, 2], width=w, height=h)
+        return Rectification(size, cam, calib.baseline_m, float(K2[0, 2] - K1[0, 2]), None)
+    T = np.asarray(calib.T, np.float64).reshape(3, 1)  # OpenCV 5 asserts on any other shape
+    if abs(T[0, 0]) < np.abs(T[1:, 0]).max():
+        raise CalibrationError(f"T = {T.ravel().tolist()} m is not a side-by-side pair (x must dominate); "
+                               "mount the cameras horizontally and recalibrate")
+    if T[0, 0] > 0:
+        raise CalibrationError("the calibration puts the right camera to the left of the left one (T_x > 0); "
+                               "swap the left and right images (or devices) and recalibrate")
+    R1, R2, P1, P2, _Q, _roi1, _roi2 = cv2.stereoRectify(
+        K1, calib.D1, K2, calib.D2, (w, h), calib.R, T, flags=cv2.CALIB_ZERO_DISPARITY, alpha=0
+    )
+    maps = (
+        *cv2.initUndistortRectifyMap(K1, calib.D1, R1, P1, (w, h), cv2.CV_32FC1),
+        *cv2.initUndistortRectifyMap(K2, calib.D2, R2, P2, (w, h), cv2.CV_32FC1),
+    )
+    cam = PinholeCamera(fx=P1[0, 0], fy=P1[1, 1], cx=P1[0, 2], cy=P1[1, 2], width=w, height=h)
+    baseline = float(-P2[0, 3] / P2[0, 0])
+    return Rectification(size, cam, baseline, float(P2[0, 2] - P1[0, 2]), maps)
+
+
+class StereoProcessor:
+    """Rectify a pair, run SGBM, and return the Frame registered to the rectified left image."""
+
+    def __init__(self, calibration: StereoCalibration, sgbm: SGBMConfig = SGBMConfig(), scale: float = 1.0) -> None:
+        self.calibration = calibration
+        self.sgbm = sgbm
+        self.scale = scale
+        self._rect: Rectification | None = None
+
+    def rectify(self, left: np.ndarray, right: np.ndarray) -> tuple[np.ndarray, np.ndarray, Rectification]:
+        import cv2
+
+        if left.shape != right.shape:
+            raise SourceError(f"left image is {left.shape} but right is {right.shape}; both cameras must use one size")
+        if self.scale != 1.0:
+            size = (round(left.shape[1] * self.scale), round(left.shape[0] * self.scale))
+            left = cv2.resize(left, size, interpolation=cv2.INTER_AREA)
+            right = cv2.resize(right, size, interpolation=cv2.INTER_AREA)
+        size = (left.shape[1], left.shape[0])
+        if self._rect is None or self._rect.size != size:
+            self._rect = rectification(self.calibration, size)
+        rect = self._rect
+        if rect.maps is None:
+            return left, right, rect
+        m1x, m1y, m2x, m2y = rect.maps
+        return (
+            cv2.remap(left, m1x, m1y, cv2.INTER_LINEAR),
+            cv2.remap(right, m2x, m2y, cv2.INTER_LINEAR),
+            rect,
+        )
+
+    def process(self, left: np.ndarray, right: np.ndarray, timestamp: float = 0.0, meta: dict | None = None) -> Frame:
+        """Frame from one raw (unrectified) pair of BGR uint8 images."""
+        import cv2
+
+        if left.ndim == 2:
+            left, right = cv2.cvtColor(left, cv2.COLOR_GRAY2BGR), cv2.cvtColor(right, cv2.COLOR_GRAY2BGR)
+        left_r, right_r, rect = self.rectify(left, right)
+        disparity, confidence = compute_disparity(left_r, right_r, self.sgbm)
+        info = {"source": "v4l2", "rectified": rect.maps is not None, "sgbm_mode": self.sgbm.mode}
+        info.update(meta or {})
+        return Frame(
+            image=np.ascontiguousarray(left_r),
+            disparity=disparity.astype(np.float32, copy=False),
+            camera=rect.camera,
+            baseline_m=rect.baseline_m,
+            doffs=rect.doffs,
+            confidence=confidence.astype(np.float32, copy=False),
+            timestamp=timestamp,
+            meta=info,
+        )
+
+
+class StereoPairSource(SourceBase):
+    """A stereo pair as a Source: grabber (cameras by default) + calibration + SGBM processing."""
+
+    def __init__(
+        self,
+        config: StereoPairConfig = StereoPairConfig(),
+        *,
+        grabber: FrameGrabber | None = None,
+        calibration: StereoCalibration | None = None,
+    ) -> None:
+        self.config = config
+        self.grabber = grabber if grabber is not None else V4L2Grabber(config)
+        self._calibration = calibration
+        self._processor: StereoProcessor | None = None
+        w, h = config.eye_size
+        self.info = SourceInfo(kind="v4l2", name=",".join(config.devices), width=w, height=h, fps=config.fps,
+                               extra={"layout": config.layout})
+
+    def open(self) -> None:
+        if self.is_open:
+            return
+        # The camera first: if it is not there, that is the first thing to fix.
+        self.grabber.open()
+        try:
+            calib = self._calibration
+            if calib is None:
+                if not self.config.calibration:
+                    raise CalibrationError(
+                        "a stereo pair needs its calibration file: add calib=FILE.json to the source spec; "
+                        "create one with `depthruler calibrate --live v4l2:... --out FILE.json`"
+                    )
+                calib = load_calibration(self.config.calibration)
+            self._processor = StereoProcessor(calib, self.config.sgbm, self.config.scale)
+        except Exception:
+            self.grabber.close()
+            raise
+        super().open()
+
+    def read(self, timeout_s: float = 1.0) -> Frame:
+        if not self.is_open or self._processor is None:
+            raise SourceError("the stereo pair is not open; call open() or use `with open_source(spec) as src:`")
+        left, right, stamp = self.grabber.grab(timeout_s)
+        return self._processor.process(left, right, stamp, {"devices": list(self.config.devices)})
+
+    def close(self) -> None:
+        self.grabber.close()
+        super().close()
+
+
+_BOOL = {"1": True, "true": True, "yes": True, "on": True, "0": False, "false": False, "no": False, "off": False}
+_SGBM_KEYS = {"mode": "mode", "ndisp": "num_disparities", "block": "block_size", "p1": "p1", "p2": "p2",
+              "uniqueness": "uniqueness", "wls": "wls", "wls_lambda": "wls_lambda", "wls_sigma": "wls_sigma",
+              "lr_confidence": "lr_confidence", "speckle_window": "speckle_window", "speckle_range": "speckle_range"}
+
+
+def config_from_spec(spec: SourceSpec) -> StereoPairConfig:
+    """StereoPairConfig from a ``v4l2:`` spec (see the module docstring for the options)."""
+    devices = tuple(d.strip() for d in spec.target.split(",") if d.strip()) or ("/dev/video0",)
+    kwargs: dict = {"devices": devices, "layout": "side-by-side" if len(devices) == 1 else "two-nodes"}
+    sgbm: dict = {}
+    sgbm_types = {f.name: f.type for f in fields(SGBMConfig)}
+    for key, value in spec.params.items():
+        try:
+            if key == "size":
+                w, _, h = value.lower().partition("x")
+                kwargs["width"], kwargs["height"] = int(w), int(h)
+            elif key in ("layout", "fourcc"):
+                kwargs[key] = value if key == "layout" else value.upper()
+            elif key == "calib":
+                kwargs["calibration"] = value
+            elif key in ("fps", "scale", "max_skew_s"):
+                kwargs[key] = float(value)
+            elif key in _SGBM_KEYS:
+                name = _SGBM_KEYS[key]
+                kind = str(sgbm_types[name])
+                sgbm[name] = (_BOOL[value.lower()] if "bool" in kind else value if name == "mode"
+                              else float(value) if "float" in kind else int(value))
+            else:
+                raise SourceError(
+                    f"unknown v4l2 option {key!r} in {str(spec)!r}; use: size, layout, fourcc, calib, fps, scale, "
+                    f"max_skew_s, {', '.join(_SGBM_KEYS)}"
+                )
+        except (ValueError, KeyError) as exc:
+            raise SourceError(f"v4l2 option {key}={value!r} in {str(spec)!r} is not valid") from exc
+    if kwargs["layout"] == "two-nodes" and "size" not in spec.params:
+        kwargs["width"], kwargs["height"] = 640, 480
+    if "mode" in sgbm and sgbm["mode"] not in MODES:
+        raise SourceError(f"SGBM mode {sgbm['mode']!r} is unknown; use one of {', '.join(MODES)}")
+    try:
+        kwargs["sgbm"] = SGBMConfig(**sgbm)
+    except ValueError as exc:
+        raise SourceError(f"SGBM options in {str(spec)!r}: {exc}") from exc
+    return StereoPairConfig(**kwargs)
+
+
+def from_spec(spec: SourceSpec) -> StereoPairSource:
+    """An unopened stereo-pair source for ``v4l2:/dev/videoN[,/dev/videoM]?calib=...``."""
+    return StereoPairSource(config_from_spec(spec))
