@@ -40,7 +40,6 @@ import math
 from dataclasses import dataclass
 
 import numpy as np
-from scipy.stats import chi2
 
 from .types import MeasureError
 
@@ -389,6 +388,8 @@ def _lowest_rank(found: McdResult, x: np.ndarray, z: np.ndarray, s: float, h: in
 @functools.lru_cache(maxsize=None)
 def _chi2_constants(p: int) -> tuple[float, float, float]:
     """chi2_p(0.5), chi2_p(0.975) and the reweighted consistency factor 0.975 / P(chi2_{p+2} <= chi2_p(0.975))."""
+    from scipy.stats import chi2  # scipy.stats costs ~1 s to import; only a measurement needs it
+
     q = float(chi2.ppf(0.975, p))
     return float(chi2.ppf(0.5, p)), q, 0.975 / float(chi2.cdf(q, p + 2))
 
