@@ -5,7 +5,6 @@ from __future__ import annotations
 import errno
 import json
 import os
-from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
@@ -27,24 +26,11 @@ from device.recording import (
     summarize,
 )
 from measure import Frame, PinholeCamera
+from sim import Truth
 
 W, H = 96, 64
 CAMERA = PinholeCamera(fx=80.0, fy=81.5, cx=47.25, cy=31.75, width=W, height=H)
 INFO = SourceInfo(kind="synthetic", name="unit", serial="S1", width=W, height=H, fps=30.0, extra={"obj": object(), "n": 2})
-
-
-@dataclass(frozen=True)
-class FakeTruth:
-    """Shaped like sim.Truth: small fields plus a depth image that must not go into the JSON."""
-
-    depth_m: np.ndarray
-    p1_m: tuple[float, float, float]
-    p2_m: tuple[float, float, float]
-    p1_px: tuple[float, float]
-    p2_px: tuple[float, float]
-    length_m: float
-    target: str
-    is_gap: bool
 
 
 def synthetic_frame(k: int, w: int = W, h: int = H, confidence: bool = True) -> Frame:
@@ -65,7 +51,7 @@ def synthetic_frame(k: int, w: int = W, h: int = H, confidence: bool = True) -> 
             "source": "synthetic",
             "k": k,
             "gain": np.float32(1.25),
-            "truth": FakeTruth(np.ones((h, w)), (0.0, 0.1, 2.0), (0.5, 0.1, 2.0), (10.0, 20.0), (60.0, 20.0), 0.5, "poster-width", False),
+            "truth": Truth(np.ones((h, w)), (0.0, 0.1, 2.0), (0.5, 0.1, 2.0), (10.0, 20.0), (60.0, 20.0), 0.5, "poster-width", False),
             "handle": object(),
         },
     )
@@ -101,7 +87,7 @@ def test_synthetic_round_trip(tmp_path: Path) -> None:
         assert_same_frame(got, want)
         assert got.meta["k"] == k and got.meta["gain"] == 1.25 and "handle" not in got.meta
         truth = got.meta["truth"]
-        assert truth["_type"] == "FakeTruth" and truth["length_m"] == 0.5 and truth["p2_px"] == [60.0, 20.0]
+        assert truth["_type"] == "Truth" and truth["length_m"] == 0.5 and truth["p2_px"] == [60.0, 20.0]
         assert "depth_m" not in truth
         assert rec.entries[k].meta_dropped == ("handle",)
     m = rec.manifest
