@@ -1,0 +1,116 @@
+"""`depthruler eval sim|middlebury`: the accuracy reports (Markdown + PNG plots + results.json)."""
+
+from __future__ import annotations
+
+import time
+from pathlib import Path
+
+import typer
+
+ROOT = Path(__file__).resolve().parents[1]
+DEFAULT_MIDDLEBURY = ROOT.parent / "shared" / "data" / "middlebury"
+
+app = typer.Typer(
+    help="Measure depthruler's accuracy: the paper's study on the simulated rig, and real stereo (Middlebury).",
+    no_args_is_help=True,
+)
+
+
+def _progress():
+    from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn, TimeRemainingColumn
+
+    return Progress(
+        TextColumn("[bold]{task.description}"),
+        BarColumn(),
+        MofNCompleteColumn(),
+        TimeElapsedColumn(),
+        TimeRemainingColumn(),
+        transient=False,
+    )
+
+
+@app.command("sim")
+def sim_command(
+    out: Path = typer.Option(..., "--out", help="Output folder for report.md, results.json, measurements.csv and plots."),
+    measurements: int = typer.Option(1800, "--measurements", "-n", min=1, help="Non-gap measurements, spread evenly over 36 (target, distance, lighting) cells."),
+    seed: int = typer.Option(0, "--seed", help="Base seed; each measurement's scene, sensor noise and clicks derive from it."),
+    gap_fraction: float = typer.Option(0.1, "--gap-fraction", min=0.0, max=1.0, help="Extra gap-scene measurements, as a fraction of --measurements."),
+    workers: int = typer.Option(2, "--workers", "-j", min=1, help="Worker processes."),
+    quantization: float | None = typer.Option(None, "--quantization", help="Disparity step of the simulated sensor in px (default: the simulator's, 1/4 px)."),
+) -> None:
+    """The paper's protocol on the simulated rig: 3 targets x 4 distances x 3 lightings, 4 methods."""
+    from .evaluate_sim import plan_sim, run_sim, sim_protocol, summarize_sim, write_sim_report
+    from .report import EvalError
+
+    try:
+        jobs = plan_sim(measurements, seed, gap_fraction, quantization)
+    except EvalError as exc:
+        raise typer.BadParameter(str(exc)) from exc
+    t0 = time.perf_counter()
+    with _progress() as progress:
+        task = progress.add_task("simulating + measuring", total=len(jobs))
+        records = run_sim(jobs, workers=workers, on_result=lambda _r: progress.advance(task))
+    protocol = sim_protocol(measurements, seed, workers, gap_fraction, quantization)
+    protocol["wall_time_s"] = time.perf_counter() - t0
+    results = summarize_sim(records, protocol)
+    write_sim_report(out, results, records)
+    _print_summary(results["methods"], f"{out / 'report.md'}", protocol["wall_time_s"], results["gap"])
+
+
+@app.command("middlebury")
+def middlebury_command(
+    out: Path = typer.Option(..., "--out", help="Output folder for report.md, results.json and plots."),
+    data: Path = typer.Option(DEFAULT_MIDDLEBURY, "--data", help="Folder of Middlebury scenes (each with im0.png, im1.png, calib.txt, disp0GT.pfm)."),
+    scene: list[str] = typer.Option(None, "--scene", help="Only this scene (repeatable)."),
+    max_segments: int = typer.Option(0, "--max-segments", min=0, help="At most this many segments per scene (0 = all selected)."),
+    seed: int = typer.Option(0, "--seed", help="Seed of the click jitter and the contention outliers (segment selection is deterministic)."),
+    jittered_clicks: int = typer.Option(2, "--jittered-clicks", min=0, help="Jittered click pairs per segment besides the exact end pixels."),
+) -> None:
+    """Real stereo: SGBM and contended ground-truth disparity, ground-truth segment lengths."""
+    from .evaluate_middlebury import ClickJitter, ContentionModel, run_middlebury, scene_dirs, summarize_middlebury, write_middlebury_report
+    from .report import EvalError
+
+    try:
+        n_scenes = len(scene_dirs(data, scene or None))
+    except EvalError as exc:
+        raise typer.BadParameter(str(exc)) from exc
+    t0 = time.perf_counter()
+    with _progress() as progress:
+        task = progress.add_task("SGBM + measuring", total=n_scenes)
+        setup, results = run_middlebury(
+            data,
+            scenes=scene or None,
+            max_segments=max_segments or None,
+            model=ContentionModel(seed=seed),
+            clicks=ClickJitter(extra=jittered_clicks, seed=seed),
+            on_progress=lambda _name: progress.advance(task),
+        )
+    setup["wall_time_s"] = time.perf_counter() - t0
+    summary = summarize_middlebury(setup, results)
+    write_middlebury_report(out, summary, results)
+    _print_summary(summary["methods"], f"{out / 'report.md'}", setup["wall_time_s"], None, value="median")
+
+
+def _print_summary(methods: dict, report_path: str, wall_s: float, gap: dict | None, value: str = "mean") -> None:
+    from rich.console import Console
+    from rich.table import Table
+
+    from .report import METHOD_LABELS, fmt
+
+    table = Table(title=f"overall accuracy ({value}, %)")
+    table.add_column("method")
+    table.add_column(value, justify="right")
+    table.add_column("std", justify="right")
+    table.add_column("n", justify="right")
+    for m, s in methods.items():
+        o = s["overall"]
+        table.add_row(METHOD_LABELS.get(m, m), fmt(o[value]), fmt(o["std"]), str(o["n"]))
+    console = Console()
+    console.print(table)
+    if gap is not None:
+        fp, det = gap.get("false_positive_rate"), gap.get("detection_rate")
+        console.print(
+            f"gap detector (paper): false positives {fmt(None if fp is None else 100 * fp, 1)} %, "
+            f"detection {fmt(None if det is None else 100 * det, 1)} %"
+        )
+    console.print(f"wall time {wall_s:.1f} s; report: {report_path}")
