@@ -218,7 +218,7 @@ def create_app(
     *,
     db_path: str | Path = "depthruler.db",
     token: str = "",
-    ring_size: int = 64,
+    ring_size: int = 32,
     max_frozen: int = 16,
     capture_fps: float = 15.0,
     reconnect_initial_s: float = 0.5,

@@ -28,7 +28,7 @@ class ServerConfig(_Model):
     port: int = Field(8000, ge=1, le=65535)
     db: str = "depthruler.db"
     token: str = ""
-    ring_size: int = Field(64, ge=2, le=4096)
+    ring_size: int = Field(32, ge=2, le=4096)  # ~10 MB a 1280x720 frame
     max_frozen: int = Field(16, ge=1, le=1024)
     capture_fps: float = Field(15.0, gt=0, le=1000)
     reconnect_initial_s: float = Field(0.5, gt=0, le=60)

@@ -56,7 +56,7 @@ class FrameRing:
     frames are frozen, freezing one more releases the oldest frozen one back to the live pool.
     """
 
-    def __init__(self, capacity: int = 64, max_frozen: int = 16) -> None:
+    def __init__(self, capacity: int = 32, max_frozen: int = 16) -> None:
         if capacity < 1 or max_frozen < 1:
             raise ValueError(f"ring capacity ({capacity}) and max_frozen ({max_frozen}) must be at least 1")
         self.capacity = capacity

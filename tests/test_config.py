@@ -81,7 +81,7 @@ def test_missing_file():
 
 def test_parse_defaults():
     cfg = parse_config({})
-    assert cfg.source is None and cfg.server.port == 8000 and cfg.server.ring_size == 64
+    assert cfg.source is None and cfg.server.port == 8000 and cfg.server.ring_size == 32
 
 
 def test_serve_fails_at_start_on_bad_config(tmp_path):
