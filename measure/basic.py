@@ -7,6 +7,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from .robust_range import median
 from .sampling import backproject, window_disparities
 from .types import Frame
 from .uncertainty import disparity_quantum, endpoint_depth_sigma, window_depth_sigma
@@ -33,7 +34,7 @@ def basic_ends(frame: Frame, xy1: tuple[float, float], xy2: tuple[float, float],
     """Median of the valid disparities in a ``window`` x ``window`` box at each click, Eq. 2."""
     w1 = window_disparities(frame, xy1[0], xy1[1], window)
     w2 = window_disparities(frame, xy2[0], xy2[1], window)
-    d = np.array([np.median(w1) if w1.size else np.nan, np.median(w2) if w2.size else np.nan])
+    d = np.array([median(w1) if w1.size else np.nan, median(w2) if w2.size else np.nan])
     pts = backproject(frame, np.array([xy1[0], xy2[0]]), np.array([xy1[1], xy2[1]]), d)
     dist = float(np.linalg.norm(pts[0] - pts[1]))
     q = disparity_quantum(np.concatenate([w1, w2]))

@@ -11,7 +11,10 @@ noise although the noise runs along the viewing rays and grows as Z²; that tilt
 (too steep, measured on the synthetic posters) whenever the surface is not fronto-parallel.
 
 Estimator: FAST-MCD (p = 2) on (t, d) gives a robust start (an exact fit, e.g. half the
-samples on one quantized level, is only a start here); then Tukey-bisquare IRLS regression
+samples on one quantized level, is only a start here) from ``starts_for(2)`` = 156 random
+3-point starts instead of R&VD's fixed 500: at 50 % contamination a start is outlier-free
+with probability 1/8, so all 156 miss with probability (7/8)^156 < 1e-9 (500 buys 1e-29
+at three times the cost; the paper's method keeps 500); then Tukey-bisquare IRLS regression
 of d on t with the scale fixed at max(1.4826 MAD of the start's support residuals, q/sqrt(12))
 (q the disparity quantum): the floor keeps quantized data from collapsing onto one level.
 Units: t and d in pixels.
@@ -24,8 +27,10 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .mcd import fast_mcd
-from .robust_range import TUKEY_C
+from .mcd import fast_mcd, starts_for
+from .robust_range import TUKEY_C, median
+
+_STARTS = starts_for(2)  # see the module docstring
 
 
 @dataclass(frozen=True)
@@ -50,29 +55,32 @@ def fit_disparity_line(t: np.ndarray, d: np.ndarray, support_fraction: float, se
     """Robust d = alpha + beta t of samples at positions ``t`` (px) with disparities ``d`` (px)."""
     t = np.asarray(t, dtype=np.float64)
     d = np.asarray(d, dtype=np.float64)
-    res = fast_mcd(np.c_[t, d], support_fraction=support_fraction, seed=seed)
+    res = fast_mcd(np.c_[t, d], support_fraction=support_fraction, seed=seed, n_starts=_STARTS)
     if res.exact_fit and res.fit_kind == "hyperplane" and abs(res.plane[1]) > 1e-12:
         a1, a2, c = res.plane
         beta, alpha = -a1 / a2, -c / a2
     elif res.exact_fit:  # all support samples at one (t, d), or a vertical line: start flat
-        beta, alpha = 0.0, float(np.median(d[res.support]))
+        beta, alpha = 0.0, median(d[res.support])
     else:
         v = res.principal_axis()
         beta = float(v[1] / v[0]) if abs(v[0]) > 1e-12 else 0.0
         alpha = float(res.location[1] - beta * res.location[0])
     r = d - (alpha + beta * t)
     floor = quantum / math.sqrt(12.0)
-    scale = max(1.4826 * float(np.median(np.abs(r[res.support]))), floor, 1e-6)
+    scale = max(1.4826 * median(np.abs(r[res.support])), floor, 1e-6)
     span = float(np.ptp(t)) + 1.0
-    tt, td = t * t, t * d
+    # Rows 1, t, t², d, t d: one product with the weights gives all five weighted sums.
+    terms = np.stack([np.ones_like(t), t, t * t, d, t * d])
+    inv_cs = 1.0 / (TUKEY_C * scale)
     # Stop when the fitted line moves by less than 1e-4 of the noise scale anywhere on the segment:
     # far below its own standard error (>= scale / sqrt(n)).
     tol = 1e-4 * scale
     for _ in range(iterations):
-        u = r / (TUKEY_C * scale)
-        w = np.maximum(1.0 - u * u, 0.0) ** 2
-        sw, swt, swtt = w.sum(), w @ t, w @ tt
-        swd, swtd = w @ d, w @ td
+        u = r * inv_cs
+        w = 1.0 - u * u
+        np.maximum(w, 0.0, out=w)
+        w *= w
+        sw, swt, swtt, swd, swtd = (terms @ w).tolist()
         det = sw * swtt - swt * swt
         if det <= 0:
             break

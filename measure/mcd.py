@@ -41,6 +41,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from .robust_range import median
 from .types import MeasureError
 
 _SUBSAMPLE = 300  # R&VD nested scheme: subsample size
@@ -99,6 +100,19 @@ def default_h(n: int, p: int, support_fraction: float | None) -> int:
     return min(h, n)
 
 
+def starts_for(p: int, contamination: float = 0.5, failure: float = 1e-9) -> int:
+    """Random (p+1)-subsets needed so that, with probability ``1 - failure``, at least one holds
+    no outlier when a fraction ``contamination`` of the points are outliers (R&VD section 3.1).
+
+    A start is clean with probability (1 - eps)^(p+1), so m starts all miss with probability
+    (1 - (1 - eps)^(p+1))^m. At eps = 0.5 and failure 1e-9: p = 2 needs 156, p = 3 needs 322
+    (R&VD's fixed 500 covers p up to 3 with room to spare, and stays the default of
+    :func:`fast_mcd`).
+    """
+    clean = (1.0 - contamination) ** (p + 1)
+    return int(math.ceil(math.log(failure) / math.log1p(-clean)))
+
+
 @functools.lru_cache(maxsize=None)
 def _pairs(p: int) -> tuple[np.ndarray, np.ndarray]:
     return np.triu_indices(p)
@@ -111,6 +125,22 @@ def _quad_weights(p: int) -> np.ndarray:
     return np.where(j == k, 1.0, 2.0)
 
 
+@functools.lru_cache(maxsize=None)
+def _upper_flat(p: int) -> np.ndarray:
+    """Positions of the upper-triangle entries (in ``_pairs`` order) in a flattened p x p matrix."""
+    j, k = _pairs(p)
+    return j * p + k
+
+
+@functools.lru_cache(maxsize=None)
+def _sym_index(p: int) -> np.ndarray:
+    """For each entry of a flattened symmetric p x p matrix, its position in the upper-triangle list."""
+    j, k = _pairs(p)
+    pos = np.empty((p, p), dtype=np.intp)
+    pos[j, k] = pos[k, j] = np.arange(len(j))
+    return pos.ravel()
+
+
 def _monomials(z: np.ndarray) -> np.ndarray:
     """Per point: (1, z_1..z_p, z_j z_k for j <= k); n x m. The leading 1 makes one matrix
     product give a subset's count and a start's constant term."""
@@ -120,14 +150,11 @@ def _monomials(z: np.ndarray) -> np.ndarray:
 
 def _moments(sums: np.ndarray, p: int) -> tuple[np.ndarray, np.ndarray]:
     """Mean and (biased) covariance from summed monomials (count first); sums ... x m."""
-    c = sums[..., :1]
-    mean = sums[..., 1 : p + 1] / c
+    q = sums[..., 1:] / sums[..., :1]
+    mean = q[..., :p]
     j, k = _pairs(p)
-    second = sums[..., p + 1 :] / c - mean[..., j] * mean[..., k]
-    cov = np.empty(sums.shape[:-1] + (p, p))
-    cov[..., j, k] = second
-    cov[..., k, j] = second
-    return mean, cov
+    second = q[..., p:] - mean[..., j] * mean[..., k]
+    return mean, second[..., _sym_index(p)].reshape(sums.shape[:-1] + (p, p))
 
 
 def _det_adj(cov: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -153,51 +180,71 @@ def _det_adj(cov: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     return a * adj[..., 0, 0] + b * adj[..., 0, 1] + c * adj[..., 0, 2], adj
 
 
-def _lambda_min(det: np.ndarray, adj: np.ndarray) -> np.ndarray:
-    """det / trace(adj) lies within a factor p of the smallest eigenvalue: a cheap singularity test."""
-    tr = np.trace(adj, axis1=-2, axis2=-1)
-    with np.errstate(divide="ignore", invalid="ignore"):
-        return np.where(tr > 0, det / tr, 0.0)
+def _det_lam(cov: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Determinant and lambda_min estimate det / trace(adj) of a batch of symmetric matrices.
+
+    det / trace(adj) lies within a factor p of the smallest eigenvalue: a cheap singularity
+    test. Same expressions as :func:`_det_adj`, without building the adjugate.
+    """
+    p = cov.shape[-1]
+    if p == 1:
+        det = cov[..., 0, 0].copy()
+        return det, det.copy()
+    if p == 2:
+        a, b, d = cov[..., 0, 0], cov[..., 0, 1], cov[..., 1, 1]
+        det, tr = a * d - b * b, d + a
+    else:
+        a, b, c = cov[..., 0, 0], cov[..., 0, 1], cov[..., 0, 2]
+        e, f, i = cov[..., 1, 1], cov[..., 1, 2], cov[..., 2, 2]
+        m00 = e * i - f * f
+        det = a * m00 + b * (c * f - b * i) + c * (b * f - c * e)
+        tr = m00 + (a * i - c * c) + (a * e - b * b)
+    # trace(adj) of a covariance is >= 0; where it is 0 the matrix is zero: lambda_min = det / inf = 0.
+    return det, det / np.where(tr > 0, tr, np.inf)
 
 
 def _mm(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     """a @ b with a (..., S, K), b (..., K, N), as a stack of small products.
 
-    OpenBLAS hands a gemm above a few 1e5 multiply-adds to several threads; on a busy machine
-    that hand-off costs 10-100x the arithmetic (measured: 20 ms instead of 0.2 ms for
-    500 x 9 x 300). Chunks of the S rows stay single-threaded.
+    OpenBLAS hands a gemm of more than 4 x 65536 multiply-adds (its GEMM_MULTITHREAD_THRESHOLD
+    x SMP_THRESHOLD_MIN) to several threads; on a busy machine that hand-off costs 10-100x the
+    arithmetic (measured: 20 ms instead of 0.2 ms for 500 x 9 x 300). Chunks of the S rows
+    below that size stay single-threaded, and as few chunks as possible keep numpy's per-call
+    overhead down.
     """
     s, k, n = a.shape[-2], a.shape[-1], b.shape[-1]
-    c = max(1, 100_000 // max(1, k * n))
+    c = max(1, 250_000 // max(1, k * n))
     if c >= s:
         return a @ b
     return np.concatenate([a[..., i : i + c, :] @ b for i in range(0, s, c)], axis=-2)
 
 
-def _c_step(mono: np.ndarray, mean: np.ndarray, cov: np.ndarray, h: int, p: int):
+def _c_step(mono: np.ndarray, mean: np.ndarray, cov: np.ndarray, lam: np.ndarray, h: int, p: int):
     """One concentration step for G groups of S starts on G point sets (monomials G x n x m).
 
-    ``mean`` is G x S x p, ``cov`` G x S x p x p. Returns the new subset masks (G x S x n), means,
-    covariances, determinants and lambda_min estimates (each G x S ...).
+    ``mean`` is G x S x p, ``cov`` G x S x p x p, ``lam`` their lambda_min estimates (G x S, from
+    :func:`_det_lam`). Returns the new subset masks (G x S x n), means, covariances,
+    determinants and lambda_min estimates (each G x S ...).
     """
-    det, adj = _det_adj(cov)
-    lam = _lambda_min(det, adj)
     singular = lam <= _RIDGE
     if singular.any():
         cov = cov + singular[..., None, None] * (_RIDGE * np.eye(p))
-        det, adj = _det_adj(cov)
+    det, adj = _det_adj(cov)
     inv = adj / det[..., None, None]
-    j, k = _pairs(p)
-    quad = _quad_weights(p) * inv[..., j, k]
+    quad = _quad_weights(p) * inv.reshape(inv.shape[:-2] + (p * p,))[..., _upper_flat(p)]
     lin = -2.0 * np.einsum("...jk,...k->...j", inv, mean)
     const = -0.5 * np.einsum("...j,...j->...", lin, mean)
     coef = np.concatenate([const[..., None], lin, quad], axis=-1)
     d2 = _mm(coef.astype(mono.dtype), np.swapaxes(mono, -1, -2))
-    thr = np.partition(d2, h - 1, axis=-1)[..., h - 1 : h]
-    mask = d2 <= thr
+    # Expanded in monomials, d² of a point on the start's support can round a hair below zero.
+    # Clipped at zero, the bit patterns of the floats read as integers sort like the floats,
+    # and an integer partition skips the NaN-aware float comparisons (about 1.5x faster).
+    np.maximum(d2, 0.0, out=d2)
+    key = d2.view(np.int32 if d2.dtype == np.float32 else np.int64)
+    thr = np.partition(key, h - 1, axis=-1)[..., h - 1 : h]
+    mask = key <= thr
     new_mean, new_cov = _moments(_mm(mask.astype(mono.dtype), mono).astype(np.float64), p)
-    new_det, new_adj = _det_adj(new_cov)
-    return mask, new_mean, new_cov, new_det, _lambda_min(new_det, new_adj)
+    return (mask, new_mean, new_cov) + _det_lam(new_cov)
 
 
 @dataclass(frozen=True)
@@ -286,8 +333,8 @@ def fast_mcd(
         h = default_h(n, p, support_fraction)
     if not 1 <= h <= n:
         raise MeasureError(f"h={h} must lie in [1, n={n}]")
-    center = np.median(x, axis=0)
-    mad = 1.4826 * np.median(np.abs(x - center), axis=0)
+    center = median(x.T)
+    mad = 1.4826 * median(np.abs(x - center).T)
     s = float(np.sqrt((mad**2).sum()))
     if s == 0.0:
         s = float(np.sqrt(x.var(axis=0).sum()))
@@ -330,36 +377,63 @@ def fast_mcd(
     m = perm.shape[1]
     per_group = max(1, n_starts // groups)
     draw = np.take_along_axis(perm, rng.integers(0, m, size=(groups, per_group * (p + 1))), axis=1)
-    pts = z[draw].reshape(groups, per_group, p + 1, p)
-    mean = pts.mean(axis=2)
-    diff = pts - mean[:, :, None, :]
-    cov = np.einsum("gsij,gsik->gsjk", diff, diff) / (p + 1)
-    stages = [(perm, max(p + 1, int(math.ceil(h * m / n))), 2)]
+    mean, cov = _moments(mono[draw].reshape(groups, per_group, p + 1, -1).sum(axis=2), p)
+    lam = _det_lam(cov)[1]
+    stages = [(perm, max(p + 1, int(math.ceil(h * m / n))), 2, False)]
     if groups > 1:
         merged = perm.reshape(1, -1)
-        stages.append((merged, max(p + 1, int(math.ceil(h * merged.shape[1] / n))), 2))
-    stages.append((np.arange(n)[None, :], h, max_iter))
+        stages.append((merged, max(p + 1, int(math.ceil(h * merged.shape[1] / n))), 2, False))
+    stages.append((np.arange(n)[None, :], h, max_iter, True))
+    best_det, best_mask = math.inf, None
     # Stage 2: the ten best per subsample on the merged subsamples, then the ten best on all data.
-    for idx, hs, iters in stages:
+    for idx, hs, iters, final in stages:
         # Subsample stages only rank candidates: single precision halves their cost; the
         # full-data stage (which decides exact fits) runs in double precision.
-        sm = mono[idx] if idx.shape[1] == n else mono[idx].astype(np.float32)
+        sm = mono[None] if final else mono[idx] if idx.shape[1] == n else mono[idx].astype(np.float32)
         prev = None
         for _ in range(iters):
-            masks, mean, cov, det, lam = _c_step(sm, mean, cov, hs, p)
+            masks, mean, cov, det, lam = _c_step(sm, mean, cov, lam, hs, p)
             if (lam <= tol * tol).any():
                 found = exact(lam, masks, idx, mean, cov)
                 if found is not None:
                     return _lowest_rank(found, x, z, s, h, seed, exact_tol)
-            if prev is not None and np.array_equal(prev, masks):
+            if not final:
+                if prev is not None and np.array_equal(prev, masks):
+                    break
+                prev = masks
+                continue
+            # Full data: a candidate whose subset did not change has reached its fixed point (its
+            # determinant is final), and candidates on the same subset share their future: only
+            # one of each that moved takes further C-steps. Same answer, fewer products.
+            live = np.ones(masks.shape[1], bool)
+            if prev is not None:
+                live = (masks[0] != prev[0]).any(axis=-1)
+                done = np.flatnonzero(~live)
+                if done.size:
+                    k = done[np.argmin(det[0, done])]
+                    if det[0, k] < best_det:
+                        best_det, best_mask = det[0, k], masks[0, k]
+            order = np.argsort(det[0], kind="stable")
+            a, b = order[1:], order[:-1]
+            tie = det[0, a] == det[0, b]
+            if tie.any():
+                a, b = a[tie], b[tie]
+                live[a[(masks[0, a] == masks[0, b]).all(axis=-1)]] = False
+            if not live.any():
                 break
+            if not live.all():
+                masks, mean, cov, det, lam = masks[:, live], mean[:, live], cov[:, live], det[:, live], lam[:, live]
             prev = masks
-        if iters != max_iter:
+        else:
+            if final:  # out of iterations: take the unconverged candidates as they stand
+                k = int(np.argmin(det[0]))
+                if det[0, k] < best_det:
+                    best_mask = masks[0, k]
+        if not final:
             keep = np.argsort(det, axis=1, kind="stable")[:, :n_best]
-            mean = np.take_along_axis(mean, keep[..., None], axis=1).reshape(1, -1, p)
-            cov = np.take_along_axis(cov, keep[..., None, None], axis=1).reshape(1, -1, p, p)
-    best = int(np.argmin(det[0]))
-    return _finish(x, z, center, s, masks[0, best], h)
+            rows = np.arange(len(keep))[:, None]
+            mean, cov, lam = mean[rows, keep].reshape(1, -1, p), cov[rows, keep].reshape(1, -1, p, p), lam[rows, keep].reshape(1, -1)
+    return _finish(x, z, center, s, best_mask, h)
 
 
 def _lowest_rank(found: McdResult, x: np.ndarray, z: np.ndarray, s: float, h: int, seed: int, exact_tol: float) -> McdResult:
@@ -388,10 +462,12 @@ def _lowest_rank(found: McdResult, x: np.ndarray, z: np.ndarray, s: float, h: in
 @functools.lru_cache(maxsize=None)
 def _chi2_constants(p: int) -> tuple[float, float, float]:
     """chi2_p(0.5), chi2_p(0.975) and the reweighted consistency factor 0.975 / P(chi2_{p+2} <= chi2_p(0.975))."""
-    from scipy.stats import chi2  # scipy.stats costs ~1 s to import; only a measurement needs it
+    # chi2_k quantile = 2 gammaincinv(k/2, .), cdf = gammainc(k/2, ./2): scipy.special, because
+    # importing scipy.stats costs ~1.5 s, paid by the first measurement or `import device`.
+    from scipy.special import gammainc, gammaincinv
 
-    q = float(chi2.ppf(0.975, p))
-    return float(chi2.ppf(0.5, p)), q, 0.975 / float(chi2.cdf(q, p + 2))
+    q = 2.0 * float(gammaincinv(p / 2.0, 0.975))
+    return 2.0 * float(gammaincinv(p / 2.0, 0.5)), q, 0.975 / float(gammainc((p + 2) / 2.0, q / 2.0))
 
 
 def _mean_cov(z: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -413,7 +489,7 @@ def _finish(x: np.ndarray, z: np.ndarray, center: np.ndarray, s: float, subset: 
     med_q, q, reweight_factor = _chi2_constants(p)
     raw_mean, raw_cov = _mean_cov(z[subset])
     d2 = _d2(z, raw_mean, raw_cov)
-    factor = float(np.median(d2) / med_q)
+    factor = median(d2) / med_q
     if factor > 0:
         raw_cov = raw_cov * factor
         d2 = d2 / factor

@@ -9,6 +9,23 @@ import numpy as np
 TUKEY_C = 4.685  # 95 % efficiency at the normal
 
 
+def median(values: np.ndarray) -> np.ndarray | float:
+    """``np.median`` along the last axis of non-empty, NaN-free ``values`` (any unit).
+
+    The same partition and the same mean of the two middle values as ``np.median``, without its
+    generic axis and NaN handling, which costs several times the selection itself on the few
+    hundred values of a measurement. Returns a float for 1-D input.
+    """
+    a = np.asarray(values, dtype=np.float64)
+    k = a.shape[-1] // 2
+    if a.shape[-1] % 2:
+        out = np.partition(a, k, axis=-1)[..., k]
+    else:
+        part = np.partition(a, (k - 1, k), axis=-1)
+        out = (part[..., k - 1] + part[..., k]) / 2.0
+    return float(out) if a.ndim == 1 else out
+
+
 def tukey_location(values: np.ndarray, c: float = TUKEY_C, iterations: int = 30) -> tuple[float, float]:
     """Bisquare M-estimate of location of ``values`` (any unit) and its standard error.
 
@@ -20,9 +37,9 @@ def tukey_location(values: np.ndarray, c: float = TUKEY_C, iterations: int = 30)
     v = np.asarray(values, dtype=np.float64)
     if v.size == 0:
         return math.nan, math.nan
-    m = float(np.median(v))
+    m = median(v)
     dev = np.abs(v - m)
-    s = 1.4826 * float(np.median(dev))
+    s = 1.4826 * median(dev)
     if s == 0.0:
         s = 1.2533 * float(dev.mean())
     if s == 0.0:

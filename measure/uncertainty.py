@@ -39,6 +39,8 @@ from collections.abc import Callable
 
 import numpy as np
 
+from .robust_range import median
+
 
 def disparity_quantum(disparities: np.ndarray) -> float:
     """Smallest positive step between distinct disparity values (px), capped at 1 px."""
@@ -101,7 +103,7 @@ def window_depth_sigma(window_disparities: np.ndarray, depth: float, fb: float, 
     d = np.asarray(window_disparities, dtype=np.float64)
     if d.size == 0 or not math.isfinite(depth):
         return math.nan
-    mad = 1.4826 * float(np.median(np.abs(d - np.median(d))))
+    mad = 1.4826 * median(np.abs(d - median(d)))
     sd = max(1.2533 * mad / math.sqrt(d.size), quantum / math.sqrt(12.0))
     return depth * depth / fb * sd
 
