@@ -10,7 +10,6 @@ from __future__ import annotations
 import argparse
 import os
 import platform
-import re
 import socket
 import subprocess
 import sys
@@ -22,9 +21,9 @@ from pathlib import Path
 
 import httpx
 import numpy as np
+from results_file import RESULTS, replace_section
 
 ROOT = Path(__file__).resolve().parents[1]
-RESULTS = ROOT / "bench" / "RESULTS.md"
 SECTION = "## Service load"
 
 
@@ -162,13 +161,7 @@ def record(results: list[dict], spec: str, method: str, load: float) -> None:
         + f"\nMachine: {machine()}; {date}. The machine was shared with other jobs (1-minute load average {load:.1f} "
         "before the run), so latencies are upper bounds.\n"
     )
-    text = RESULTS.read_text() if RESULTS.exists() else "# Benchmark results\n"
-    pattern = re.compile(rf"^{re.escape(SECTION)}\n.*?(?=^## |\Z)", re.S | re.M)
-    if pattern.search(text):
-        text = pattern.sub(lambda _: body + "\n", text, count=1)
-    else:
-        text = text.rstrip("\n") + "\n\n" + body
-    RESULTS.write_text(text.rstrip("\n") + "\n")
+    replace_section(SECTION, body)
 
 
 def run_scenario(spec: str, requests: int, clients: int, method: str, per_frame: int) -> dict:

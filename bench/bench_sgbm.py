@@ -11,7 +11,6 @@ from __future__ import annotations
 import argparse
 import os
 import platform
-import re
 import sys
 import time
 from dataclasses import replace
@@ -26,6 +25,7 @@ sys.path.insert(0, str(ROOT))
 
 from device.calibration import StereoCalibration  # noqa: E402
 from device.sgbm import SGBMConfig, compute_disparity  # noqa: E402
+from results_file import replace_section  # noqa: E402
 from device.stereo_pair import StereoProcessor  # noqa: E402
 
 SHARED = Path(os.environ.get("DEPTHRULER_SHARED", ROOT.parent / "shared"))
@@ -166,17 +166,6 @@ def table(rows: list[dict], env: dict) -> str:
     return "\n".join(lines) + "\n"
 
 
-def write_section(text: str, path: Path = ROOT / "bench" / "RESULTS.md") -> None:
-    """Replace only the "## SGBM" section (up to the next "## " heading), keeping other sections."""
-    old = path.read_text() if path.exists() else "# Benchmark results\n\n"
-    pattern = re.compile(r"^## SGBM\n.*?(?=^## |\Z)", re.S | re.M)
-    if pattern.search(old):
-        new = pattern.sub(lambda _m: text + "\n", old, count=1)
-    else:
-        new = old.rstrip("\n") + "\n\n" + text
-    path.write_text(new)
-
-
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--repeats", type=int, default=5)
@@ -188,7 +177,7 @@ def main() -> None:
     text = table(rows, env) + (f"\n{args.notes}\n" if args.notes else "")
     print(text)
     if args.write:
-        write_section(text)
+        replace_section("## SGBM", text)
 
 
 if __name__ == "__main__":

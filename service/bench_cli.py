@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import sys
+
 import typer
 
 BENCH_DIR_NAME = "bench"
@@ -27,6 +29,9 @@ def bench(name: str = typer.Argument("all", help="benchmark to run (e.g. 'measur
         raise typer.BadParameter(f"no bench_*.py scripts in {_bench_dir()}")
     if name != "all" and name not in found:
         raise typer.BadParameter(f"unknown benchmark {name!r}; choose one of: all, {', '.join(found)}")
+    # Bench scripts share bench/results_file.py, as they do when run as `python bench/bench_x.py`.
+    if str(_bench_dir()) not in sys.path:
+        sys.path.insert(0, str(_bench_dir()))
     for key, path in found.items():
         if name not in ("all", key):
             continue
