@@ -67,6 +67,20 @@ class SourceBase:
         self.close()
 
 
+_TRUE = frozenset({"1", "true", "yes", "on"})
+_FALSE = frozenset({"0", "false", "no", "off"})
+
+
+def parse_flag(text: str) -> bool:
+    """A yes/no source option: 1/0, true/false, yes/no, on/off (any case). Raises ValueError."""
+    v = text.strip().lower()
+    if v in _TRUE:
+        return True
+    if v in _FALSE:
+        return False
+    raise ValueError(f"{text!r} is not a yes/no (boolean) value (use 1/0, true/false)")
+
+
 @dataclass(frozen=True)
 class SourceSpec:
     """A parsed spec string ``kind[:target][?key=value&...]``, e.g. ``sim:poster?distance=4``."""
@@ -87,6 +101,23 @@ class SourceSpec:
         except ValueError as exc:
             raise SourceError(f"cannot parse the options {query!r} of source spec {spec!r}; write key=value&key=value") from exc
         return cls(kind=kind.lower(), target=target, params=params)
+
+    def check_keys(self, allowed: tuple[str, ...]) -> None:
+        """Raise SourceError naming the options of this spec that its kind does not know."""
+        unknown = set(self.params) - set(allowed)
+        if unknown:
+            raise SourceError(f"unknown {self.kind} option(s) {', '.join(sorted(unknown))}; use {', '.join(allowed)}")
+
+    def flag(self, key: str, default: bool) -> bool:
+        """The yes/no option ``key`` (a blank value is no), or ``default`` when it is absent."""
+        if key not in self.params:
+            return default
+        if not self.params[key].strip():
+            return False
+        try:
+            return parse_flag(self.params[key])
+        except ValueError:
+            raise SourceError(f"{key}={self.params[key]!r} is not a yes/no value; write {key}=1 or {key}=0") from None
 
     def __str__(self) -> str:
         s = self.kind + (f":{self.target}" if self.target else "")

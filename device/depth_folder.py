@@ -33,7 +33,7 @@ from measure import Frame, MeasureError, PinholeCamera
 
 from .base import SourceBase, SourceInfo, SourceSpec
 from .errors import CalibrationError, RecordingError, SourceError, SourceNotFound
-from .recording import EndOfRecording, flag_param
+from .recording import EndOfRecording
 
 DEFAULT_BASELINE_M = 0.075
 DEFAULT_DEPTH_SCALE = 1000.0
@@ -272,9 +272,7 @@ def from_spec(spec: SourceSpec) -> DepthFolderSource:
     """``depthpng:DIR?baseline=0.075&depth_scale=1000&fps=30&loop=1`` -> an unopened DepthFolderSource."""
     if not spec.target:
         raise SourceNotFound("depthpng needs a folder: depthpng:path/to/folder")
-    unknown = set(spec.params) - set(_PARAMS)
-    if unknown:
-        raise SourceError(f"unknown depthpng option(s) {', '.join(sorted(unknown))}; use {', '.join(_PARAMS)}")
+    spec.check_keys(_PARAMS)
 
     def num(key: str) -> float | None:
         if key not in spec.params:
@@ -290,7 +288,7 @@ def from_spec(spec: SourceSpec) -> DepthFolderSource:
             baseline_m=num("baseline"),
             depth_scale=num("depth_scale"),
             fps=num("fps"),
-            loop=flag_param(spec.params, "loop", False),
+            loop=spec.flag("loop", False),
         )
     )
 

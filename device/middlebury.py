@@ -164,4 +164,5 @@ class MiddleburySource(SourceBase):
 def from_spec(spec: SourceSpec) -> MiddleburySource:
     if not spec.target:
         raise SourceNotFound("middlebury needs a scene folder: middlebury:path/to/Adirondack")
+    spec.check_keys(("disparity",))
     return MiddleburySource(spec.target, disparity=spec.params.get("disparity", "sgbm"))

@@ -27,7 +27,7 @@ import numpy as np  # noqa: E402
 
 from measure import Frame, PinholeCamera  # noqa: E402
 
-from .base import SourceBase, SourceInfo, SourceSpec  # noqa: E402
+from .base import SourceBase, SourceInfo, SourceSpec, parse_flag  # noqa: E402
 from .errors import CalibrationError, SourceDisconnected, SourceError, SourceNotFound, SourceTimeout  # noqa: E402
 
 PRESETS: tuple[str, ...] = (
@@ -385,7 +385,6 @@ class OakSource(SourceBase):
         super().close()
 
 
-_BOOL = {"1": True, "true": True, "yes": True, "on": True, "0": False, "false": False, "no": False, "off": False}
 
 
 def config_from_spec(spec: SourceSpec) -> OakConfig:
@@ -401,7 +400,7 @@ def config_from_spec(spec: SourceSpec) -> OakConfig:
             elif key == "preset":
                 kwargs["preset"] = value.upper()
             elif key in ("subpixel", "lr_check", "extended_disparity", "confidence_map"):
-                kwargs[key] = _BOOL[value.lower()]
+                kwargs[key] = parse_flag(value)
             elif key == "fps":
                 kwargs["fps"] = float(value)
             elif key in ("confidence_threshold", "search_timeout_ms", "mono_width", "mono_height"):

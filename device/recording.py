@@ -765,22 +765,6 @@ def summarize(rec: Recording) -> dict[str, Any]:
 # replay as a Source
 
 
-_TRUE = {"1", "true", "yes", "on"}
-_FALSE = {"0", "false", "no", "off", ""}
-
-
-def flag_param(params: Mapping[str, str], key: str, default: bool) -> bool:
-    """A yes/no source-spec option (1/0, true/false, yes/no, on/off)."""
-    if key not in params:
-        return default
-    v = params[key].strip().lower()
-    if v in _TRUE:
-        return True
-    if v in _FALSE:
-        return False
-    raise SourceError(f"{key}={params[key]!r} is not a yes/no value; write {key}=1 or {key}=0")
-
-
 @dataclass(frozen=True)
 class ReplayConfig:
     """``path``: the recording; ``loop``: start again at the end; ``realtime``: pace frames by their
@@ -876,9 +860,7 @@ def from_spec(spec: SourceSpec) -> ReplaySource:
     """``replay:DIR?loop=1&realtime=1&speed=2&start=10`` -> an unopened ReplaySource."""
     if not spec.target:
         raise RecordingNotFound("replay needs a recording directory: replay:path/to/recording")
-    unknown = set(spec.params) - set(_REPLAY_PARAMS)
-    if unknown:
-        raise SourceError(f"unknown replay option(s) {', '.join(sorted(unknown))}; use {', '.join(_REPLAY_PARAMS)}")
+    spec.check_keys(_REPLAY_PARAMS)
     try:
         speed = float(spec.params.get("speed", "1"))
         start = int(spec.params.get("start", "0"))
@@ -887,8 +869,8 @@ def from_spec(spec: SourceSpec) -> ReplaySource:
     return ReplaySource(
         ReplayConfig(
             path=Path(spec.target),
-            loop=flag_param(spec.params, "loop", False),
-            realtime=flag_param(spec.params, "realtime", False),
+            loop=spec.flag("loop", False),
+            realtime=spec.flag("realtime", False),
             speed=speed,
             start=start,
         )

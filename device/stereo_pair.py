@@ -23,7 +23,7 @@ import numpy as np
 
 from measure import Frame, PinholeCamera
 
-from .base import SourceBase, SourceInfo, SourceSpec
+from .base import SourceBase, SourceInfo, SourceSpec, parse_flag
 from .calibration import StereoCalibration, load_calibration
 from .errors import CalibrationError, SourceDisconnected, SourceError, SourceNotFound, SourceTimeout
 from .sgbm import MODES, SGBMConfig, compute_disparity
@@ -370,7 +370,6 @@ class StereoPairSource(SourceBase):
         super().close()
 
 
-_BOOL = {"1": True, "true": True, "yes": True, "on": True, "0": False, "false": False, "no": False, "off": False}
 _SGBM_KEYS = {"mode": "mode", "ndisp": "num_disparities", "block": "block_size", "p1": "p1", "p2": "p2",
               "uniqueness": "uniqueness", "wls": "wls", "wls_lambda": "wls_lambda", "wls_sigma": "wls_sigma",
               "lr_confidence": "lr_confidence", "speckle_window": "speckle_window", "speckle_range": "speckle_range"}
@@ -396,7 +395,7 @@ def config_from_spec(spec: SourceSpec) -> StereoPairConfig:
             elif key in _SGBM_KEYS:
                 name = _SGBM_KEYS[key]
                 kind = str(sgbm_types[name])
-                sgbm[name] = (_BOOL[value.lower()] if "bool" in kind else value if name == "mode"
+                sgbm[name] = (parse_flag(value) if "bool" in kind else value if name == "mode"
                               else float(value) if "float" in kind else int(value))
             else:
                 raise SourceError(

@@ -15,7 +15,7 @@ from dataclasses import dataclass, field, fields, replace
 
 import numpy as np
 
-from device.base import SourceBase, SourceInfo, SourceSpec
+from device.base import SourceBase, SourceInfo, SourceSpec, parse_flag
 from device.errors import SourceError, SourceNotFound, SourceTimeout
 from measure import Frame
 
@@ -87,19 +87,11 @@ _KEYS = {  # spec key -> (SimConfig field, parser)
 }
 
 
-def _parse_bool(text: str) -> bool:
-    if text.lower() in ("1", "true", "yes", "on"):
-        return True
-    if text.lower() in ("0", "false", "no", "off"):
-        return False
-    raise ValueError(f"{text!r} is not a boolean (use 1/0, true/false)")
-
-
 def _sensor_parsers() -> dict[str, object]:
     out: dict[str, object] = {}
     for f in fields(SensorModel):
         kind = str(f.type)
-        out[f.name] = _parse_bool if kind == "bool" else int if kind == "int" else str if kind == "str" else float
+        out[f.name] = parse_flag if kind == "bool" else int if kind == "int" else str if kind == "str" else float
     return out
 
 
