@@ -140,11 +140,6 @@ def poster_case(
     return Case(frame, p1, p2, c1, c2, t1, t2)
 
 
-def accuracy(truth: float, measured: float) -> float:
-    """A = 100 - 100 |g - m| / g (the paper's per-measurement accuracy)."""
-    return 100.0 - 100.0 * abs(truth - measured) / truth
-
-
 # A small camera for plane-only frames (fast to build, used by the unit tests).
 SMALL_W, SMALL_H, SMALL_F, SMALL_B = 320, 240, 300.0, 0.1
 SMALL_CAM = PinholeCamera(SMALL_F, SMALL_F, (SMALL_W - 1) / 2, (SMALL_H - 1) / 2, SMALL_W, SMALL_H)

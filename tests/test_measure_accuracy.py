@@ -8,7 +8,8 @@ import pytest
 
 from measure import MeasureOptions, measure_distance
 
-from measure_synth import accuracy, poster_case
+from measure_synth import poster_case
+from service.report import accuracy
 
 DISTANCES = (2.0, 4.0, 6.0, 7.0)
 PER_DISTANCE = 20
@@ -28,7 +29,7 @@ def results() -> dict[tuple[float, str], list[float]]:
             )
             for method in METHODS:
                 m = measure_distance(case.frame, case.click1, case.click2, MeasureOptions(method=method))
-                out.setdefault((dist, method), []).append(accuracy(case.length_m, m.distance_m))
+                out.setdefault((dist, method), []).append(float(accuracy(case.length_m, m.distance_m)))
     return out
 
 

@@ -15,6 +15,7 @@ import pytest
 
 from device.gt_segments import SegmentRules, find_segments, scene_segments
 from measure import MeasureError, MeasureOptions, PinholeCamera, measure_distance
+from service.report import accuracy
 
 METHODS = ("basic", "paper", "robust")
 JITTERS = 2  # seeded click jitter (sigma 1.5 px) per segment, besides the exact end pixels
@@ -49,7 +50,7 @@ def middlebury_results(middlebury_dir):
                 for method in METHODS:
                     try:
                         m = measure_distance(frame, c1, c2, MeasureOptions(method=method))
-                        got[method] = 100.0 - 100.0 * abs(m.distance_m - seg.length_m) / seg.length_m
+                        got[method] = float(accuracy(seg.length_m, m.distance_m))
                     except MeasureError:
                         got[method] = -100.0  # no answer counts as a gross failure
                 if all(a == -100.0 for a in got.values()):
