@@ -11,12 +11,18 @@ noise although the noise runs along the viewing rays and grows as Z²; that tilt
 (too steep, measured on the synthetic posters) whenever the surface is not fronto-parallel.
 
 Estimator: FAST-MCD (p = 2) on (t, d) gives a robust start (an exact fit, e.g. half the
-samples on one quantized level, is only a start here) from ``starts_for(2)`` = 156 random
-3-point starts instead of R&VD's fixed 500: at 50 % contamination a start is outlier-free
-with probability 1/8, so all 156 miss with probability (7/8)^156 < 1e-9 (500 buys 1e-29
-at three times the cost; the paper's method keeps 500); then Tukey-bisquare IRLS regression
+samples on one quantized level, is only a start here); then Tukey-bisquare IRLS regression
 of d on t with the scale fixed at max(1.4826 MAD of the start's support residuals, q/sqrt(12))
 (q the disparity quantum): the floor keeps quantized data from collapsing onto one level.
+
+Because FAST-MCD only supplies the start, it runs lighter than R&VD's defaults (which the
+paper's method keeps): ``starts_for(2, failure=1e-6)`` = 104 random 3-point starts instead of
+500 (at 50 % contamination a start is outlier-free with probability 1/8, so all 104 miss with
+probability (7/8)^104 < 1e-6; at 40 % below 1e-11), the 5 best per subsample go on instead of
+10, and the full data take two C-steps instead of iterating to convergence; the IRLS on all
+samples finishes the job. On 160 synthetic posters, 20 bench diagonals with 30-49 % outliers
+and the 49 Middlebury segments every distance agrees with the converged R&VD run to within
+0.16 accuracy points (mean accuracy unchanged to 0.001), at about 0.8x the time.
 Units: t and d in pixels.
 """
 
@@ -30,7 +36,10 @@ import numpy as np
 from .mcd import fast_mcd, starts_for
 from .robust_range import TUKEY_C, median
 
-_STARTS = starts_for(2)  # see the module docstring
+# See the module docstring: FAST-MCD supplies the start, the IRLS the answer.
+_STARTS = starts_for(2, failure=1e-6)
+_BEST_PER_SUBSAMPLE = 5
+_FULL_DATA_STEPS = 2
 
 
 @dataclass(frozen=True)
@@ -55,7 +64,10 @@ def fit_disparity_line(t: np.ndarray, d: np.ndarray, support_fraction: float, se
     """Robust d = alpha + beta t of samples at positions ``t`` (px) with disparities ``d`` (px)."""
     t = np.asarray(t, dtype=np.float64)
     d = np.asarray(d, dtype=np.float64)
-    res = fast_mcd(np.c_[t, d], support_fraction=support_fraction, seed=seed, n_starts=_STARTS)
+    res = fast_mcd(
+        np.c_[t, d], support_fraction=support_fraction, seed=seed,
+        n_starts=_STARTS, n_best=_BEST_PER_SUBSAMPLE, max_iter=_FULL_DATA_STEPS,
+    )
     if res.exact_fit and res.fit_kind == "hyperplane" and abs(res.plane[1]) > 1e-12:
         a1, a2, c = res.plane
         beta, alpha = -a1 / a2, -c / a2
@@ -95,7 +107,8 @@ def fit_disparity_line(t: np.ndarray, d: np.ndarray, support_fraction: float, se
     ns = int(support.sum())
     sigma = max(float(np.sqrt((r[support] ** 2).mean())) if ns else scale, floor)
     ts = t[support]
-    xtx = np.array([[ns, ts.sum()], [ts.sum(), ts @ ts]], dtype=np.float64)
-    det = float(np.linalg.det(xtx)) if ns else 0.0
-    cov = sigma * sigma * np.linalg.inv(xtx) if det > 0 else np.full((2, 2), np.inf)
+    st, stt = float(ts.sum()), float(ts @ ts)
+    det = ns * stt - st * st
+    # (X^T X)^-1 of the 2x2 normal equations, closed form.
+    cov = sigma * sigma / det * np.array([[stt, -st], [-st, ns]]) if det > 0 else np.full((2, 2), np.inf)
     return DisparityLine(alpha, beta, sigma, cov, support, bool(res.exact_fit))

