@@ -9,7 +9,6 @@ from __future__ import annotations
 
 import argparse
 import os
-import platform
 import socket
 import subprocess
 import sys
@@ -21,7 +20,7 @@ from pathlib import Path
 
 import httpx
 import numpy as np
-from results_file import RESULTS, replace_section
+from results_file import RESULTS, machine, replace_section
 
 ROOT = Path(__file__).resolve().parents[1]
 SECTION = "## Service load"
@@ -124,18 +123,6 @@ def run_load(base: str, requests: int, clients: int, method: str, per_frame: int
     }
 
 
-def machine() -> str:
-    cpu = platform.processor() or platform.machine()
-    try:
-        for line in Path("/proc/cpuinfo").read_text().splitlines():
-            if line.startswith("model name"):
-                cpu = line.split(":", 1)[1].strip()
-                break
-    except OSError:
-        pass
-    return f"{cpu}, {os.cpu_count()} cores, {platform.system()} {platform.release()}, Python {platform.python_version()}"
-
-
 def _row(r: dict) -> str:
     return (
         f"| {r['per_frame']} | {r['requests']} | {r['clients']} | {len(r['errors'])} | {r['p50_ms']:.1f} ms | "
@@ -177,7 +164,7 @@ def run_scenario(spec: str, requests: int, clients: int, method: str, per_frame:
                 proc.kill()
 
 
-def main() -> None:
+def main(argv: list[str] | None = None) -> None:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--requests", type=int, default=500)
     ap.add_argument("--clients", type=int, default=8)
@@ -187,7 +174,7 @@ def main() -> None:
         "--per-frame", default="5,1000", help="comma-separated measurements per frozen frame, one run each (default 5,1000)"
     )
     ap.add_argument("--no-record", action="store_true", help="print only; leave bench/RESULTS.md alone")
-    args = ap.parse_args()
+    args = ap.parse_args(argv)
     load_before = os.getloadavg()[0]
     results = []
     failed = False

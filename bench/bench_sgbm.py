@@ -25,7 +25,7 @@ sys.path.insert(0, str(ROOT))
 
 from device.calibration import StereoCalibration  # noqa: E402
 from device.sgbm import SGBMConfig, compute_disparity  # noqa: E402
-from results_file import replace_section  # noqa: E402
+from results_file import cpu_name, replace_section  # noqa: E402
 from device.stereo_pair import StereoProcessor  # noqa: E402
 
 SHARED = Path(os.environ.get("DEPTHRULER_SHARED", ROOT.parent / "shared"))
@@ -91,7 +91,7 @@ def run(repeats: int) -> tuple[list[dict], dict]:
             rows.append({"size": f"{w}x{h}", "config": label, "s": t, "cpu": c, "ratio": t / t_ref})
     env = {
         "date": datetime.now(timezone.utc).strftime("%Y-%m-%d %H:%M UTC"),
-        "cpu": _cpu_name(),
+        "cpu": cpu_name(),
         "cores": os.cpu_count(),
         "opencv": cv2.__version__,
         "threads": cv2.getNumThreads(),
@@ -120,16 +120,6 @@ def accuracy() -> list[dict]:
             rows.append({"config": f"{mode}{' + WLS' if wls else ''}", "mean": float(np.mean(shares)),
                          "min": float(np.min(shares)), "max": float(np.max(shares))})
     return rows
-
-
-def _cpu_name() -> str:
-    try:
-        for line in Path("/proc/cpuinfo").read_text().splitlines():
-            if line.startswith("model name"):
-                return line.split(":", 1)[1].strip()
-    except OSError:
-        pass
-    return platform.processor() or "unknown"
 
 
 def table(rows: list[dict], env: dict) -> str:
@@ -166,12 +156,12 @@ def table(rows: list[dict], env: dict) -> str:
     return "\n".join(lines) + "\n"
 
 
-def main() -> None:
+def main(argv: list[str] | None = None) -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--repeats", type=int, default=5)
     parser.add_argument("--write", action="store_true", help="update bench/RESULTS.md")
     parser.add_argument("--notes", default="", help="text appended under the table (e.g. the chosen defaults)")
-    args = parser.parse_args()
+    args = parser.parse_args(argv)
     rows, env = run(args.repeats)
     env["accuracy"] = accuracy()
     text = table(rows, env) + (f"\n{args.notes}\n" if args.notes else "")

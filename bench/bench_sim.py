@@ -1,20 +1,23 @@
 """Speed of the simulated rig at 1280x720: a streamed frame, a scenario() call, a cold scene.
 
-Run: ``.venv/bin/python bench/bench_sim.py``. Absolute times depend on the machine, so each is also
-given as a ratio to a reference run side by side in the same process: drawing one 1280x720 float32
-Gaussian noise field (the least any per-frame simulation must do).
-
-Recorded 2026-11-23 on the 2-core build machine shared with ~6 jobs (load average ~5, so absolute
-times are ~2-3x an idle machine's): sim source frame 1280x720 27-56 ms (1.8-4.0x reference),
-scenario() 35-72 ms, scenario() + robust measurement 46-83 ms, cold scene 0.8-1.2 s (cached after).
+Run: ``.venv/bin/python bench/bench_sim.py`` or ``depthruler bench sim`` (``--write`` records the
+table in bench/RESULTS.md). Absolute times depend on the machine, so each is also given as a ratio
+to a reference run side by side in the same process: drawing one 1280x720 float32 Gaussian noise
+field (the least any per-frame simulation must do).
 """
 
 from __future__ import annotations
 
+import argparse
+import os
 import statistics
 import time
+from datetime import datetime, timezone
 
 import numpy as np
+from results_file import machine, replace_section
+
+SECTION = "## Simulated rig"
 
 
 def _median_ms(fn, repeat: int) -> float:
@@ -26,7 +29,7 @@ def _median_ms(fn, repeat: int) -> float:
     return statistics.median(times)
 
 
-def main(repeat: int = 30) -> dict[str, float]:
+def run(repeat: int = 30) -> dict[str, float]:
     import sim
     from device import open_source
     from measure import MeasureOptions, measure_distance
@@ -59,6 +62,34 @@ def main(repeat: int = 30) -> dict[str, float]:
     return results
 
 
+def main(argv: list[str] | None = None) -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--repeat", type=int, default=30, help="timed calls per figure (default 30)")
+    ap.add_argument("--write", action="store_true", help=f"record the table in bench/RESULTS.md ({SECTION!r})")
+    args = ap.parse_args(argv)
+    if args.repeat < 1:
+        ap.error("--repeat must be at least 1")
+    load = os.getloadavg()[0]
+    results = run(args.repeat)
+    rows = [(k, v, results.get(k.replace(", ms", " / reference"))) for k, v in results.items() if k.endswith(", ms")]
+    lines = [
+        SECTION,
+        "",
+        "`bench/bench_sim.py` (`depthruler bench sim --write`): median of "
+        f"{args.repeat} calls; the reference is one 1280x720 float32 normal field drawn in the same process.",
+        "",
+        "| what | median ms | / reference |",
+        "| --- | --- | --- |",
+        *(f"| {k.removesuffix(', ms')} | {v:.1f} | {'' if r is None else f'{r:.1f}x'} |" for k, v, r in rows),
+        "",
+        f"Machine: {machine()}; {datetime.now(timezone.utc).strftime('%Y-%m-%d %H:%M UTC')}; "
+        f"1-minute load average {load:.2f} before.",
+    ]
+    text = "\n".join(lines) + "\n"
+    print(text)
+    if args.write:
+        replace_section(SECTION, text)
+
+
 if __name__ == "__main__":
-    for name, value in main().items():
-        print(f"{name:45s} {value:9.2f}")
+    main()

@@ -1,4 +1,5 @@
-"""`depthruler bench [NAME]`: run the benchmark scripts in bench/ (each bench_*.py has a main())."""
+"""`depthruler bench [NAME] [OPTIONS...]`: run the benchmark scripts in bench/ (each bench_*.py has a
+``main(argv)``; options after the name go to the script, e.g. `depthruler bench measure --write`)."""
 
 from __future__ import annotations
 
@@ -20,8 +21,12 @@ def discover() -> dict[str, object]:
     return {p.stem.removeprefix("bench_"): p for p in sorted(_bench_dir().glob("bench_*.py"))}
 
 
-def bench(name: str = typer.Argument("all", help="benchmark to run (e.g. 'measure'), or 'all'")) -> None:
-    """Run the benchmarks in bench/ and print their results (figures go to bench/RESULTS.md)."""
+def bench(
+    ctx: typer.Context,
+    name: str = typer.Argument("all", help="benchmark to run (e.g. 'measure'), or 'all'"),
+) -> None:
+    """Run the benchmarks in bench/ and print their results; options after NAME go to the script
+    (`python bench/bench_measure.py --help` lists them; `--write` records the figures in bench/RESULTS.md)."""
     import importlib.util
 
     found = discover()
@@ -29,6 +34,8 @@ def bench(name: str = typer.Argument("all", help="benchmark to run (e.g. 'measur
         raise typer.BadParameter(f"no bench_*.py scripts in {_bench_dir()}")
     if name != "all" and name not in found:
         raise typer.BadParameter(f"unknown benchmark {name!r}; choose one of: all, {', '.join(found)}")
+    if name == "all" and ctx.args:
+        raise typer.BadParameter(f"options {' '.join(ctx.args)} need one benchmark name; choose one of: {', '.join(found)}")
     # Bench scripts share bench/results_file.py, as they do when run as `python bench/bench_x.py`.
     if str(_bench_dir()) not in sys.path:
         sys.path.insert(0, str(_bench_dir()))
@@ -41,4 +48,8 @@ def bench(name: str = typer.Argument("all", help="benchmark to run (e.g. 'measur
         if not hasattr(module, "main"):
             raise typer.BadParameter(f"{path} has no main(); every bench script needs one")
         typer.echo(f"## {key} ({path.name})")
-        module.main()
+        module.main(list(ctx.args))
+
+
+# Options after NAME belong to the script, not to this command.
+bench.context_settings = {"allow_extra_args": True, "ignore_unknown_options": True}

@@ -19,7 +19,8 @@ app = typer.Typer(
     pretty_exceptions_enable=False,
 )
 
-# command name -> "module:attribute"; the attribute is a function (a command) or a typer.Typer (a group).
+# command name -> "module:attribute"; the attribute is a function (a command; its optional
+# ``context_settings`` attribute goes to click) or a typer.Typer (a group).
 COMMANDS: dict[str, str] = {
     "devices": "device.cli:devices",
     "serve": "service.cli_serve:serve",
@@ -46,7 +47,7 @@ def _register() -> None:
         if isinstance(obj, typer.Typer):
             app.add_typer(obj, name=name)
         else:
-            app.command(name)(obj)
+            app.command(name, context_settings=getattr(obj, "context_settings", None))(obj)
 
 
 _register()

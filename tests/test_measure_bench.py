@@ -4,11 +4,23 @@ reference really runs the same pipeline (same answer) so the timing ratio compar
 from __future__ import annotations
 
 import importlib.util
+import sys
 
 import pytest
-import typer
+from typer.testing import CliRunner
 
-from service.bench_cli import bench, discover
+from service.bench_cli import discover
+from service.cli import app
+
+
+def _load(name: str):
+    bench_dir = str(discover()[name].parent)
+    if bench_dir not in sys.path:  # bench scripts import bench/results_file.py
+        sys.path.insert(0, bench_dir)
+    spec = importlib.util.spec_from_file_location(f"bench_{name}_under_test", discover()[name])
+    mod = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(mod)
+    return mod
 
 
 def test_discovers_the_measure_benchmark():
@@ -17,16 +29,37 @@ def test_discovers_the_measure_benchmark():
 
 
 def test_unknown_benchmark_is_a_clear_error():
-    with pytest.raises(typer.BadParameter, match="unknown benchmark 'nope'"):
-        bench("nope")
+    result = CliRunner().invoke(app, ["bench", "nope"])
+    assert result.exit_code == 2 and "unknown benchmark 'nope'" in result.output
+
+
+def test_options_need_one_benchmark():
+    result = CliRunner().invoke(app, ["bench", "all", "--write"])
+    assert result.exit_code == 2 and "need one benchmark name" in result.output
+
+
+@pytest.mark.parametrize("name", sorted(discover()))
+def test_every_benchmark_takes_its_options_from_the_command(name, capsys):
+    # `depthruler bench NAME ...` hands the options after NAME to main(argv), never the CLI's own argv.
+    with pytest.raises(SystemExit) as exc:
+        _load(name).main(["--help"])
+    assert exc.value.code == 0
+    assert "--write" in capsys.readouterr().out or name == "service_load"
+
+
+def test_measure_report_judges_each_run_against_both_targets():
+    mod = _load("measure")
+    row = {"n_samples": 1280, "n_support": 800, "median_ms": 3.0, "p99_ms": 4.0, "cpu_median_ms": 3.0, "cpu_p99_ms": 4.0,
+           "sklearn_median_ms": 600.0, "sklearn_cpu_median_ms": 600.0, "speedup": 200.0, "distance_m": 4.5, "sklearn_distance_m": 4.5}
+    slow = dict(row, cpu_median_ms=5.5, speedup=110.0)
+    text = mod.report([{"robust": row}, {"robust": slow}], (0.5, 0.6), "2026-11-23 12:00 UTC")
+    assert "CPU median 3.00-5.50 ms, speed-up 110-200x; both targets met in 1 of 2 runs." in text
+    assert text.startswith(mod.SECTION)
 
 
 @pytest.mark.slow
 def test_sklearn_reference_gives_the_same_answer():
-    spec = importlib.util.spec_from_file_location("bench_measure_under_test", discover()["measure"])
-    mod = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(mod)
-    rows = mod.run(repeats=2, ref_repeats=1)
+    rows = _load("measure").run(repeats=2, ref_repeats=1)
     for method in ("robust", "paper"):
         r = rows[method]
         assert r["n_samples"] == 1280
