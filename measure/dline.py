@@ -22,7 +22,8 @@ probability (7/8)^104 < 1e-6; at 40 % below 1e-11), the 5 best per subsample go 
 10, and the full data take two C-steps instead of iterating to convergence; the IRLS on all
 samples finishes the job. On 160 synthetic posters, 20 bench diagonals with 30-49 % outliers
 and the 49 Middlebury segments every distance agrees with the converged R&VD run to within
-0.16 accuracy points (mean accuracy unchanged to 0.001), at about 0.8x the time.
+0.16 accuracy points (mean accuracy unchanged to 0.001), at 0.7x the time
+(bench/RESULTS.md, "Measurement core").
 Units: t and d in pixels.
 """
 
