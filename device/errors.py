@@ -17,6 +17,11 @@ class SourceDisconnected(SourceError):
     """The device went away mid-stream (cable pulled, XLink error); reopen to retry."""
 
 
+class SourceEnded(SourceDisconnected):
+    """A finite source (a recording played without loop) delivered its last frame. Reopening
+    would start it over, so a live view stops here and keeps the last frame."""
+
+
 class CalibrationError(SourceError):
     """Calibration is missing, unreadable or inconsistent."""
 

@@ -28,7 +28,7 @@ dropped); other values are dropped and their keys listed in ``meta_dropped``.
 
 Replay: ``replay:DIR?loop=1&realtime=1&speed=1`` yields the frames again (colour bit-identical,
 disparity within 1/128 px). At the end of a recording without ``loop`` ``read`` raises
-:class:`EndOfRecording`, a :class:`SourceDisconnected`: the stream has ended.
+:class:`EndOfRecording`, a :class:`SourceEnded`: the stream has ended.
 """
 
 from __future__ import annotations
@@ -54,7 +54,7 @@ import numpy as np
 from measure import Frame, PinholeCamera
 
 from .base import SourceBase, SourceInfo, SourceSpec
-from .errors import RecordingError, SourceDisconnected, SourceError, SourceNotFound, SourceTimeout
+from .errors import RecordingError, SourceEnded, SourceError, SourceNotFound, SourceTimeout
 
 FORMAT = "depthruler-recording"
 FORMAT_VERSION = 1
@@ -69,7 +69,7 @@ _SAFE_KEY = re.compile(r"^[A-Za-z0-9_-]{1,64}$")
 _SMALL_ARRAY = 64  # arrays up to this many elements go into the JSON meta as lists
 
 
-class EndOfRecording(SourceDisconnected):
+class EndOfRecording(SourceEnded):
     """A replay reached the last frame (and was not asked to loop)."""
 
 

@@ -17,7 +17,7 @@ from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import Any
 
-from device import Source, SourceInfo
+from device import Source, SourceEnded, SourceInfo
 from measure import Frame
 
 
@@ -147,8 +147,10 @@ class Capture:
     """Reads frames from a source into a :class:`FrameRing` on a daemon thread.
 
     States: "connecting" (first open), "streaming", "disconnected" (after an error, waiting to
-    retry), "reconnecting" (reopening), "stopped". Any exception from the source is caught, its
-    message kept for ``status()``, and the source reopened after a backoff that doubles from
+    retry), "reconnecting" (reopening), "ended" (a finite source such as a replay without loop
+    delivered its last frame: not reopened, which would start it over; the last frame stays
+    measurable), "stopped". Any other exception from the source is caught, its message kept for
+    ``status()``, and the source reopened after a backoff that doubles from
     ``backoff_initial_s`` up to ``backoff_max_s``; it resets after a successful frame.
     """
 
@@ -240,6 +242,9 @@ class Capture:
                     self._deliver(frame, src.info)
                     backoff = self.backoff_initial_s
                     self._stop.wait(max(0.0, self.period_s - (time.monotonic() - t0)))
+            except SourceEnded as exc:
+                self._set(state="ended", message=str(exc), next_retry=None)
+                return
             except Exception as exc:  # noqa: BLE001 — any source failure must leave the service up
                 message = f"{type(exc).__name__}: {exc}"
                 with self._lock:

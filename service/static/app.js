@@ -397,6 +397,9 @@ async function pollSource() {
       const retry = s.retry_in_s > 0.5 ? ` — retrying in ${Math.ceil(s.retry_in_s)} s` : " — reconnecting…";
       text = `${name}: ${s.state}${retry}`;
       msg.textContent = `Source ${s.state}: ${s.message || "no frames"}${retry}`;
+    } else if (s.state === "ended") {
+      cls = "pill-wait";
+      text = `${name}: ended · last frame kept`;
     } else if (s.state !== "streaming") {
       cls = "pill-wait";
       text = `${name}: ${s.state}…`;
