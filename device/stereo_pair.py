@@ -7,7 +7,7 @@ into a :class:`measure.Frame`: rectification from the calibration file (see devi
 for its format), SGBM (device/sgbm.py), output registered to the *rectified left* colour image.
 
 Spec: ``v4l2:/dev/video0?layout=side-by-side&calib=FILE.json[&size=1280x480&fps=30&fourcc=MJPG
-&mode=sgbm_3way&ndisp=64&block=5&wls=0&lr_confidence=1&scale=1]`` or ``v4l2:/dev/video0,/dev/video2?calib=...``
+&mode=sgbm_3way&ndisp=64&block=5&wls=0&lr_confidence=1&fill_left_band=1&scale=1]`` or ``v4l2:/dev/video0,/dev/video2?calib=...``
 (size is per node: both halves together for a side-by-side camera).
 """
 
@@ -372,7 +372,8 @@ class StereoPairSource(SourceBase):
 
 _SGBM_KEYS = {"mode": "mode", "ndisp": "num_disparities", "block": "block_size", "p1": "p1", "p2": "p2",
               "uniqueness": "uniqueness", "wls": "wls", "wls_lambda": "wls_lambda", "wls_sigma": "wls_sigma",
-              "lr_confidence": "lr_confidence", "speckle_window": "speckle_window", "speckle_range": "speckle_range"}
+              "lr_confidence": "lr_confidence", "speckle_window": "speckle_window", "speckle_range": "speckle_range",
+              "fill_left_band": "fill_left_band"}
 
 
 def config_from_spec(spec: SourceSpec) -> StereoPairConfig:

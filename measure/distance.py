@@ -33,8 +33,9 @@ Why these choices (A = 100 - 100 |g - m| / g, mean over measurements unless note
   that runs along the rays (worst at 7 m: 97.03 vs 91.81), so the d-line model was kept.
 - Final figures (tests/test_measure_accuracy.py: wall 2 m behind, 50 % contention, 3 px jitter,
   80 cases): robust 96.78, paper 86.77, basic 73.54 (per distance in bench/RESULTS.md).
-  Middlebury, SGBM, 49 GT edge-to-edge segments x 3 clicks (tests/test_middlebury_accuracy.py):
-  median robust 98.70, paper 97.65, basic 97.67; mean 96.15 / 82.42 / 55.46.
+  Middlebury, SGBM (left band filled), 49 GT edge-to-edge segments x 3 clicks
+  (tests/test_middlebury_accuracy.py): median robust 98.63, paper 97.85, basic 97.91; mean
+  97.51 / 91.54 / 61.78.
 - Gap margin of three per-pixel depth sigmas (``measure.gap``): 0 false gaps in 40 tilted
   posters 5 cm in front of a wall at 4-7 m, against 2 of 40 for the paper's bare comparison;
   the synthetic doorway is still found.
@@ -43,7 +44,8 @@ Why these choices (A = 100 - 100 |g - m| / g, mean over measurements unless note
   dropping invalid pixels, which sampling already does; thresholds 0.3/0.5/0.7 gave identical
   answers.
 - Fewer than five valid samples along the line: MeasureError, not a basic answer from the end
-  windows (on Middlebury such windows sit on SGBM's blind border band: A = -145).
+  windows (on Middlebury, before SGBM's left band was filled, such windows sat in the band's
+  edge: A = -145).
 """
 
 from __future__ import annotations

@@ -72,6 +72,7 @@ class SGBMOptions(_Model):
     speckle_range: int = Field(2, ge=0)
     wls: bool = False
     lr_confidence: bool = False
+    fill_left_band: bool = True
 
 
 # SGBMOptions field -> option name in the v4l2 spec (device/stereo_pair.py)

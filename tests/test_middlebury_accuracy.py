@@ -54,7 +54,7 @@ def middlebury_results(middlebury_dir):
                     except MeasureError:
                         got[method] = -100.0  # no answer counts as a gross failure
                 if all(a == -100.0 for a in got.values()):
-                    continue  # SGBM has no disparity there at all (e.g. its blind left border band)
+                    continue  # SGBM has no disparity there at all (a hole along the whole segment)
                 for method in METHODS:
                     acc[method].append(got[method])
         if acc["robust"]:
