@@ -39,10 +39,12 @@ Why these choices (A = 100 - 100 |g - m| / g, mean over measurements unless note
 - Gap margin of three per-pixel depth sigmas (``measure.gap``): 0 false gaps in 40 tilted
   posters 5 cm in front of a wall at 4-7 m, against 2 of 40 for the paper's bare comparison;
   the synthetic doorway is still found.
-- Confidence maps: not used. The SGBM confidence delivered by ``device.sgbm`` is 1.0 on every
-  valid pixel of all seven scenes (its 5th percentile is 1.0), so weighting by it equals
-  dropping invalid pixels, which sampling already does; thresholds 0.3/0.5/0.7 gave identical
-  answers.
+- Confidence maps: not used. The default SGBM confidence of ``device.sgbm`` is 1.0 on every
+  valid pixel, so weighting by it equals dropping invalid pixels, which sampling already does.
+  The left-right consistency (``lr_confidence=1``) is graded, but dropping samples below it
+  hurts: on the 147 Middlebury clicks robust mean 97.51 -> 93.4 at thresholds 0.3-0.75 and
+  89.8 at 0.99 (3-5 click pairs lose every sample; the check removes exactly the edge pixels a
+  measurement ends on), basic 61.8 -> 58.4 / 12.0.
 - Fewer than five valid samples along the line: MeasureError, not a basic answer from the end
   windows (on Middlebury, before SGBM's left band was filled, such windows sat in the band's
   edge: A = -145).
