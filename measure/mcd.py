@@ -318,8 +318,11 @@ def fast_mcd(
 
     ``h`` (or ``support_fraction``: h = ceil(f n), at least the maximal-breakdown
     ``(n + p + 1) // 2``) is the subset size. With n <= p the points always span a lower
-    dimensional subspace and the result is that exact fit. Raises :class:`MeasureError`
-    for empty, non-finite or too-high-dimensional input.
+    dimensional subspace and the result is that exact fit. ``n_starts`` random (p+1)-subsets
+    (see :func:`starts_for`), of which the ``n_best`` lowest determinants per subsample go on,
+    and at most ``max_iter`` C-steps on the full data (R&VD: iterate to convergence; fewer
+    leaves the best candidate as it stands, which suits a robust *start*, see measure/dline.py).
+    Raises :class:`MeasureError` for empty, non-finite or too-high-dimensional input.
     """
     x = np.asarray(points, dtype=np.float64)
     if x.ndim == 1:
