@@ -336,6 +336,8 @@ def fast_mcd(
         h = default_h(n, p, support_fraction)
     if not 1 <= h <= n:
         raise MeasureError(f"h={h} must lie in [1, n={n}]")
+    if min(n_starts, n_best, max_iter) < 1:
+        raise MeasureError(f"n_starts={n_starts}, n_best={n_best} and max_iter={max_iter} must each be at least 1")
     center = median(x.T)
     mad = 1.4826 * median(np.abs(x - center).T)
     s = float(np.sqrt((mad**2).sum()))

@@ -113,6 +113,13 @@ def test_bad_input(bad, match):
         fast_mcd(bad)
 
 
+@pytest.mark.parametrize("option", ["n_starts", "n_best", "max_iter"])
+def test_search_sizes_must_be_positive(option):
+    x, _ = _line_cloud(50, 0.2, 0)
+    with pytest.raises(MeasureError, match=f"{option}=0"):
+        fast_mcd(x, **{option: 0})
+
+
 def test_default_h():
     assert default_h(100, 3, 0.5) == 52
     assert default_h(100, 3, 0.75) == 75
