@@ -76,7 +76,8 @@ def main(argv: list[str] | None = None) -> None:
         SECTION,
         "",
         "`bench/bench_sim.py` (`depthruler bench sim --write`): median of "
-        f"{args.repeat} calls; the reference is one 1280x720 float32 normal field drawn in the same process.",
+        f"{args.repeat} calls (the cold scene: one call, before anything is cached); the reference is one "
+        "1280x720 float32 normal field drawn in the same process.",
         "",
         "| what | median ms | / reference |",
         "| --- | --- | --- |",
