@@ -145,8 +145,8 @@ def record(results: list[dict], spec: str, method: str, load: float) -> None:
         "| measurements per frame | requests | clients | errors | p50 | p95 | max | throughput | frames saved | stream during load |\n"
         "| --- | --- | --- | --- | --- | --- | --- | --- | --- | --- |\n"
         + "".join(_row(r) for r in results)
-        + f"\nMachine: {machine()}; {date}. The machine was shared with other jobs (1-minute load average {load:.1f} "
-        "before the run), so latencies are upper bounds.\n"
+        + f"\nMachine: {machine()}; {date}; 1-minute load average {load:.1f} before the run. The host is "
+        "shared with other machines' jobs, so latencies are upper bounds.\n"
     )
     replace_section(SECTION, body)
 
