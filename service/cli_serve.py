@@ -22,6 +22,24 @@ def _fail(message: str, code: int = 2) -> None:
     raise typer.Exit(code)
 
 
+def check_listen(host: str, port: int) -> None:
+    """Fail with a clear message, before anything starts, when ``host:port`` cannot be served
+    (uvicorn would print the startup banner first and an OSError after it)."""
+    import errno
+    import socket
+
+    try:
+        family = socket.getaddrinfo(host, port, type=socket.SOCK_STREAM)[0][0]
+        with socket.create_server((host, port), family=family):  # SO_REUSEADDR, as uvicorn binds
+            pass
+    except socket.gaierror as exc:
+        _fail(f"cannot resolve --host {host!r} ({exc.strerror}); use 127.0.0.1 or an address of this machine")
+    except OSError as exc:
+        if exc.errno == errno.EADDRINUSE:
+            _fail(f"port {port} on {host} is already in use (another depthruler serve?); pass --port with a free port")
+        _fail(f"cannot listen on {host}:{port} ({exc.strerror or exc}); pass another --host or --port")
+
+
 def auto_source() -> str:
     """The first attached OAK, else the simulated rig (so ``serve`` always starts)."""
     try:
@@ -67,6 +85,7 @@ def serve(
             "Set --token or DEPTHRULER_TOKEN.",
             err=True,
         )
+    check_listen(server.host, server.port)
     try:
         app = create_app(
             spec,

@@ -80,6 +80,19 @@ def test_auto_source_falls_back_to_simulator(monkeypatch):
     assert cli_serve.auto_source() == "sim"
 
 
+def test_serve_on_a_busy_port_says_so_before_starting(tmp_path):
+    import socket
+
+    with socket.create_server(("127.0.0.1", 0)) as busy:
+        port = busy.getsockname()[1]
+        result = CliRunner().invoke(app, ["serve", "--source", "sim", "--port", str(port), "--db", str(tmp_path / "b.db")])
+    assert result.exit_code == 2
+    assert f"port {port} on 127.0.0.1 is already in use" in result.output and "open http" not in result.output
+    assert not (tmp_path / "b.db").exists()  # nothing was started or written
+    result = CliRunner().invoke(app, ["serve", "--source", "sim", "--host", "no-such-host.invalid", "--db", str(tmp_path / "b.db")])
+    assert result.exit_code == 2 and "cannot resolve --host 'no-such-host.invalid'" in result.output
+
+
 def test_serve_flags_override_config(tmp_path, monkeypatch):
     import uvicorn
     from fastapi.testclient import TestClient
