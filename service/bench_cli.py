@@ -21,14 +21,25 @@ def discover() -> dict[str, object]:
     return {p.stem.removeprefix("bench_"): p for p in sorted(_bench_dir().glob("bench_*.py"))}
 
 
+def load(name: str, path):
+    """Import the bench script at ``path`` as a module (bench scripts share bench/results_file.py,
+    as they do when run as `python bench/bench_x.py`)."""
+    import importlib.util
+
+    if str(_bench_dir()) not in sys.path:
+        sys.path.insert(0, str(_bench_dir()))
+    spec = importlib.util.spec_from_file_location(f"depthruler_bench_{name}", path)
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    return module
+
+
 def bench(
     ctx: typer.Context,
     name: str = typer.Argument("all", help="benchmark to run (e.g. 'measure'), or 'all'"),
 ) -> None:
     """Run the benchmarks in bench/ and print their results; options after NAME go to the script
     (`python bench/bench_measure.py --help` lists them; `--write` records the figures in bench/RESULTS.md)."""
-    import importlib.util
-
     found = discover()
     if not found:
         raise typer.BadParameter(f"no bench_*.py scripts in {_bench_dir()}")
@@ -36,15 +47,10 @@ def bench(
         raise typer.BadParameter(f"unknown benchmark {name!r}; choose one of: all, {', '.join(found)}")
     if name == "all" and ctx.args:
         raise typer.BadParameter(f"options {' '.join(ctx.args)} need one benchmark name; choose one of: {', '.join(found)}")
-    # Bench scripts share bench/results_file.py, as they do when run as `python bench/bench_x.py`.
-    if str(_bench_dir()) not in sys.path:
-        sys.path.insert(0, str(_bench_dir()))
     for key, path in found.items():
         if name not in ("all", key):
             continue
-        spec = importlib.util.spec_from_file_location(f"depthruler_bench_{key}", path)
-        module = importlib.util.module_from_spec(spec)
-        spec.loader.exec_module(module)
+        module = load(key, path)
         if not hasattr(module, "main"):
             raise typer.BadParameter(f"{path} has no main(); every bench script needs one")
         typer.echo(f"## {key} ({path.name})")

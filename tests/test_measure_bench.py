@@ -3,24 +3,15 @@ reference really runs the same pipeline (same answer) so the timing ratio compar
 
 from __future__ import annotations
 
-import importlib.util
-import sys
-
 import pytest
 from typer.testing import CliRunner
 
-from service.bench_cli import discover
+from service.bench_cli import discover, load
 from service.cli import app
 
 
 def _load(name: str):
-    bench_dir = str(discover()[name].parent)
-    if bench_dir not in sys.path:  # bench scripts import bench/results_file.py
-        sys.path.insert(0, bench_dir)
-    spec = importlib.util.spec_from_file_location(f"bench_{name}_under_test", discover()[name])
-    mod = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(mod)
-    return mod
+    return load(name, discover()[name])
 
 
 def test_discovers_the_measure_benchmark():
