@@ -71,21 +71,19 @@ def _timed(fn) -> tuple[float, float]:
     return (time.process_time() - c0) * 1e3, (time.perf_counter() - t0) * 1e3
 
 
-def _time_side_by_side(ours, reference, repeats: int, ref_repeats: int) -> tuple[np.ndarray, np.ndarray]:
-    """CPU and wall ms per call of ``ours`` (``repeats`` calls) and ``reference`` (``ref_repeats``
-    calls, under the scikit-learn backend), interleaved in blocks: this host has episodes of a
-    few seconds in which everything runs 1.5-2x slower, and interleaving puts both sides in the
-    same episodes instead of timing all of ours in one. Each row: cpu, wall."""
-    ours()
-    with sklearn_backend():
-        reference()
+def _time_side_by_side(call, repeats: int, ref_repeats: int) -> tuple[np.ndarray, np.ndarray]:
+    """CPU and wall ms per call of ``call`` with our FAST-MCD (``repeats`` calls) and under the
+    scikit-learn backend (``ref_repeats`` calls), interleaved in blocks: this host has episodes of
+    a few seconds in which everything runs 1.5-2x slower, and interleaving puts both sides in the
+    same episodes instead of timing all of ours in one. Each row: cpu, wall. The caller has run
+    ``call`` once each way already (the warm-up)."""
     mine, ref = [], []
     per_block = max(1, repeats // ref_repeats)
     while len(mine) < repeats or len(ref) < ref_repeats:
-        mine.extend(_timed(ours) for _ in range(min(per_block, repeats - len(mine))))
+        mine.extend(_timed(call) for _ in range(min(per_block, repeats - len(mine))))
         if len(ref) < ref_repeats:
             with sklearn_backend():
-                ref.append(_timed(reference))
+                ref.append(_timed(call))
     return np.array(mine), np.array(ref)
 
 
@@ -100,11 +98,11 @@ def run(repeats: int = 200, ref_repeats: int = 20) -> dict[str, dict[str, float]
     with threadpool_limits(1):
         for method in ("robust", "paper"):
             opts = MeasureOptions(method=method)
-            m = measure_distance(frame, p1, p2, opts)
-            with sklearn_backend():
-                ref_m = measure_distance(frame, p1, p2, opts)
             call = lambda: measure_distance(frame, p1, p2, opts)  # noqa: E731
-            mine, ref = _time_side_by_side(call, call, repeats, ref_repeats)
+            m = call()  # these two answers are also the warm-up
+            with sklearn_backend():
+                ref_m = call()
+            mine, ref = _time_side_by_side(call, repeats, ref_repeats)
             (ours_cpu, ours), (ref_cpu, ref) = mine.T, ref.T
             rows[method] = {
                 "n_samples": m.n_samples,
