@@ -34,7 +34,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .mcd import fast_mcd, starts_for
+from .mcd import McdResult, fast_mcd, starts_for
 from .robust_range import TUKEY_C, median
 
 # See the module docstring: FAST-MCD supplies the start, the IRLS the answer.
@@ -61,6 +61,21 @@ class DisparityLine:
         return a @ self.param_cov @ a.T
 
 
+def mcd_line(res: McdResult) -> tuple[float, float] | None:
+    """Intercept and slope of the line y = a + b t that a FAST-MCD result on (t, y) describes:
+    its exact-fit line, else its first principal axis through the robust location (a flat
+    principal axis for a vertical one). None when the exact fit is no line y(t): all support
+    points at one (t, y), or a vertical line."""
+    if res.exact_fit:
+        if res.fit_kind == "hyperplane" and abs(res.plane[1]) > 1e-12:
+            a1, a2, c = res.plane
+            return -c / a2, -a1 / a2
+        return None
+    v = res.principal_axis()
+    slope = float(v[1] / v[0]) if abs(v[0]) > 1e-12 else 0.0
+    return float(res.location[1] - slope * res.location[0]), slope
+
+
 def fit_disparity_line(t: np.ndarray, d: np.ndarray, support_fraction: float, seed: int, quantum: float, iterations: int = 50) -> DisparityLine:
     """Robust d = alpha + beta t of samples at positions ``t`` (px) with disparities ``d`` (px)."""
     t = np.asarray(t, dtype=np.float64)
@@ -69,15 +84,9 @@ def fit_disparity_line(t: np.ndarray, d: np.ndarray, support_fraction: float, se
         np.c_[t, d], support_fraction=support_fraction, seed=seed,
         n_starts=_STARTS, n_best=_BEST_PER_SUBSAMPLE, max_iter=_FULL_DATA_STEPS,
     )
-    if res.exact_fit and res.fit_kind == "hyperplane" and abs(res.plane[1]) > 1e-12:
-        a1, a2, c = res.plane
-        beta, alpha = -a1 / a2, -c / a2
-    elif res.exact_fit:  # all support samples at one (t, d), or a vertical line: start flat
-        beta, alpha = 0.0, median(d[res.support])
-    else:
-        v = res.principal_axis()
-        beta = float(v[1] / v[0]) if abs(v[0]) > 1e-12 else 0.0
-        alpha = float(res.location[1] - beta * res.location[0])
+    line = mcd_line(res)
+    # All support samples at one (t, d), or a vertical line: start flat.
+    alpha, beta = line if line is not None else (median(d[res.support]), 0.0)
     r = d - (alpha + beta * t)
     floor = quantum / math.sqrt(12.0)
     scale = max(1.4826 * median(np.abs(r[res.support])), floor, 1e-6)

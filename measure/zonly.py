@@ -17,6 +17,7 @@ import numpy as np
 
 from .basic import basic_ends
 from .distance import MIN_FIT_SAMPLES, NO_DEPTH, validate_request
+from .dline import mcd_line
 from .gap import extension_depth, is_gap
 from .mcd import fast_mcd
 from .sampling import backproject_depth, sample_segment
@@ -43,15 +44,8 @@ def measure_z_only(
     t = (samples.pixels - np.array(xy1)) @ np.array([dx / length, dy / length])
     z = samples.points[:, 2]
     res = fast_mcd(np.c_[t, z], support_fraction=options.support_fraction, seed=options.seed)
-    if res.exact_fit and res.fit_kind == "hyperplane" and abs(res.plane[1]) > 1e-12:
-        a1, a2, c = res.plane
-        slope, icpt = -a1 / a2, -c / a2
-    elif res.exact_fit:
-        slope, icpt = 0.0, float(res.location[1])
-    else:
-        v = res.principal_axis()
-        slope = float(v[1] / v[0]) if abs(v[0]) > 1e-12 else 0.0
-        icpt = float(res.location[1] - slope * res.location[0])
+    line = mcd_line(res)
+    icpt, slope = line if line is not None else (float(res.location[1]), 0.0)
     z_end = np.array([icpt, icpt + slope * length])
     if not (z_end > 0).all():
         raise MeasureError("the robust depth line runs behind the camera at an end point; click elsewhere")
