@@ -29,7 +29,7 @@ COMMANDS: dict[str, str] = {
     "replay": "device.recording_cli:replay",
     "export": "device.recording_cli:export",
     "calibrate": "device.cli:calibrate",
-    "eval": "service.evaluate_cli:app",
+    "eval": "evaluation.cli:app",
     "bench": "service.bench_cli:bench",
 }
 

@@ -10,10 +10,10 @@ import numpy as np
 import pytest
 from typer.testing import CliRunner
 
-from service.evaluate_cli import app
-from service.evaluate_middlebury import ContentionModel, contended_disparity, contended_regions
-from service.evaluate_sim import DISTANCES_M, LIGHTINGS, TARGETS, plan_sim
-from service.report import METHODS, PNG_SIGNATURE, EvalError, accuracy, summary
+from evaluation.cli import app
+from evaluation.middlebury import ContentionModel, contended_disparity, contended_regions
+from evaluation.sim_study import DISTANCES_M, LIGHTINGS, TARGETS, plan_sim
+from evaluation.report import METHODS, PNG_SIGNATURE, EvalError, accuracy, summary
 
 SIM_N = 240  # the reduced run: 36 cells x 6-7, plus 24 gap measurements
 

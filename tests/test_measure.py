@@ -14,7 +14,7 @@ from measure.linefit import fit_line
 from measure.sampling import backproject_depth, sample_segment
 from measure.zonly import measure_z_only
 
-from service.report import accuracy
+from evaluation.report import accuracy
 from measure_synth import SMALL_B, SMALL_CAM, SMALL_F, SMALL_H, SMALL_W, plane_frame, poster_case, true_length
 
 W, H, F, B = SMALL_W, SMALL_H, SMALL_F, SMALL_B

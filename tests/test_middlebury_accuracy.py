@@ -13,9 +13,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from device.gt_segments import SegmentRules, find_segments, scene_segments
+from evaluation.gt_segments import SegmentRules, find_segments, scene_segments
 from measure import MeasureError, MeasureOptions, PinholeCamera, measure_distance
-from service.report import accuracy
+from evaluation.report import accuracy
 
 METHODS = ("basic", "paper", "robust")
 JITTERS = 2  # seeded click jitter (sigma 1.5 px) per segment, besides the exact end pixels

@@ -8,7 +8,7 @@ For each scene two disparity conditions are measured with the same segments:
   pixels, and in contended regions half of the pixels replaced by a wrong match
   (:func:`contended_disparity`).
 
-Segments run edge to edge across one straight surface and come from device/gt_segments.py, which
+Segments run edge to edge across one straight surface and come from evaluation/gt_segments.py, which
 selects them on the ground truth; their true length is the distance between the ground-truth 3D
 points of their end pixels.
 """
@@ -25,7 +25,7 @@ from typing import Any
 import numpy as np
 
 from . import report
-from .evaluate_sim import MethodOutcome, measure_all, warm_up
+from .sim_study import MethodOutcome, measure_all, warm_up
 from .report import METHODS, EvalError
 
 CONDITIONS: tuple[str, ...] = ("sgbm", "gt_contended")
@@ -165,8 +165,8 @@ def clicks_for(
 
 
 def _segments(scene: Any, max_segments: int | None) -> list[tuple[tuple[float, float], tuple[float, float], float]]:
-    """(p1_px, p2_px, true length m) of the scene's evaluation segments, from device/gt_segments.py."""
-    from device.gt_segments import scene_segments
+    """(p1_px, p2_px, true length m) of the scene's evaluation segments, from evaluation/gt_segments.py."""
+    from .gt_segments import scene_segments
 
     segs = scene_segments(scene)
     return [
@@ -185,7 +185,7 @@ def run_middlebury(
     on_progress: Callable[[str], None] | None = None,
 ) -> tuple[dict[str, Any], list[SegmentResult]]:
     """Measure every selected segment of every scene under both conditions; (setup, results)."""
-    from device.gt_segments import SegmentRules
+    from .gt_segments import SegmentRules
     from device.middlebury import load_scene, scene_frame, scene_sgbm_config
     from device.sgbm import compute_disparity
 
@@ -352,7 +352,7 @@ def middlebury_markdown(summary: dict[str, Any], plots: dict[str, str]) -> str:
         "",
         "## Setup",
         "",
-        "- **Segments** come from `device/gt_segments.py`, chosen on the ground truth alone: image rows "
+        "- **Segments** come from `evaluation/gt_segments.py`, chosen on the ground truth alone: image rows "
         "or columns whose non-occluded ground-truth disparity is affine along the run (one straight "
         f"surface: residual ≤ {rules['affine_tol_px']:g} px, neighbours differ by < {rules['jump_px']:g} px) "
         "and that end at a depth edge on both sides (the next valid pixel beyond each end is farther "

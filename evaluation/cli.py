@@ -39,7 +39,7 @@ def sim_command(
     quantization: float | None = typer.Option(None, "--quantization", help="Disparity step of the simulated sensor in px (default: the simulator's, 1/4 px)."),
 ) -> None:
     """The paper's protocol on the simulated rig: 3 targets x 4 distances x 3 lightings, 4 methods."""
-    from .evaluate_sim import plan_sim, run_sim, sim_protocol, summarize_sim, write_sim_report
+    from .sim_study import plan_sim, run_sim, sim_protocol, summarize_sim, write_sim_report
     from .report import EvalError
 
     try:
@@ -67,7 +67,7 @@ def middlebury_command(
     jittered_clicks: int = typer.Option(2, "--jittered-clicks", min=0, help="Jittered click pairs per segment besides the exact end pixels."),
 ) -> None:
     """Real stereo: SGBM and contended ground-truth disparity, ground-truth segment lengths."""
-    from .evaluate_middlebury import ClickJitter, ContentionModel, run_middlebury, scene_dirs, summarize_middlebury, write_middlebury_report
+    from .middlebury import ClickJitter, ContentionModel, run_middlebury, scene_dirs, summarize_middlebury, write_middlebury_report
     from .report import EvalError
 
     try:
