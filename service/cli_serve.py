@@ -142,7 +142,7 @@ def measure(
         result = measure_distance(f, a, b, options)
     except MeasureError as exc:
         _fail(str(exc), 1)
-    from .app import truth_json
+    from .render import truth_json
 
     truth = truth_json(f.meta.get("truth"))
     if as_json:

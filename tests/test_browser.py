@@ -89,7 +89,7 @@ def _click_image(page, frame: dict, px: list[float]) -> None:
     page.mouse.click(box["x"] + (px[0] + 0.5) * sx, box["y"] + (px[1] + 0.5) * sy)
 
 
-def test_click_poster_ends_reads_true_length(server, page):
+def test_click_poster_ends_reads_true_length(server, page, tmp_path):
     page.goto(server + "/")
     page.wait_for_function("document.getElementById('canvas').dataset.frameId", timeout=30_000)
     page.keyboard.press("f")  # freeze from the keyboard
@@ -115,8 +115,9 @@ def test_click_poster_ends_reads_true_length(server, page):
     assert page.locator("#history li").count() == 1
 
     page.wait_for_timeout(500)  # let the thumbnail and status settle for the picture
-    (ROOT / "docs").mkdir(exist_ok=True)
-    page.screenshot(path=str(ROOT / "docs" / "screenshot.png"))
+    # the README's picture is refreshed only on purpose: DEPTHRULER_SCREENSHOTS=docs
+    shots = Path(os.environ.get("DEPTHRULER_SCREENSHOTS", "") or tmp_path)
+    page.screenshot(path=str(shots / "screenshot.png"))
 
     # drag the second handle inwards: the segment is re-measured and replaces its history entry
     first_id = page.get_attribute("#distance", "data-id")

@@ -1,0 +1,86 @@
+"""Images the service sends: PNG encoding, the colour-mapped disparity view, thumbnails, and the
+JSON view of a ring frame."""
+
+from __future__ import annotations
+
+import math
+from typing import Any
+
+import cv2
+import numpy as np
+
+from measure import Frame
+
+from .frames import RingFrame
+
+THUMB_WIDTH = 240
+
+
+def encode_png(image: np.ndarray) -> bytes:
+    ok, buf = cv2.imencode(".png", image, [cv2.IMWRITE_PNG_COMPRESSION, 1])
+    if not ok:
+        raise RuntimeError("PNG encoding failed")
+    return buf.tobytes()
+
+
+def colorize_disparity(disparity: np.ndarray) -> np.ndarray:
+    """BGR image of a disparity map (px): turbo colour map over its 1st..99th percentile; no data is black."""
+    valid = np.isfinite(disparity)
+    out = np.zeros(disparity.shape + (3,), np.uint8)
+    if not valid.any():
+        return out
+    lo, hi = np.percentile(disparity[valid], [1, 99])
+    scale = 255.0 / max(hi - lo, 1e-6)
+    norm = np.clip((np.where(valid, disparity, lo) - lo) * scale, 0, 255).astype(np.uint8)
+    mapped = cv2.applyColorMap(norm, cv2.COLORMAP_TURBO)
+    out[valid] = mapped[valid]
+    return out
+
+
+def make_thumb(frame: Frame, p1: tuple[float, float], p2: tuple[float, float]) -> bytes:
+    """A small PNG of the frame with the measured segment drawn on it."""
+    h, w = frame.disparity.shape
+    s = THUMB_WIDTH / w
+    small = cv2.resize(frame.image, (THUMB_WIDTH, max(1, round(h * s))), interpolation=cv2.INTER_AREA)
+    a = (round((p1[0] + 0.5) * s * 16), round((p1[1] + 0.5) * s * 16))
+    b = (round((p2[0] + 0.5) * s * 16), round((p2[1] + 0.5) * s * 16))
+    cv2.line(small, a, b, (0, 0, 0), 4, cv2.LINE_AA, shift=4)
+    cv2.line(small, a, b, (40, 220, 255), 2, cv2.LINE_AA, shift=4)
+    for p in (a, b):
+        cv2.circle(small, p, 4 * 16, (40, 220, 255), -1, cv2.LINE_AA, shift=4)
+    return encode_png(small)
+
+
+def truth_json(truth: Any) -> dict[str, Any] | None:
+    """The simulator's ground truth (a Truth object, or the JSON summary a recording keeps)."""
+    if truth is None:
+        return None
+    keys = ("p1_px", "p2_px", "p1_m", "p2_m", "length_m", "target", "is_gap")
+    get = truth.get if isinstance(truth, dict) else (lambda k: getattr(truth, k, None))
+    out: dict[str, Any] = {}
+    for k in keys:
+        v = get(k)
+        if isinstance(v, (tuple, list, np.ndarray)):
+            v = [float(x) for x in np.asarray(v, dtype=float).ravel()]
+        elif isinstance(v, (np.floating, np.integer, np.bool_)):
+            v = v.item()
+        out[k] = v
+    return out
+
+
+def frame_json(entry: RingFrame) -> dict[str, Any]:
+    f = entry.frame
+    h, w = f.disparity.shape
+    meta = {k: v for k, v in dict(f.meta).items() if isinstance(v, (str, int, float, bool)) and k != "truth"}
+    return {
+        "id": entry.id,
+        "uid": entry.uid,
+        "width": w,
+        "height": h,
+        "timestamp": float(f.timestamp),
+        "received": entry.received,
+        "frozen": entry.frozen,
+        "source": str(f.meta.get("source", "")),
+        "meta": {k: (v if not isinstance(v, float) or math.isfinite(v) else None) for k, v in meta.items()},
+        "truth": truth_json(f.meta.get("truth")),
+    }

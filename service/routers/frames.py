@@ -1,0 +1,53 @@
+"""``/api/frames``: the live and frozen frames of the ring buffer, their images, freezing."""
+
+from __future__ import annotations
+
+from typing import Annotated, Any
+
+from fastapi import APIRouter, HTTPException, Query
+from fastapi.responses import Response
+
+from ..render import colorize_disparity, encode_png, frame_json
+from ..state import State
+
+router = APIRouter(prefix="/api/frames", tags=["frames"])
+
+
+@router.get("/latest")
+def latest(state: State, after: int = 0, wait: Annotated[float, Query(ge=0, le=10)] = 0.0) -> dict[str, Any]:
+    entry = state.ring.wait_latest(after, wait) if wait else state.ring.latest()
+    if entry is None:
+        status = state.capture.status()
+        raise HTTPException(
+            503, f"no frame yet from {status['spec'] or 'the source'} (state {status['state']}) {status['message']}".strip()
+        )
+    return frame_json(entry)
+
+
+@router.get("/{frame_id}")
+def frame_info(state: State, frame_id: int) -> dict[str, Any]:
+    return frame_json(state.entry(frame_id))
+
+
+@router.get("/{frame_id}/color.png")
+def color_png(state: State, frame_id: int) -> Response:
+    data = state.entry(frame_id).encoded("color.png", lambda f: encode_png(f.image))
+    return Response(data, media_type="image/png", headers={"Cache-Control": "private, max-age=3600"})
+
+
+@router.get("/{frame_id}/disparity.png")
+def disparity_png(state: State, frame_id: int) -> Response:
+    data = state.entry(frame_id).encoded("disparity.png", lambda f: encode_png(colorize_disparity(f.disparity)))
+    return Response(data, media_type="image/png", headers={"Cache-Control": "private, max-age=3600"})
+
+
+@router.post("/{frame_id}/freeze")
+def freeze(state: State, frame_id: int) -> dict[str, Any]:
+    state.entry(frame_id)
+    return frame_json(state.ring.freeze(frame_id, True))
+
+
+@router.delete("/{frame_id}/freeze")
+def unfreeze(state: State, frame_id: int) -> dict[str, Any]:
+    state.entry(frame_id)
+    return frame_json(state.ring.freeze(frame_id, False))

@@ -1,0 +1,106 @@
+"""``/api/measure`` and ``/api/measurements``: measuring a frame, and the stored history."""
+
+from __future__ import annotations
+
+from typing import Annotated, Any, Literal
+
+from fastapi import APIRouter, HTTPException, Query
+from fastapi.responses import PlainTextResponse, Response
+
+from measure import MeasureError, MeasureOptions, measure_distance
+
+from ..render import frame_json, make_thumb
+from ..schemas import MeasureIn
+from ..state import ServiceState, State
+from ..store import StoreError
+
+router = APIRouter(prefix="/api", tags=["measurements"])
+
+
+@router.post("/measure")
+def measure(state: State, body: MeasureIn) -> dict[str, Any]:
+    entry = state.entry(body.frame_id)
+    frame = entry.frame
+    h, w = frame.disparity.shape
+    for name, (x, y) in (("p1", body.p1), ("p2", body.p2)):
+        if not (0 <= x <= w - 1 and 0 <= y <= h - 1):
+            raise HTTPException(
+                422, f"{name}=({x:g}, {y:g}) is outside the {w}x{h} image of frame {entry.id}; use 0<=x<={w - 1}, 0<=y<={h - 1}"
+            )
+    options = body.options.model_dump()
+    try:
+        result = measure_distance(frame, body.p1, body.p2, MeasureOptions(**options))
+    except MeasureError as exc:
+        raise HTTPException(422, str(exc)) from None
+    record = state.store.add(
+        frame_id=entry.id,
+        frame_uid=entry.uid,
+        source=str(frame.meta.get("source", "")) or state.capture.spec,
+        p1=body.p1,
+        p2=body.p2,
+        options=options,
+        result=result.to_dict(),
+        thumb=make_thumb(frame, body.p1, body.p2),
+    )
+    state.store.ensure_frame(entry.uid, frame)  # after the row exists: the writer drops frames nobody refers to
+    return record
+
+
+def _csv(state: ServiceState) -> PlainTextResponse:
+    return PlainTextResponse(
+        state.store.csv(),
+        media_type="text/csv",
+        headers={"Content-Disposition": 'attachment; filename="depthruler-measurements.csv"'},
+    )
+
+
+@router.get("/measurements.csv")
+def measurements_csv(state: State) -> PlainTextResponse:
+    return _csv(state)
+
+
+@router.get("/measurements", response_model=None)
+def measurements(state: State, format: Literal["json", "csv"] = "json", limit: Annotated[int, Query(ge=1)] = 1000) -> Any:
+    if format == "csv":
+        return _csv(state)
+    return state.store.list(limit)
+
+
+def _record(state: ServiceState, mid: int) -> dict[str, Any]:
+    record = state.store.get(mid)
+    if record is None:
+        raise HTTPException(404, f"no measurement {mid}; GET /api/measurements lists them")
+    return record
+
+
+@router.get("/measurements/{mid}")
+def measurement(state: State, mid: int) -> dict[str, Any]:
+    return _record(state, mid)
+
+
+@router.delete("/measurements/{mid}")
+def delete_measurement(state: State, mid: int) -> dict[str, Any]:
+    if not state.store.delete(mid):
+        raise HTTPException(404, f"no measurement {mid}; GET /api/measurements lists them")
+    return {"deleted": mid}
+
+
+@router.get("/measurements/{mid}/thumb.png")
+def thumb(state: State, mid: int) -> Response:
+    _record(state, mid)
+    data = state.store.thumb(mid)
+    if data is None:
+        raise HTTPException(404, f"measurement {mid} has no thumbnail")
+    return Response(data, media_type="image/png", headers={"Cache-Control": "private, max-age=86400"})
+
+
+@router.post("/measurements/{mid}/open")
+def reopen(state: State, mid: int) -> dict[str, Any]:
+    """Put the saved frame of a measurement back into the ring (frozen) to view or re-measure it."""
+    record = _record(state, mid)
+    try:
+        saved = state.store.frame(record["frame_uid"])
+    except StoreError as exc:
+        raise HTTPException(404, str(exc)) from None
+    entry = state.ring.push(saved, frozen=True, uid=record["frame_uid"])
+    return {"frame": frame_json(entry), "measurement": record}
