@@ -148,9 +148,9 @@ def align_depth_to_color(depth_m: np.ndarray, depth_cam: PinholeCamera, color_ca
 
     ``depth_to_color`` maps depth-camera points to colour-camera points (``p_c = R p_d + t``). Each valid
     depth pixel's footprint (its corners at +-0.5 px) is back-projected at its depth, moved to the colour
-    camera and projected; it fills the colour pixels whose centres its projected corners round to (so a
-    lower-resolution depth leaves no pinholes), at most ``MAX_SPLAT_PX`` per axis. Where several fall on
-    one colour pixel the nearest wins. The value stored is Z in the colour camera. Pinhole model both sides.
+    camera and projected; it fills the colour pixels whose centres lie inside it (so a lower-resolution
+    depth leaves no pinholes), at most ``MAX_SPLAT_PX`` per axis, or the one under its centre. Where several
+    fall on one colour pixel the nearest wins. The value stored is Z in the colour camera. Pinhole model both sides.
     """
     z_d = np.asarray(depth_m, dtype=np.float64)
     if z_d.shape != (depth_cam.height, depth_cam.width):
@@ -174,12 +174,18 @@ def align_depth_to_color(depth_m: np.ndarray, depth_cam: PinholeCamera, color_ca
 
     xa, ya, _ = to_color(-0.5, -0.5)
     xb, yb, _ = to_color(0.5, 0.5)
-    _, _, zc = to_color(0.0, 0.0)
+    xc, yc, zc = to_color(0.0, 0.0)
     with np.errstate(invalid="ignore"):
-        x0 = np.floor(np.minimum(xa, xb) + 0.5)
-        x1 = np.floor(np.maximum(xa, xb) + 0.5)
-        y0 = np.floor(np.minimum(ya, yb) + 0.5)
-        y1 = np.floor(np.maximum(ya, yb) + 0.5)
+        # The colour pixels whose centres lie in the footprint [min, max): neighbouring footprints of one
+        # surface tile the image without overlap, so noise is not min-filtered by the z-buffer (librealsense
+        # rounds both corners and covers one pixel more per axis, biasing noisy depth towards the camera).
+        # A footprint smaller than a pixel that holds no centre fills the pixel under its centre.
+        x0 = np.ceil(np.minimum(xa, xb))
+        x1 = np.ceil(np.maximum(xa, xb)) - 1
+        y0 = np.ceil(np.minimum(ya, yb))
+        y1 = np.ceil(np.maximum(ya, yb)) - 1
+        x0, x1 = np.where(x1 < x0, np.floor(xc + 0.5), x0), np.where(x1 < x0, np.floor(xc + 0.5), x1)
+        y0, y1 = np.where(y1 < y0, np.floor(yc + 0.5), y0), np.where(y1 < y0, np.floor(yc + 0.5), y1)
         keep = (zc > 0) & np.isfinite(x0 + x1 + y0 + y1)
         keep &= (x1 >= 0) & (x0 <= color_cam.width - 1) & (y1 >= 0) & (y0 <= color_cam.height - 1)
     x0, x1, y0, y1, zc = (a[keep] for a in (x0, x1, y0, y1, zc))
@@ -321,7 +327,8 @@ def _open_reader(path: Path) -> Any:
         path = found[0]
     elif path.is_file() and path.suffix.lower() not in BAG_SUFFIXES:
         raise BagNotFound(f"{path} is not a bag: use a .bag (ROS 1), .mcap or .db3 (ROS 2) file or a ROS 2 bag folder")
-    store = get_typestore(Stores.ROS1_NOETIC if path.suffix.lower() == ".bag" else Stores.ROS2_HUMBLE)
+    # ROS 1 bags always embed their message definitions; ROS 2 sqlite3 bags before Iron may not.
+    store = None if path.suffix.lower() == ".bag" else get_typestore(Stores.ROS2_HUMBLE)
     reader = AnyReader([path], default_typestore=store)
     try:
         reader.open()

@@ -146,7 +146,7 @@ class BagOut:
 
 
 def write_viewer_bag(path: Path, cap: Capture, *, depth_delay_ns: int = 2_000_000, color_tf_x: float = DEPTH_SHIFT_M,
-                     noise_free: bool = False) -> Path:
+                     noise_free: bool = False, depth: tuple[PinholeCamera, list] | None = None) -> Path:
     """The RealSense Viewer's layout: raw (unregistered) Z16 depth in depth units of 0.1 mm, rgb8 colour,
     their camera_info, tf/0 extrinsics (depth is the reference), Depth Units and Stereo Baseline options."""
     out = BagOut(path, "ros1")
@@ -155,7 +155,7 @@ def write_viewer_bag(path: Path, cap: Capture, *, depth_delay_ns: int = 2_000_00
     d, c = "/device_0/sensor_0/Depth_0", "/device_0/sensor_1/Color_0"
     out.write("/device_0/sensor_0/option/Depth Units/value", T0, f32(data=0.0001))
     out.write("/device_0/sensor_0/option/Stereo Baseline/value", T0, f32(data=50.0))
-    out.write(f"{d}/info/camera_info", T0, info_msg(ts, True, 0, "", cap.depth_cam))
+    out.write(f"{d}/info/camera_info", T0, info_msg(ts, True, 0, "", depth[0] if depth else cap.depth_cam))
     out.write(f"{c}/info/camera_info", T0, info_msg(ts, True, 0, "", cap.frames[0].camera))
     out.write(f"{d}/tf/0", T0, transform_msg(ts, Rigid()))
     out.write(f"{c}/tf/0", T0, transform_msg(ts, Rigid(t=(color_tf_x, 0.0, 0.0))))  # p_color = p_depth - (5 cm, 0, 0)
@@ -163,7 +163,7 @@ def write_viewer_bag(path: Path, cap: Capture, *, depth_delay_ns: int = 2_000_00
         t = T0 + 1_000_000 + k * PERIOD
         out.write(f"{c}/image/data", t, image_msg(ts, True, t, "", f.image[:, :, ::-1], "rgb8"))
         td = t + depth_delay_ns
-        z = cap.depth_unreg_true if noise_free else cap.depth_unreg_m[k]
+        z = depth[1][k] if depth else cap.depth_unreg_true if noise_free else cap.depth_unreg_m[k]
         out.write(f"{d}/image/data", td, image_msg(ts, True, td, "", depth_array(z, "mono16", 0.0001), "mono16"))
     out.close()
     return path
@@ -299,6 +299,21 @@ def test_viewer_bag_unregistered_depth_is_aligned(capture, replay_errors, tmp_pa
     assert errs.max() < 0.03, errs
     good, covered = aligned_share(read_all(f"bag:{write_viewer_bag(tmp_path / 'exact.bag', capture, noise_free=True)}"), capture)
     assert good > 0.99 and covered > 0.97, (good, covered)
+
+
+def test_viewer_bag_of_the_same_frames_matches_replay(capture, replay_errors, tmp_path: Path) -> None:
+    """The simulated frames' own depth, as a full-resolution depth camera 5 cm to the left saw it (warped there
+    with the inverse extrinsics), aligned back by the bag source: as accurate as the frames through replay."""
+    cam = capture.frames[0].camera
+    to_depth = Rigid(t=(DEPTH_SHIFT_M, 0.0, 0.0)).inverse()
+    warped = [align_depth_to_color(z, cam, cam, to_depth) for z in capture.depth_reg_m]
+    frames = read_all(f"bag:{write_viewer_bag(tmp_path / 'same.bag', capture, depth=(cam, warped))}")
+    errs = abs_errors(zip(frames, capture.frames))
+    assert np.all(errs <= replay_errors + 0.002), (errs, replay_errors)
+    for f, z in zip(frames, capture.depth_reg_m):  # what both cameras see comes back unchanged (to 0.1 mm units)
+        both = np.isfinite(f.depth()) & np.isfinite(z)
+        assert both.sum() > 0.85 * np.isfinite(z).sum()
+        assert np.mean(np.abs(f.depth()[both] - z[both]) <= 0.0001) > 0.99
 
 
 def test_wrong_extrinsics_are_visible(capture, tmp_path: Path) -> None:
