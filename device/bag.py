@@ -337,10 +337,13 @@ def _open_reader(path: Path) -> Any:
     return reader
 
 
-def _mcap_index_times(storage: Any, channel_ids: set[int]) -> list[int]:
-    """Log times of the channels' messages from an MCAP file's MessageIndex records (no chunk is read)."""
+def _mcap_index_times(storage: Any, channel_ids: set[int]) -> list[int] | None:
+    """Log times of the channels' messages from an MCAP file's MessageIndex records (no chunk is read);
+    None when a chunk has no message index (the writer left them out)."""
     bio = storage.bio
     out: list[int] = []
+    if any(not chunk.message_index_offsets for chunk in storage.chunks):
+        return None
     for chunk in storage.chunks:
         for cid, offset in chunk.message_index_offsets.items():
             if cid not in channel_ids:
@@ -377,14 +380,16 @@ def topic_times(connections: Sequence[Any]) -> tuple[np.ndarray, bool]:
             ids = {c.id for c in st.connections if c.topic == conn.topic and c.msgtype == conn.msgtype}
             if not ids:
                 continue
-            if isinstance(st, Sqlite3Reader):
+            found = None
+            if isinstance(st, Sqlite3Reader) and st.dbconn is not None:
                 marks = ",".join("?" for _ in ids)
-                times.extend(int(r[0]) for r in st.dbconn.execute(f"SELECT timestamp FROM messages WHERE topic_id IN ({marks})", tuple(ids)))
+                found = [int(r[0]) for r in st.dbconn.execute(f"SELECT timestamp FROM messages WHERE topic_id IN ({marks})", tuple(ids))]
             elif isinstance(st, McapReader) and st.chunks:
-                times.extend(_mcap_index_times(st, ids))
-            else:
+                found = _mcap_index_times(st, ids)
+            if found is None:  # an MCAP without message indexes: read it through once
                 indexed = False
-                times.extend(ts for _, ts, _ in st.messages([c for c in st.connections if c.id in ids]))
+                found = [ts for _, ts, _ in st.messages([c for c in st.connections if c.id in ids])]
+            times.extend(found)
     return np.sort(np.asarray(times, dtype=np.int64)), indexed
 
 
@@ -560,7 +565,7 @@ class BagReader:
 
     def _option(self, sensor_prefix: str, name: str) -> float | None:
         msg = self._first(f"{sensor_prefix}/option/{name}/value")
-        return float(msg.data) if msg is not None else None
+        return float(f"{float(msg.data):.7g}") if msg is not None else None  # a Float32: 0.0001, not 9.99999975e-05
 
     def _tf_static(self) -> list[tuple[str, str, Rigid]]:
         edges = []

@@ -490,3 +490,30 @@ def test_open_time_many_messages(tmp_path: Path) -> None:
         f = br.frame(2999)
     assert np.nanmedian(f.depth()) == pytest.approx(2.0)
     print(f"opened a 6000-message bag in {elapsed * 1000:.0f} ms")
+
+
+def test_mcap_without_message_indexes_is_scanned(capture, tmp_path: Path) -> None:
+    """An MCAP written without message indexes still opens (read through once) and says so."""
+    from mcap.writer import IndexType, Writer
+
+    ts = get_typestore(Stores.ROS2_HUMBLE)
+    path = tmp_path / "noindex.mcap"
+    cam = capture.frames[0].camera
+    with open(path, "wb") as fh:
+        w = Writer(fh, index_types=IndexType.NONE)
+        w.start(profile="ros2", library="test")
+        channels = {}
+        for topic, typ in (("/oak/rgb/camera_info", "sensor_msgs/msg/CameraInfo"), ("/oak/stereo/camera_info", "sensor_msgs/msg/CameraInfo"),
+                           ("/oak/rgb/image_raw", "sensor_msgs/msg/Image"), ("/oak/stereo/image_raw", "sensor_msgs/msg/Image")):
+            schema = w.register_schema(name=typ, encoding="ros2msg", data=ts.generate_msgdef(typ, ros_version=2)[0].encode())
+            channels[topic] = w.register_channel(topic=topic, message_encoding="cdr", schema_id=schema)
+        for k, f in enumerate(capture.frames[:2]):
+            t = T0 + k * PERIOD
+            for topic, msg in (("/oak/rgb/camera_info", info_msg(ts, False, t, "rgb", cam)), ("/oak/stereo/camera_info", info_msg(ts, False, t, "rgb", cam)),
+                               ("/oak/rgb/image_raw", image_msg(ts, False, t, "rgb", f.image, "bgr8")),
+                               ("/oak/stereo/image_raw", image_msg(ts, False, t, "rgb", depth_array(capture.depth_reg_m[k], "16UC1"), "16UC1"))):
+                w.add_message(channels[topic], log_time=t, publish_time=t, data=bytes(ts.serialize_cdr(msg, msg.__msgtype__)))
+        w.finish()
+    assert summarize_bag(path)["indexed"] is False
+    frames = read_all(f"bag:{path}")
+    assert len(frames) == 2 and np.array_equal(frames[1].image, capture.frames[1].image)
