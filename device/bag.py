@@ -500,6 +500,7 @@ class BagContents:
     pairs: tuple[np.ndarray, np.ndarray] = field(repr=False)
     indexed: bool = True
     stamps_comparable: bool = False  # colour and depth header stamps share a clock: they decide the pairs
+    latency_ns: tuple[int, int] = (0, 0)  # (colour, depth) bag time minus header stamp, taken off before pairing
 
     def __len__(self) -> int:
         return int(self.pairs[0].size)
@@ -650,6 +651,7 @@ class BagReader:
             pairs=pair_by_time(color_ns - lat_c, depth_ns - lat_d, skew),
             indexed=idx_c and idx_d,
             stamps_comparable=stamps,
+            latency_ns=(int(lat_c), int(lat_d)),
         )
 
     def _extrinsics(self, layout: Layout, depth_info: Any, color_info: Any, depth_cam: PinholeCamera, color_cam: PinholeCamera) -> tuple[Rigid, str]:
@@ -713,7 +715,7 @@ class BagReader:
         recorded_unit = self._option(sensor, "Depth Units") if sensor else None
         if unit is None:
             unit = recorded_unit if recorded_unit and recorded_unit > 0 else DEFAULT_ROS_DEPTH_UNIT_M
-        baseline_from = "nominal (DEFAULT_BASELINE_M)"
+        baseline_from = "nominal DEFAULT_BASELINE_M"
         baseline = DEFAULT_BASELINE_M
         stereo_mm = self._option(sensor, "Stereo Baseline") if sensor else None
         if self.options.baseline_m is not None:
@@ -800,7 +802,8 @@ def summarize_bag(path: str | Path, options: BagOptions = BagOptions()) -> dict[
         c = br.contents
         cn = c.color_ns
         dur = float(cn[-1] - cn[0]) / 1e9 if cn.size > 1 else 0.0
-        skews = (c.depth_ns[c.pairs[1]] - c.color_ns[c.pairs[0]]) / 1e9 if len(c) else np.zeros(0)
+        lat_c, lat_d = c.latency_ns
+        skews = ((c.depth_ns[c.pairs[1]] - lat_d) - (c.color_ns[c.pairs[0]] - lat_c)) / 1e9
         size = sum(p.stat().st_size for p in ([c.path] if c.path.is_file() else c.path.rglob("*")) if p.is_file())
         return {
             "path": str(c.path),
@@ -812,6 +815,7 @@ def summarize_bag(path: str | Path, options: BagOptions = BagOptions()) -> dict[
             "depth_messages": int(c.depth_ns.size),
             "frames": len(c),
             "max_skew_ms": c.max_skew_ns / 1e6,
+            "latency_ms": {"color": lat_c / 1e6, "depth": lat_d / 1e6} if c.stamps_comparable else None,
             "skew_ms": {"median": float(np.median(np.abs(skews)) * 1e3), "max": float(np.abs(skews).max() * 1e3)} if skews.size else None,
             "duration_s": dur,
             "fps": (cn.size - 1) / dur if dur > 0 else None,

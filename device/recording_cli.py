@@ -188,6 +188,9 @@ def _replay_bag(path: Path, as_json: bool) -> None:
         f"frames     {info['frames']} colour/depth pairs within {info['max_skew_ms']:.1f} ms over {info['duration_s']:.2f} s ({fps})"
         + (f"; skew median {skew['median']:.1f} ms, max {skew['max']:.1f} ms" if skew else "")
     )
+    lat = info["latency_ms"]
+    if lat and abs(lat["depth"] - lat["color"]) >= 0.1:
+        typer.echo(f"latency    depth recorded {lat['depth'] - lat['color']:.1f} ms after colour (header stamps); paired by stamp time")
     typer.echo(f"colour     {cc['width']}x{cc['height']} fx={cc['fx']:.2f} fy={cc['fy']:.2f} cx={cc['cx']:.2f} cy={cc['cy']:.2f}")
     reg = "registered to colour" if info["registered"] else f"aligned to colour with extrinsics from {info['extrinsics']}"
     typer.echo(f"depth      {dc['width']}x{dc['height']} fx={dc['fx']:.2f} {info['depth_encoding']}, {reg}")

@@ -455,6 +455,13 @@ def test_summary_and_replay_command(capture, tmp_path: Path) -> None:
     assert "realsense-viewer" in res.output and "/device_0/sensor_0/Depth_0/image/data" in res.output
     res = CliRunner().invoke(app, ["replay", str(bag), "--json"])
     assert json.loads(res.output)["frames"] == N_FRAMES
+    # realsense-ros: registered depth recorded 25 ms after its colour pairs with it by stamp, not with the next colour
+    ros = write_ros_bag(tmp_path / "rs", capture, "mcap", "realsense-ros")
+    s = summarize_bag(ros)
+    assert s["frames"] == N_FRAMES and s["latency_ms"]["depth"] - s["latency_ms"]["color"] == pytest.approx(25.0)
+    assert s["skew_ms"]["max"] == pytest.approx(0.0, abs=1e-6)
+    res = CliRunner().invoke(app, ["replay", str(ros)])
+    assert res.exit_code == 0 and "25.0 ms after colour" in res.output, res.output
 
 
 def test_measure_command_on_a_bag(capture, tmp_path: Path) -> None:
