@@ -8,6 +8,7 @@ import time
 from dataclasses import dataclass
 from pathlib import Path
 
+import cv2
 import numpy as np
 import pytest
 
@@ -433,12 +434,16 @@ def test_explicit_topics(capture, tmp_path: Path) -> None:
         out.write("/cam/info", t, info_msg(ts, False, t, "cam", cam))
         out.write("/cam/rgb", t, image_msg(ts, False, t, "cam", f.image, "bgr8"))
         out.write("/cam/z", t, image_msg(ts, False, t, "cam", depth_array(capture.depth_reg_m[k], "32FC1"), "32FC1"))
+        png = np.frombuffer(cv2.imencode(".png", f.image)[1].tobytes(), np.uint8)
+        out.write("/cam/rgb/compressed", t, ts.types["sensor_msgs/msg/CompressedImage"](header=_header(ts, False, t, "cam"), format="png", data=png))
     out.close()
     spec = f"bag:{tmp_path / 'custom'}?depth=/cam/z&color=/cam/rgb&color_info=/cam/info&depth_info=/cam/info&baseline=0.1"
     frames = read_all(spec)
     assert len(frames) == 2 and frames[0].meta["layout"] == "topics" and frames[0].baseline_m == 0.1
     ok = np.isfinite(capture.depth_reg_m[1])
     assert np.allclose(frames[1].depth()[ok], capture.depth_reg_m[1][ok], rtol=1e-5)
+    compressed = read_all(spec.replace("color=/cam/rgb", "color=/cam/rgb/compressed"))
+    assert [np.array_equal(f.image, c.image) for f, c in zip(compressed, capture.frames)] == [True, True]
 
 
 def test_summary_and_replay_command(capture, tmp_path: Path) -> None:
