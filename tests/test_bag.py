@@ -529,3 +529,17 @@ def test_mcap_without_message_indexes_is_scanned(capture, tmp_path: Path) -> Non
     assert summarize_bag(path)["indexed"] is False
     frames = read_all(f"bag:{path}")
     assert len(frames) == 2 and np.array_equal(frames[1].image, capture.frames[1].image)
+
+
+def test_finer_depth_is_not_biased_towards_the_camera() -> None:
+    """Depth at twice the colour resolution (four depth pixels per colour pixel) of a noisy plane: each
+    colour pixel takes one sample, so the aligned depth keeps the plane's mean (taking the nearest of
+    the four would pull it ~1 sigma towards the camera) and no pixel of the plane is left empty."""
+    color = PinholeCamera(fx=300.0, fy=300.0, cx=79.5, cy=59.5, width=160, height=120)
+    depth_cam = PinholeCamera(fx=600.0, fy=600.0, cx=159.5, cy=119.5, width=320, height=240)
+    sigma = 0.02
+    z = 2.0 + np.random.default_rng(3).normal(0.0, sigma, (240, 320))
+    aligned = align_depth_to_color(z, depth_cam, color, Rigid(t=(0.001, 0.0, 0.0)))
+    inner = aligned[:, 2:-2]
+    assert np.isfinite(inner).all()
+    assert abs(np.mean(inner) - 2.0) < 0.1 * sigma, np.mean(inner) - 2.0
