@@ -543,3 +543,23 @@ def test_finer_depth_is_not_biased_towards_the_camera() -> None:
     inner = aligned[:, 2:-2]
     assert np.isfinite(inner).all()
     assert abs(np.mean(inner) - 2.0) < 0.1 * sigma, np.mean(inner) - 2.0
+
+
+def test_service_serves_a_bag(capture, tmp_path: Path) -> None:
+    """`depthruler serve --source bag:...`: the frames stream, the bag ends like a replay, and a click measures."""
+    from fastapi.testclient import TestClient
+
+    from service.app import create_app
+
+    bag = write_viewer_bag(tmp_path / "viewer.bag", capture)
+    with TestClient(create_app(f"bag:{bag}", db_path=tmp_path / "h.db", capture_fps=200.0, reconnect_initial_s=0.02)) as c:
+        deadline = time.monotonic() + 20
+        while c.get("/api/source").json()["state"] != "ended" and time.monotonic() < deadline:
+            time.sleep(0.02)
+        s = c.get("/api/source").json()
+        assert s["state"] == "ended" and s["frames"] == N_FRAMES, s
+        f = c.get("/api/frames/latest", params={"after": 0, "wait": 5}).json()
+        truth = capture.frames[-1].meta["truth"]
+        r = c.post("/api/measure", json={"frame_id": f["id"], "p1": list(truth.p1_px), "p2": list(truth.p2_px), "options": {}})
+        assert r.status_code == 200, r.text
+        assert abs(r.json()["distance_m"] - truth.length_m) < 0.02
