@@ -27,6 +27,7 @@ BACKENDS: dict[str, str] = {
     "replay": "device.recording:from_spec",
     "middlebury": "device.middlebury:from_spec",
     "depthpng": "device.depth_folder:from_spec",
+    "bag": "device.bag:from_spec",
 }
 
 

@@ -130,10 +130,15 @@ def replay(
     path: Path = typer.Argument(..., help="Recording directory"),
     as_json: bool = typer.Option(False, "--json", help="Print the summary as JSON"),
 ) -> None:
-    """Inspect a recording: manifest, frames, problems and how much of each disparity is valid."""
+    """Inspect a recording: manifest, frames, problems and how much of each disparity is valid.
+    A ROS bag (.bag, .mcap, .db3 or a ROS 2 bag folder) shows its layout, topics and frame pairs instead."""
+    from device.bag import is_bag_path
     from device.errors import SourceError
     from device.recording import open_recording, summarize
 
+    if is_bag_path(path):
+        _replay_bag(path, as_json)
+        return
     try:
         info = summarize(open_recording(path))
     except SourceError as exc:
@@ -161,6 +166,41 @@ def replay(
             typer.secho(f"problem    {p}", fg=typer.colors.YELLOW)
     if info["unreadable_frames"]:
         raise typer.Exit(code=1)
+
+
+def _replay_bag(path: Path, as_json: bool) -> None:
+    from device.bag import summarize_bag
+    from device.errors import SourceError
+
+    try:
+        info = summarize_bag(path)
+    except SourceError as exc:
+        raise _fail(str(exc)) from exc
+    if as_json:
+        typer.echo(json.dumps(info, indent=2))
+        return
+    cc, dc = info["color_camera"], info["depth_camera"]
+    fps = f"{info['fps']:.1f} fps" if info["fps"] else "no timing"
+    skew = info["skew_ms"]
+    typer.echo(f"bag        {info['path']} ({info['storage']}, {_human_bytes(info['size_bytes'])})")
+    typer.echo(f"layout     {info['layout']}: colour {info['color_topic']} ({info['color_messages']}), depth {info['depth_topic']} ({info['depth_messages']})")
+    typer.echo(
+        f"frames     {info['frames']} colour/depth pairs within {info['max_skew_ms']:.1f} ms over {info['duration_s']:.2f} s ({fps})"
+        + (f"; skew median {skew['median']:.1f} ms, max {skew['max']:.1f} ms" if skew else "")
+    )
+    lat = info["latency_ms"]
+    if lat and abs(lat["depth"] - lat["color"]) >= 0.1:
+        typer.echo(f"latency    depth recorded {lat['depth'] - lat['color']:.1f} ms after colour (header stamps); paired by stamp time")
+    typer.echo(f"colour     {cc['width']}x{cc['height']} fx={cc['fx']:.2f} fy={cc['fy']:.2f} cx={cc['cx']:.2f} cy={cc['cy']:.2f}")
+    reg = "registered to colour" if info["registered"] else f"aligned to colour with extrinsics from {info['extrinsics']}"
+    typer.echo(f"depth      {dc['width']}x{dc['height']} fx={dc['fx']:.2f} {info['depth_encoding']}, {reg}")
+    unit = f"{info['depth_unit_m'] * 1000:g} mm steps" if info["depth_unit_m"] else "float metres"
+    typer.echo(f"disparity  from depth ({unit}) with baseline {info['baseline_m']} m ({info['baseline']})")
+    if not info["indexed"]:
+        typer.secho("note       the bag has no message index; it was scanned to find the frames", fg=typer.colors.YELLOW)
+    typer.echo("topics")
+    for topic, t in info["topics"].items():
+        typer.echo(f"  {topic}  {t['type']}  {t['messages']}")
 
 
 def export(
