@@ -15,6 +15,9 @@ from .base import SourceInfo
 MOVIDIUS_VENDOR = 0x03E7  # Intel Movidius: every OAK (RVC2) enumerates with this vendor id
 USB_CLASS_VIDEO = 14  # bInterfaceClass of UVC cameras
 # Movidius product ids: what state the OAK is in (it re-enumerates after boot).
+OAK_UDEV_RULE = 'SUBSYSTEM=="usb", ATTRS{idVendor}=="03e7", MODE="0666"'
+UDEV_FIX = (f"echo '{OAK_UDEV_RULE}' | sudo tee /etc/udev/rules.d/80-movidius.rules && "
+            "sudo udevadm control --reload-rules && sudo udevadm trigger  # then replug the OAK")
 OAK_PRODUCTS = {0x2485: "unbooted", 0xF63B: "booted", 0xF63C: "bootloader", 0xF63D: "flash-booted"}
 
 
@@ -28,17 +31,22 @@ def list_depthai() -> list[SourceInfo]:
 
     ``getAllConnectedDevices`` also lists devices already opened by another program (state
     "booted"), which ``getAllAvailableDevices`` hides; telling the user it is busy beats silence.
+    Invalid devices are listed too (``skipInvalidDevices=False``): one this user may not open
+    (``X_LINK_INSUFFICIENT_PERMISSIONS``) gets state "no-permission" and the udev rule in ``extra``.
     """
     os.environ.setdefault("DEPTHAI_LEVEL", "error")
     try:
         import depthai as dai
 
-        infos = dai.Device.getAllConnectedDevices()
+        infos = dai.XLinkConnection.getAllConnectedDevices(skipInvalidDevices=False)
     except Exception:  # no SDK, or XLink cannot initialise (no USB access in a container)
         return []
     out = []
     for info in infos:
+        denied = getattr(info, "status", None) == dai.XLinkError_t.X_LINK_INSUFFICIENT_PERMISSIONS
         state = str(getattr(info, "state", "")).rsplit(".", 1)[-1].replace("X_LINK_", "").lower()
+        if denied:
+            state = "no-permission"
         protocol = str(getattr(info, "protocol", "")).rsplit(".", 1)[-1].replace("X_LINK_", "").lower()
         platform = str(getattr(info, "platform", "")).rsplit(".", 1)[-1].replace("X_LINK_", "").lower()
         mxid = info.getDeviceId() if hasattr(info, "getDeviceId") else getattr(info, "deviceId", "")
@@ -48,7 +56,8 @@ def list_depthai() -> list[SourceInfo]:
                 name=f"OAK {info.name}".strip(),
                 serial=mxid,
                 state=state,
-                extra={"protocol": protocol, "platform": platform, "spec": f"oak:{mxid}" if mxid else "oak"},
+                extra={"protocol": protocol, "platform": platform, "spec": f"oak:{mxid}" if mxid else "oak",
+                       **({"fix": UDEV_FIX} if denied else {})},
             )
         )
     return out

@@ -68,10 +68,18 @@ def test_depthai_devices_reported_with_state(monkeypatch):
     info.state = dai.XLinkDeviceState.X_LINK_BOOTED
     info.protocol = dai.XLinkProtocol.X_LINK_USB_VSC
     info.platform = dai.XLinkPlatform.X_LINK_MYRIAD_X
-    monkeypatch.setattr(dai.Device, "getAllConnectedDevices", staticmethod(lambda: [info]))
-    (oak,) = discovery.list_depthai()
+    denied = dai.DeviceInfo("1.4")
+    denied.status = dai.XLinkError_t.X_LINK_INSUFFICIENT_PERMISSIONS
+    monkeypatch.setattr(dai.XLinkConnection, "getAllConnectedDevices",
+                        staticmethod(lambda skipInvalidDevices=True: [info] + ([] if skipInvalidDevices else [denied])))
+    oak, no_perm = discovery.list_depthai()
     assert (oak.kind, oak.serial, oak.state) == ("oak", "1844301011B546F500", "booted")
     assert oak.extra == {"protocol": "usb_vsc", "platform": "myriad_x", "spec": "oak:1844301011B546F500"}
+    # A device without USB permission is listed, with the rule that fixes it (not dropped).
+    assert no_perm.state == "no-permission" and discovery.OAK_UDEV_RULE in no_perm.extra["fix"]
+    monkeypatch.setattr(discovery, "list_devices", lambda: [no_perm])
+    result = runner.invoke(app, ["devices"])
+    assert "[no-permission]" in result.output and 'ATTRS{idVendor}=="03e7"' in result.output
 
 
 def test_probes_fail_soft(monkeypatch):
@@ -85,7 +93,7 @@ def test_probes_fail_soft(monkeypatch):
     assert discovery.list_usb() == []
     monkeypatch.setattr(libusb_package, "get_libusb1_backend", lambda: None)  # no libusb at all
     assert discovery.list_usb() == []
-    monkeypatch.setattr(dai.Device, "getAllConnectedDevices", boom)
+    monkeypatch.setattr(dai.XLinkConnection, "getAllConnectedDevices", boom)
     assert discovery.list_depthai() == []
 
 
