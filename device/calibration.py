@@ -10,13 +10,20 @@ Procedure (OpenCV 5 API):
    reject views whose stereo error is an outlier the same way (e.g. a pair captured out of sync)
    and solve again.
 
-Calibration file (JSON, ``FORMAT`` / ``VERSION``), read by :func:`load_calibration`:
+The project's native calibration file (JSON, ``FORMAT`` / ``VERSION``), read by :func:`load_calibration`
+(OpenCV FileStorage and ROS camera_info files are read and written by device/calibration_files.py):
 
 - ``image_size``: [width, height] of each camera's image, pixels;
 - ``K1``, ``K2``: 3x3 camera matrices (pixels) of the left and right camera;
-- ``D1``, ``D2``: OpenCV distortion coefficients (k1, k2, p1, p2, k3);
+- ``D1``, ``D2``: distortion coefficients of ``distortion_model``;
+- ``distortion_model``: ``"opencv"`` (OpenCV's pinhole model, coefficients k1, k2, p1, p2[, k3[, k4, k5,
+  k6[, s1..s4[, tx, ty]]]], i.e. ROS ``plumb_bob`` / ``rational_polynomial``) or ``"equidistant"``
+  (OpenCV's fisheye model, k1..k4: Kalibr's ``equidistant``, ROS ``equidistant``). A file without
+  it means "opencv", except with four coefficients, which are ambiguous (k1, k2, p1, p2 or a
+  fisheye's k1..k4) and must name the model;
 - ``R``, ``T``: rotation (3x3) and translation (3, metres) taking left-camera coordinates to
-  right-camera coordinates, ``X_right = R X_left + T``; the baseline is ``|T|``;
+  right-camera coordinates, ``X_right = R X_left + T`` (OpenCV's ``stereoCalibrate`` convention);
+  the baseline is ``|T|``;
 - ``rms``: stereo RMS reprojection error (pixels), ``rms_left`` / ``rms_right`` per camera;
 - ``views``: per view name, corners used, errors (pixels) and whether it was used (and why not);
 - ``board``: the ChArUco board (squares, square and marker size in metres, dictionary);
@@ -42,6 +49,7 @@ from .errors import CalibrationError
 
 FORMAT = "depthruler-stereo-calibration"
 VERSION = 1
+DISTORTION_MODELS = ("opencv", "equidistant")
 IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg", ".bmp", ".tif", ".tiff")
 
 Progress = Callable[[str], None]
@@ -107,6 +115,7 @@ class StereoCalibration:
     board: BoardSpec | None = None
     created: str = ""
     extra: dict = field(default_factory=dict)
+    distortion_model: str = "opencv"
 
     @property
     def baseline_m(self) -> float:
@@ -125,6 +134,7 @@ class StereoCalibration:
             "D1": np.asarray(self.D1, float).ravel().tolist(),
             "K2": np.asarray(self.K2, float).tolist(),
             "D2": np.asarray(self.D2, float).ravel().tolist(),
+            "distortion_model": self.distortion_model,
             "R": np.asarray(self.R, float).tolist(),
             "T": np.asarray(self.T, float).ravel().tolist(),
             "baseline_m": self.baseline_m,
@@ -194,8 +204,17 @@ def calibration_from_json(data: dict, source: str = "calibration") -> StereoCali
     for name, K in (("K1", K1), ("K2", K2)):
         if K[0, 0] <= 0 or K[1, 1] <= 0 or not np.allclose(K[2], [0, 0, 1]):
             raise CalibrationError(f"{source}: {name} is not a camera matrix [[fx,0,cx],[0,fy,cy],[0,0,1]]")
-    dist_sizes = (4, 5, 8, 12, 14)
+    model = data.get("distortion_model")
+    if model is not None and model not in DISTORTION_MODELS:
+        raise CalibrationError(f"{source}: distortion_model {model!r} is unknown; use one of {', '.join(DISTORTION_MODELS)}")
+    dist_sizes = (4,) if model == "equidistant" else (4, 5, 8, 12, 14)
     D1, D2 = arr("D1", None, dist_sizes).ravel(), arr("D2", None, dist_sizes).ravel()
+    if model is None and D1.size == 4:
+        raise CalibrationError(
+            f"{source}: four distortion coefficients are ambiguous (OpenCV k1,k2,p1,p2 or a fisheye's k1..k4, "
+            "e.g. Kalibr's equidistant); name the model: distortion_model \"opencv\" or \"equidistant\" "
+            "(source spec: distortion=opencv|equidistant)"
+        )
     R = arr("R", (3, 3))
     if not np.allclose(R @ R.T, np.eye(3), atol=1e-6):
         raise CalibrationError(f"{source}: R is not a rotation matrix")
@@ -203,7 +222,8 @@ def calibration_from_json(data: dict, source: str = "calibration") -> StereoCali
     if np.linalg.norm(T) <= 0:
         raise CalibrationError(f"{source}: T is zero; the two cameras must be apart (T in metres)")
     if np.linalg.norm(T) > 5:
-        raise CalibrationError(f"{source}: |T| = {np.linalg.norm(T):.1f} m is implausible; T must be in metres, not mm")
+        raise CalibrationError(f"{source}: |T| = {np.linalg.norm(T):.1f} m is implausible; T must be in metres "
+                               "(a file with T in mm: add calib_units=mm to the source spec)")
     board = data.get("board")
     view_fields = {f.name for f in fields(ViewResult)}
     try:
@@ -235,6 +255,7 @@ def calibration_from_json(data: dict, source: str = "calibration") -> StereoCali
         board=board,
         created=str(data.get("created", "")),
         extra=dict(data.get("extra", {})),
+        distortion_model=model or "opencv",
     )
 
 

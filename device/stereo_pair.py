@@ -24,8 +24,9 @@ import numpy as np
 from measure import Frame, PinholeCamera
 
 from .base import SourceBase, SourceInfo, SourceSpec, parse_flag
-from .calibration import StereoCalibration, load_calibration
-from .errors import CalibrationError, SourceDisconnected, SourceError, SourceNotFound, SourceTimeout
+from .calibration import StereoCalibration
+from .calibration_files import CalibrationRef
+from .errors import CalibrationError, SourceDisconnected, SourceEnded, SourceError, SourceNotFound, SourceTimeout
 from .sgbm import MODES, SGBMConfig, compute_disparity
 
 LAYOUTS = ("side-by-side", "two-nodes")
@@ -62,7 +63,7 @@ class StereoPairConfig:
     width: int = 1280
     height: int = 480
     fps: float = 30.0
-    calibration: str = ""
+    calibration: CalibrationRef = field(default_factory=lambda: CalibrationRef(""))
     sgbm: SGBMConfig = field(default_factory=SGBMConfig)
     scale: float = 1.0
     max_skew_s: float | None = None
@@ -183,7 +184,7 @@ class V4L2Grabber:
 class ImagePairGrabber:
     """Pairs from memory (recorded or rendered), through the same interface as the cameras.
 
-    Each ``grab`` returns the next pair; after the last one it raises :class:`SourceDisconnected`
+    Each ``grab`` returns the next pair; after the last one it raises :class:`SourceEnded`
     (end of data) unless ``loop``. Timestamps are ``index / fps``.
     """
 
@@ -201,7 +202,7 @@ class ImagePairGrabber:
     def grab(self, timeout_s: float = 1.0) -> tuple[np.ndarray, np.ndarray, float]:
         if self._i >= len(self.pairs):
             if not self.loop:
-                raise SourceDisconnected(f"all {len(self.pairs)} image pairs were read; reopen to start again")
+                raise SourceEnded(f"all {len(self.pairs)} image pairs were read; reopen to start again")
             self._i = 0
         left, right = self.pairs[self._i % len(self.pairs)]
         stamp = self._i / self.fps
@@ -256,12 +257,20 @@ def rectification(calib: StereoCalibration, size: tuple[int, int]) -> Rectificat
     if T[0, 0] > 0:
         raise CalibrationError("the calibration puts the right camera to the left of the left one (T_x > 0); "
                                "swap the left and right images (or devices) and recalibrate")
-    R1, R2, P1, P2, _Q, _roi1, _roi2 = cv2.stereoRectify(
-        K1, calib.D1, K2, calib.D2, (w, h), calib.R, T, flags=cv2.CALIB_ZERO_DISPARITY, alpha=0
-    )
+    if calib.distortion_model == "equidistant":
+        # OpenCV's fisheye model (Kalibr's "equidistant"); balance 0 crops to valid pixels like alpha 0.
+        R1, R2, P1, P2, _Q = cv2.fisheye.stereoRectify(
+            K1, calib.D1, K2, calib.D2, (w, h), calib.R, T, cv2.CALIB_ZERO_DISPARITY, balance=0.0
+        )
+        undistort = cv2.fisheye.initUndistortRectifyMap
+    else:
+        R1, R2, P1, P2, _Q, _roi1, _roi2 = cv2.stereoRectify(
+            K1, calib.D1, K2, calib.D2, (w, h), calib.R, T, flags=cv2.CALIB_ZERO_DISPARITY, alpha=0
+        )
+        undistort = cv2.initUndistortRectifyMap
     maps = (
-        *cv2.initUndistortRectifyMap(K1, calib.D1, R1, P1, (w, h), cv2.CV_32FC1),
-        *cv2.initUndistortRectifyMap(K2, calib.D2, R2, P2, (w, h), cv2.CV_32FC1),
+        *undistort(K1, calib.D1, R1, P1, (w, h), cv2.CV_32FC1),
+        *undistort(K2, calib.D2, R2, P2, (w, h), cv2.CV_32FC1),
     )
     cam = PinholeCamera(fx=P1[0, 0], fy=P1[1, 1], cx=P1[0, 2], cy=P1[1, 2], width=w, height=h)
     baseline = float(-P2[0, 3] / P2[0, 0])
@@ -321,8 +330,56 @@ class StereoProcessor:
         )
 
 
-class StereoPairSource(SourceBase):
-    """A stereo pair as a Source: grabber (cameras by default) + calibration + SGBM processing."""
+class ProcessedPairSource(SourceBase):
+    """Pairs from a grabber (cameras, video files, memory) through calibration + :class:`StereoProcessor`.
+
+    Every stereo source without on-board depth is this class with another grabber, so a video file
+    and a live pair are rectified and matched by the very same code.
+    """
+
+    def __init__(
+        self,
+        grabber: FrameGrabber,
+        calib: CalibrationRef | StereoCalibration,
+        sgbm: SGBMConfig,
+        scale: float,
+        info: SourceInfo,
+        meta: dict | None = None,
+    ) -> None:
+        self.grabber = grabber
+        self._calib = calib
+        self.sgbm = sgbm
+        self.scale = scale
+        self.info = info
+        self._meta = dict(meta or {})
+        self._processor: StereoProcessor | None = None
+
+    def open(self) -> None:
+        if self.is_open:
+            return
+        # The camera (or file) first: if it is not there, that is the first thing to fix.
+        self.grabber.open()
+        try:
+            calib = self._calib if isinstance(self._calib, StereoCalibration) else self._calib.load()
+            self._processor = StereoProcessor(calib, self.sgbm, self.scale)
+        except Exception:
+            self.grabber.close()
+            raise
+        super().open()
+
+    def read(self, timeout_s: float = 1.0) -> Frame:
+        if not self.is_open or self._processor is None:
+            raise SourceError(f"the {self.info.kind} source is not open; call open() or use `with open_source(spec) as src:`")
+        left, right, stamp = self.grabber.grab(timeout_s)
+        return self._processor.process(left, right, stamp, self._meta)
+
+    def close(self) -> None:
+        self.grabber.close()
+        super().close()
+
+
+class StereoPairSource(ProcessedPairSource):
+    """A live stereo pair as a Source: V4L2 grabber (unless another is given) + calibration + SGBM."""
 
     def __init__(
         self,
@@ -332,56 +389,58 @@ class StereoPairSource(SourceBase):
         calibration: StereoCalibration | None = None,
     ) -> None:
         self.config = config
-        self.grabber = grabber if grabber is not None else V4L2Grabber(config)
-        self._calibration = calibration
-        self._processor: StereoProcessor | None = None
         w, h = config.eye_size
-        self.info = SourceInfo(kind="v4l2", name=",".join(config.devices), width=w, height=h, fps=config.fps,
-                               extra={"layout": config.layout})
-
-    def open(self) -> None:
-        if self.is_open:
-            return
-        # The camera first: if it is not there, that is the first thing to fix.
-        self.grabber.open()
-        try:
-            calib = self._calibration
-            if calib is None:
-                if not self.config.calibration:
-                    raise CalibrationError(
-                        "a stereo pair needs its calibration file: add calib=FILE.json to the source spec; "
-                        "create one with `depthruler calibrate --live v4l2:... --out FILE.json`"
-                    )
-                calib = load_calibration(self.config.calibration)
-            self._processor = StereoProcessor(calib, self.config.sgbm, self.config.scale)
-        except Exception:
-            self.grabber.close()
-            raise
-        super().open()
-
-    def read(self, timeout_s: float = 1.0) -> Frame:
-        if not self.is_open or self._processor is None:
-            raise SourceError("the stereo pair is not open; call open() or use `with open_source(spec) as src:`")
-        left, right, stamp = self.grabber.grab(timeout_s)
-        return self._processor.process(left, right, stamp, {"devices": list(self.config.devices)})
-
-    def close(self) -> None:
-        self.grabber.close()
-        super().close()
+        super().__init__(
+            grabber if grabber is not None else V4L2Grabber(config),
+            calibration if calibration is not None else config.calibration,
+            config.sgbm,
+            config.scale,
+            SourceInfo(kind="v4l2", name=",".join(config.devices), width=w, height=h, fps=config.fps,
+                       extra={"layout": config.layout}),
+            {"source": "v4l2", "devices": list(config.devices)},
+        )
 
 
 _SGBM_KEYS = {"mode": "mode", "ndisp": "num_disparities", "block": "block_size", "p1": "p1", "p2": "p2",
               "uniqueness": "uniqueness", "wls": "wls", "wls_lambda": "wls_lambda", "wls_sigma": "wls_sigma",
               "lr_confidence": "lr_confidence", "speckle_window": "speckle_window", "speckle_range": "speckle_range",
               "fill_left_band": "fill_left_band"}
+CALIB_KEYS = ("calib", "calib_units", "distortion")
+SGBM_OPTIONS = tuple(_SGBM_KEYS)
+
+
+def sgbm_from_params(params: dict[str, str], spec: SourceSpec) -> SGBMConfig:
+    """The SGBMConfig of a spec's SGBM options (``ndisp``, ``block``, ``mode``, ...); others are ignored."""
+    sgbm: dict = {}
+    sgbm_types = {f.name: str(f.type) for f in fields(SGBMConfig)}
+    for key, value in params.items():
+        if key not in _SGBM_KEYS:
+            continue
+        name = _SGBM_KEYS[key]
+        kind = sgbm_types[name]
+        try:
+            sgbm[name] = (parse_flag(value) if "bool" in kind else value if name == "mode"
+                          else float(value) if "float" in kind else int(value))
+        except ValueError as exc:
+            raise SourceError(f"{spec.kind} option {key}={value!r} in {str(spec)!r} is not valid") from exc
+    if "mode" in sgbm and sgbm["mode"] not in MODES:
+        raise SourceError(f"SGBM mode {sgbm['mode']!r} is unknown; use one of {', '.join(MODES)}")
+    try:
+        return SGBMConfig(**sgbm)
+    except ValueError as exc:
+        raise SourceError(f"SGBM options in {str(spec)!r}: {exc}") from exc
+
+
+def calibration_from_params(params: dict[str, str]) -> CalibrationRef:
+    """The calibration a spec names: ``calib=FILE`` (or ``calib=LEFT.yaml,RIGHT.yaml`` for ROS),
+    ``calib_units=m|mm`` (unit of T in OpenCV/ROS files) and ``distortion=opencv|equidistant``."""
+    return CalibrationRef(params.get("calib", ""), params.get("calib_units", "m"), params.get("distortion") or None)
 
 
 def config_from_spec(spec: SourceSpec) -> StereoPairConfig:
     """StereoPairConfig from a ``v4l2:`` spec (see the module docstring for the options)."""
     devices = tuple(d.strip() for d in spec.target.split(",") if d.strip()) or ("/dev/video0",)
     kwargs: dict = {"devices": devices, "layout": "side-by-side" if len(devices) == 1 else "two-nodes"}
-    sgbm: dict = {}
-    sgbm_types = {f.name: f.type for f in fields(SGBMConfig)}
     for key, value in spec.params.items():
         try:
             if key == "size":
@@ -389,30 +448,19 @@ def config_from_spec(spec: SourceSpec) -> StereoPairConfig:
                 kwargs["width"], kwargs["height"] = int(w), int(h)
             elif key in ("layout", "fourcc"):
                 kwargs[key] = value if key == "layout" else value.upper()
-            elif key == "calib":
-                kwargs["calibration"] = value
             elif key in ("fps", "scale", "max_skew_s"):
                 kwargs[key] = float(value)
-            elif key in _SGBM_KEYS:
-                name = _SGBM_KEYS[key]
-                kind = str(sgbm_types[name])
-                sgbm[name] = (parse_flag(value) if "bool" in kind else value if name == "mode"
-                              else float(value) if "float" in kind else int(value))
-            else:
+            elif key not in _SGBM_KEYS and key not in CALIB_KEYS:
                 raise SourceError(
-                    f"unknown v4l2 option {key!r} in {str(spec)!r}; use: size, layout, fourcc, calib, fps, scale, "
-                    f"max_skew_s, {', '.join(_SGBM_KEYS)}"
+                    f"unknown v4l2 option {key!r} in {str(spec)!r}; use: size, layout, fourcc, fps, scale, "
+                    f"max_skew_s, {', '.join(CALIB_KEYS)}, {', '.join(_SGBM_KEYS)}"
                 )
         except (ValueError, KeyError) as exc:
             raise SourceError(f"v4l2 option {key}={value!r} in {str(spec)!r} is not valid") from exc
     if kwargs["layout"] == "two-nodes" and "size" not in spec.params:
         kwargs["width"], kwargs["height"] = 640, 480
-    if "mode" in sgbm and sgbm["mode"] not in MODES:
-        raise SourceError(f"SGBM mode {sgbm['mode']!r} is unknown; use one of {', '.join(MODES)}")
-    try:
-        kwargs["sgbm"] = SGBMConfig(**sgbm)
-    except ValueError as exc:
-        raise SourceError(f"SGBM options in {str(spec)!r}: {exc}") from exc
+    kwargs["sgbm"] = sgbm_from_params(spec.params, spec)
+    kwargs["calibration"] = calibration_from_params(spec.params)
     return StereoPairConfig(**kwargs)
 
 

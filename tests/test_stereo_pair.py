@@ -11,6 +11,7 @@ import pytest
 from device import CalibrationError, SourceDisconnected, SourceError, SourceNotFound, SourceSpec, SourceTimeout
 from device import open_source
 from device.calibration import StereoCalibration, render_board_view
+from device.calibration_files import CalibrationRef
 from device.middlebury import load_scene, read_calib
 from device.sgbm import SGBMConfig, round_up_disparities
 from device.stereo_pair import (
@@ -55,7 +56,7 @@ def test_missing_devices_raise_not_found():
 def test_spec_parsing():
     cfg = config_from_spec(SourceSpec.parse("v4l2:/dev/video0?layout=side-by-side&calib=rig.json&size=2560x960"
                                             "&fps=15&mode=hh&ndisp=96&block=7&wls=1&scale=0.5"))
-    assert cfg.devices == ("/dev/video0",) and cfg.layout == "side-by-side" and cfg.calibration == "rig.json"
+    assert cfg.devices == ("/dev/video0",) and cfg.layout == "side-by-side" and cfg.calibration.path == "rig.json"
     assert (cfg.width, cfg.height, cfg.fps, cfg.scale, cfg.eye_size) == (2560, 960, 15.0, 0.5, (1280, 960))
     assert (cfg.sgbm.mode, cfg.sgbm.num_disparities, cfg.sgbm.block_size, cfg.sgbm.wls) == ("hh", 96, 7, True)
     two = config_from_spec(SourceSpec.parse("v4l2:/dev/video0,/dev/video2?calib=rig.json&fourcc=yuyv"))
@@ -215,10 +216,10 @@ def test_side_by_side_split():
 def test_calibration_required_and_checked(tmp_path, middlebury_dir):
     scene = load_scene(middlebury_dir / "Teddy")
     grab = ImagePairGrabber([(scene.left, scene.right)])
-    with pytest.raises(CalibrationError, match="calib=FILE.json"):
+    with pytest.raises(CalibrationError, match="add calib=FILE"):
         StereoPairSource(StereoPairConfig(), grabber=grab).open()
     with pytest.raises(CalibrationError, match="does not exist"):
-        StereoPairSource(StereoPairConfig(calibration=str(tmp_path / "rig.json")), grabber=grab).open()
+        StereoPairSource(StereoPairConfig(calibration=CalibrationRef(str(tmp_path / "rig.json"))), grabber=grab).open()
     # Calibrated at 4:3, images 450x375 (6:5): refuse rather than measure with wrong intrinsics.
     cal = StereoCalibration(image_size=(640, 480), K1=np.eye(3), D1=np.zeros(5), K2=np.eye(3), D2=np.zeros(5),
                             R=np.eye(3), T=np.array([-0.1, 0, 0]))
