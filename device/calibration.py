@@ -41,6 +41,7 @@ from collections.abc import Callable, Iterable, Sequence
 from dataclasses import asdict, dataclass, field, fields
 from datetime import datetime, timezone
 from pathlib import Path
+from typing import Protocol
 
 import cv2
 import numpy as np
@@ -53,6 +54,16 @@ DISTORTION_MODELS = ("opencv", "equidistant")
 IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg", ".bmp", ".tif", ".tiff")
 
 Progress = Callable[[str], None]
+
+
+class PairGrabber(Protocol):
+    """Where calibration views come from (same shape as ``stereo_pair.FrameGrabber``)."""
+
+    def open(self) -> None: ...
+
+    def grab(self, timeout_s: float = 1.0) -> tuple[np.ndarray, np.ndarray, float]: ...
+
+    def close(self) -> None: ...
 
 
 @dataclass(frozen=True)
@@ -82,6 +93,40 @@ class BoardSpec:
     @property
     def n_corners(self) -> int:
         return (self.squares_x - 1) * (self.squares_y - 1)
+
+
+def write_board_png(board: BoardSpec, out: str | Path, dpi: float = 300.0, margin_mm: float = 10.0) -> tuple[Path, float, float]:
+    """Write the printable ChArUco board that :func:`calibrate_stereo` expects; returns (path, width mm, height mm).
+
+    The PNG is rendered at ``dpi`` with a white margin of ``margin_mm`` around the squares and
+    carries its physical resolution (a pHYs chunk), so printing at 100 % ("actual size") gives
+    squares of ``board.square_m``. The returned size is the whole sheet, margins included.
+    """
+    import struct
+    import zlib
+
+    if not (72 <= dpi <= 1200):
+        raise CalibrationError(f"dpi={dpi} must lie in 72..1200")
+    # Whole pixels per square, and the PNG's resolution set from them, so a square prints at exactly
+    # its size (the effective dpi differs from the asked one by less than half a pixel per square).
+    square_px = int(round(board.square_m * 1000.0 * dpi / 25.4))
+    px_per_mm = square_px / (board.square_m * 1000.0)
+    margin_px = int(round(margin_mm * px_per_mm))
+    w = board.squares_x * square_px + 2 * margin_px
+    h = board.squares_y * square_px + 2 * margin_px
+    image = board.board().generateImage((w, h), marginSize=margin_px, borderBits=1)
+    ok, png = cv2.imencode(".png", image)
+    if not ok:
+        raise CalibrationError("OpenCV could not encode the board as PNG")
+    data = png.tobytes()
+    ppm = int(round(px_per_mm * 1000.0))
+    body = b"pHYs" + struct.pack(">IIB", ppm, ppm, 1)  # pixels per metre, unit = metre
+    chunk = struct.pack(">I", 9) + body + struct.pack(">I", zlib.crc32(body) & 0xFFFFFFFF)
+    ihdr_end = 8 + 8 + 13 + 4  # signature, IHDR length + type, IHDR data, CRC
+    out = Path(out)
+    out.parent.mkdir(parents=True, exist_ok=True)
+    out.write_bytes(data[:ihdr_end] + chunk + data[ihdr_end:])
+    return out, w / px_per_mm, h / px_per_mm
 
 
 @dataclass(frozen=True)
@@ -492,33 +537,29 @@ def render_board_view(
 
 
 def capture_views(
-    spec: str,
+    grabber: PairGrabber,
     board: BoardSpec,
     n_views: int,
     *,
     save_to: str | Path | None = None,
     progress: Progress | None = None,
-    grabber=None,
     min_corners: int = 12,
     min_move: float = 0.02,
     max_seconds: float = 600.0,
 ) -> list[tuple[str, np.ndarray, np.ndarray]]:
-    """Collect ``n_views`` distinct board views from a live stereo pair (a ``v4l2:`` spec).
+    """Collect ``n_views`` distinct board views from a stereo grabber (a camera pair or a video).
 
     A pair is kept when both cameras see at least ``min_corners`` common corners and the board
     moved by more than ``min_move`` x image width (mean corner shift) from every kept view, so that
-    holding the board still does not fill the set with copies. ``grabber`` replaces the camera
-    (any object with open/grab/close, e.g. ``stereo_pair.ImagePairGrabber``).
+    holding the board still does not fill the set with copies. ``grabber`` is any object with
+    open/grab/close (``stereo_pair.V4L2Grabber``, ``video.VideoGrabber``, ``stereo_pair.ImagePairGrabber``);
+    the caller builds it, so this module does not depend on the capture code (which depends on it).
     """
     import time
 
-    from .base import SourceSpec
     from .errors import SourceDisconnected
-    from .stereo_pair import V4L2Grabber, config_from_spec
 
     say = progress or (lambda _msg: None)
-    if grabber is None:
-        grabber = V4L2Grabber(config_from_spec(SourceSpec.parse(spec)))
     detector = cv2.aruco.CharucoDetector(board.board())
     kept: list[tuple[str, np.ndarray, np.ndarray]] = []
     kept_corners: list[dict[int, np.ndarray]] = []
