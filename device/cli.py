@@ -30,7 +30,7 @@ def devices(json_out: bool = typer.Option(False, "--json", help="Print machine-r
         details = "  ".join(x for x in (d.serial, usb_id, f"spec: {spec}" if spec else "") if x)
         typer.echo(f"{d.kind:5} {d.name}{size}{state}  {details}".rstrip())
         if d.extra.get("fix"):
-            typer.echo(f"      no USB permission for this OAK; install the udev rule:\n      {d.extra['fix']}")
+            typer.echo(f"      no permission to open it; fix:\n      {d.extra['fix']}")
 
 
 def _parse_squares(text: str) -> tuple[int, int]:

@@ -63,23 +63,70 @@ def list_depthai() -> list[SourceInfo]:
     return out
 
 
-def list_v4l2(sys_root: Path = Path("/sys/class/video4linux"), dev_root: Path = Path("/dev")) -> list[SourceInfo]:
-    """V4L2 nodes ``/dev/video*`` with the driver's name for each (from sysfs)."""
+V4L2_CAP_VIDEO_CAPTURE = 0x00000001
+V4L2_CAP_VIDEO_CAPTURE_MPLANE = 0x00001000
+V4L2_CAP_DEVICE_CAPS = 0x80000000
+VIDIOC_QUERYCAP = 0x80685600  # _IOR('V', 0, struct v4l2_capability), 104 bytes
+
+
+def querycap(node: Path) -> int | str:
+    """The node's V4L2 device capabilities (``VIDIOC_QUERYCAP``), or why they cannot be read:
+    "no-permission" (EACCES: fixed by the video group) or "unknown" (busy, not a V4L2 node...)."""
+    import fcntl
+    import struct
+
+    try:
+        fd = os.open(node, os.O_RDWR | os.O_NONBLOCK)
+    except PermissionError:
+        return "no-permission"
+    except OSError:
+        return "unknown"
+    try:
+        buf = fcntl.ioctl(fd, VIDIOC_QUERYCAP, bytes(104))
+    except OSError:
+        return "unknown"
+    finally:
+        os.close(fd)
+    caps, device_caps = struct.unpack_from("=II", buf, 84)  # after driver[16], card[32], bus_info[32], version
+    return device_caps if caps & V4L2_CAP_DEVICE_CAPS else caps
+
+
+def list_v4l2(sys_root: Path = Path("/sys/class/video4linux"), dev_root: Path = Path("/dev"),
+              query=querycap) -> list[SourceInfo]:
+    """V4L2 nodes ``/dev/video*`` that capture video, with the driver's name for each (from sysfs).
+
+    A UVC camera exposes a second node for metadata (``V4L2_CAP_META_CAPTURE``) that delivers no
+    images: nodes whose capabilities lack video capture are left out. When the capabilities cannot
+    be read, sysfs ``index`` decides (a camera's first node has index 0, its metadata node 1), and
+    a node this user may not open is listed with state "no-permission" and the fix.
+    """
     try:
         nodes = sorted(dev_root.glob("video[0-9]*"), key=lambda p: int(p.name[5:]))
     except OSError:
         return []
     out = []
     for node in nodes:
-        name = ""
-        try:
-            name = (sys_root / node.name / "name").read_text().strip()
-        except OSError:
-            pass  # node without a sysfs entry (e.g. a container bind mount): still listable
-        out.append(
-            SourceInfo(kind="v4l2", name=name or node.name, serial=str(node), extra={"spec": f"v4l2:{node}"})
-        )
+        name = _sysfs(sys_root / node.name / "name")
+        caps = query(node)
+        if isinstance(caps, int):
+            if not caps & (V4L2_CAP_VIDEO_CAPTURE | V4L2_CAP_VIDEO_CAPTURE_MPLANE):
+                continue  # metadata / output / codec node: nothing to capture from
+        elif _sysfs(sys_root / node.name / "index") not in ("", "0"):
+            continue
+        extra: dict = {"spec": f"v4l2:{node}"}
+        if caps == "no-permission":
+            extra["fix"] = ("sudo usermod -aG video $USER  # then log out and in (permission denied on "
+                            f"{node}: this is not 'busy')")
+        out.append(SourceInfo(kind="v4l2", name=name or node.name, serial=str(node),
+                              state="no-permission" if caps == "no-permission" else "", extra=extra))
     return out
+
+
+def _sysfs(path: Path) -> str:
+    try:
+        return path.read_text().strip()
+    except OSError:
+        return ""  # node without a sysfs entry (e.g. a container bind mount): still listable
 
 
 def list_usb() -> list[SourceInfo]:

@@ -13,9 +13,13 @@ Spec: ``v4l2:/dev/video0?layout=side-by-side&calib=FILE.json[&size=1280x480&fps=
 
 from __future__ import annotations
 
+import logging
+import os
 import time
-from collections.abc import Sequence
-from dataclasses import dataclass, field, fields
+from collections.abc import Callable, Sequence
+from concurrent.futures import Future, ThreadPoolExecutor
+from concurrent.futures import TimeoutError as FutureTimeout
+from dataclasses import dataclass, field, fields, replace
 from pathlib import Path
 from typing import Protocol
 
@@ -29,6 +33,7 @@ from .calibration_files import CalibrationRef
 from .errors import CalibrationError, SourceDisconnected, SourceEnded, SourceError, SourceNotFound, SourceTimeout
 from .sgbm import MODES, SGBMConfig, compute_disparity
 
+log = logging.getLogger(__name__)
 LAYOUTS = ("side-by-side", "two-nodes")
 NO_CAMERA_HINT = (
     "plug in the stereo camera and check `depthruler devices` (or `v4l2-ctl --list-devices`); "
@@ -93,29 +98,98 @@ class StereoPairConfig:
         return (self.width, self.height)
 
 
-class V4L2Grabber:
-    """Pairs from V4L2 through ``cv2.VideoCapture(..., CAP_V4L2)``: a side-by-side node or two nodes."""
+def open_v4l2(device: str) -> Capture:
+    """The real capture: ``cv2.VideoCapture(device, CAP_V4L2)``."""
+    import cv2
 
-    def __init__(self, config: StereoPairConfig, read_timeout_ms: int = 2000) -> None:
+    return cv2.VideoCapture(device, cv2.CAP_V4L2)
+
+
+class Capture(Protocol):
+    """The part of ``cv2.VideoCapture`` the grabber uses (tests inject a fake with the same methods)."""
+
+    def isOpened(self) -> bool: ...
+
+    def set(self, prop: int, value: float) -> bool: ...
+
+    def get(self, prop: int) -> float: ...
+
+    def grab(self) -> bool: ...
+
+    def retrieve(self) -> tuple[bool, np.ndarray | None]: ...
+
+    def release(self) -> None: ...
+
+
+def fourcc_text(code: float) -> str:
+    """The four characters of an OpenCV FOURCC property value ("" when the backend reports none)."""
+    n = int(code)
+    text = "".join(chr((n >> (8 * i)) & 0xFF) for i in range(4))
+    return text if n > 0 and text.isprintable() else ""
+
+
+def node_access_problem(device: str) -> str:
+    """Why a V4L2 node cannot be opened, from the OS: "" (no problem seen), or a message for
+    permission denied / busy. Permission is not "busy": it is fixed by a group, not by closing a program."""
+    import errno
+
+    try:
+        fd = os.open(device, os.O_RDWR | os.O_NONBLOCK)
+    except PermissionError:
+        return (f"permission denied on {device}: add your user to the 'video' group "
+                "(`sudo usermod -aG video $USER`, then log out and in) or run with access to the device")
+    except OSError as exc:
+        if exc.errno == errno.EBUSY:
+            return f"{device} is busy: another program is capturing from it; close it and retry"
+        return f"{device} cannot be opened ({exc.strerror})"
+    os.close(fd)
+    return ""
+
+
+class V4L2Grabber:
+    """Pairs from V4L2 through ``cv2.VideoCapture(..., CAP_V4L2)``: a side-by-side node or two nodes.
+
+    Every capture call runs on one capture thread and the caller waits at most ``timeout_s``:
+    OpenCV's V4L2 backend ignores ``CAP_PROP_READ_TIMEOUT_MSEC`` and blocks ~10 s on a stalled
+    camera. A wait that ends without a frame is :class:`SourceTimeout` while the node still exists
+    (the call stays pending and the next ``grab`` waits for it instead of queueing another), and
+    :class:`SourceDisconnected` when the node is gone or the driver reports a failed grab.
+    Two nodes are ``grab()``-bed back to back and ``retrieve()``-d (decoded) afterwards, which keeps
+    the two exposures closer than two ``read()``s. After ``open`` the format and rate the driver
+    really gave are read back; a fallback (MJPG -> YUYV, a lower fps) is logged and listed in
+    ``warnings``.
+    """
+
+    def __init__(self, config: StereoPairConfig, read_timeout_ms: int = 2000,
+                 capture_factory: Callable[[str], Capture] = open_v4l2) -> None:
         self.config = config
         self.read_timeout_ms = read_timeout_ms
-        self._caps: list = []
+        self._factory = capture_factory
+        self._caps: list[Capture] = []
+        self._worker: ThreadPoolExecutor | None = None
+        self._pending: Future | None = None
+        self.warnings: list[str] = []
+        self.actual_fps = config.fps
+        self.actual_fourcc = config.fourcc
 
     def open(self) -> None:
         import cv2
 
         cfg = self.config
+        self.warnings = []
         for dev in cfg.devices:
-            if dev.startswith("/dev/") and not Path(dev).exists():
+            if dev.startswith("/") and not Path(dev).exists():
                 self.close()
                 raise SourceNotFound(f"no V4L2 device {dev}; {NO_CAMERA_HINT}")
-            cap = cv2.VideoCapture(dev, cv2.CAP_V4L2)
+            cap = self._factory(dev)
             if not cap.isOpened():
                 cap.release()
                 self.close()
+                problem = node_access_problem(dev) if dev.startswith("/") else ""
                 raise SourceNotFound(
-                    f"cannot open {dev} as a V4L2 camera (busy in another program, or a metadata node: "
-                    f"UVC cameras expose two nodes and only one captures); {NO_CAMERA_HINT}"
+                    f"cannot open {dev} as a V4L2 camera: {problem}" if problem else
+                    f"cannot open {dev} as a V4L2 camera (a metadata node? UVC cameras expose two nodes and only "
+                    f"one captures: see `depthruler devices`); {NO_CAMERA_HINT}"
                 )
             self._caps.append(cap)
             # Order matters: many UVC drivers accept a size only after the MJPG format is chosen and
@@ -125,8 +199,6 @@ class V4L2Grabber:
             cap.set(cv2.CAP_PROP_FRAME_HEIGHT, cfg.height)
             cap.set(cv2.CAP_PROP_FPS, cfg.fps)
             cap.set(cv2.CAP_PROP_BUFFERSIZE, 1)
-            # A pulled cable otherwise blocks read() for OpenCV's default 10 s before it fails.
-            cap.set(cv2.CAP_PROP_READ_TIMEOUT_MSEC, self.read_timeout_ms)
             got = (int(cap.get(cv2.CAP_PROP_FRAME_WIDTH)), int(cap.get(cv2.CAP_PROP_FRAME_HEIGHT)))
             if got != (cfg.width, cfg.height):
                 self.close()
@@ -134,48 +206,85 @@ class V4L2Grabber:
                     f"{dev} delivers {got[0]}x{got[1]} although {cfg.width}x{cfg.height} {cfg.fourcc} was asked; "
                     "set size= to a mode the camera lists (`v4l2-ctl -d DEV --list-formats-ext`)"
                 )
+            fourcc = fourcc_text(cap.get(cv2.CAP_PROP_FOURCC))
+            fps = float(cap.get(cv2.CAP_PROP_FPS))
+            if fourcc and fourcc != cfg.fourcc:
+                self.warnings.append(f"{dev} delivers {fourcc} although {cfg.fourcc} was asked (the driver fell back; "
+                                     "uncompressed formats need far more USB bandwidth: expect a lower rate)")
+                self.actual_fourcc = fourcc
+            if fps > 0 and fps < 0.95 * cfg.fps:
+                self.warnings.append(f"{dev} runs at {fps:g} fps although {cfg.fps:g} was asked (the mode does not "
+                                     "support it at this size/format; check `v4l2-ctl -d DEV --list-formats-ext`)")
+                self.actual_fps = min(self.actual_fps, fps)
+        for w in self.warnings:
+            log.warning(w)
+        self._worker = ThreadPoolExecutor(max_workers=1, thread_name_prefix="v4l2-capture")
 
     def grab(self, timeout_s: float = 1.0) -> tuple[np.ndarray, np.ndarray, float]:
-        if not self._caps:
+        if not self._caps or self._worker is None:
             raise SourceError("the V4L2 grabber is not open")
-        if len(self._caps) == 1:
-            img, stamp = self._read(0)
-            half = img.shape[1] // 2
-            return img[:, :half], img[:, half:], stamp
-        return self._grab_paired(timeout_s)
+        future = self._pending or self._worker.submit(self._capture, timeout_s)
+        try:
+            left, right, stamp = future.result(timeout=timeout_s)
+        except FutureTimeout:
+            self._pending = future  # still blocked in the driver: wait for this call next time
+            gone = [d for d in self.config.devices if d.startswith("/") and not Path(d).exists()]
+            if gone:
+                raise SourceDisconnected(f"{', '.join(gone)} disappeared (unplugged?); check the cable and reopen "
+                                         "the source") from None
+            raise SourceTimeout(f"no frame from {', '.join(self.config.devices)} within {timeout_s:.1f} s; the camera "
+                                "is connected but stalled (USB bandwidth? another program?)") from None
+        self._pending = None
+        return left, right, stamp
 
-    def _read(self, i: int) -> tuple[np.ndarray, float]:
+    def _capture(self, timeout_s: float) -> tuple[np.ndarray, np.ndarray, float]:
+        """Runs on the capture thread: grab every node, pair by time, then retrieve (decode)."""
+        stamps = [self._grab(i) for i in range(len(self._caps))]
+        if len(self._caps) == 2:
+            # Two free-running cameras: grab the one that lags until the timestamps agree within the
+            # skew bound (half a frame period by default); only then decode.
+            skew = self.config.max_skew_s if self.config.max_skew_s is not None else 0.5 / self.config.fps
+            # Give up a little before the caller's wait ends, so the caller hears why (drift, not a stall).
+            deadline = time.monotonic() + 0.8 * timeout_s
+            while abs(stamps[0] - stamps[1]) > skew:
+                if time.monotonic() > deadline:
+                    raise SourceTimeout(
+                        f"no left/right frames within {skew * 1000:.0f} ms of each other for {timeout_s:.1f} s "
+                        f"(last gap {abs(stamps[0] - stamps[1]) * 1000:.0f} ms); use one fps for both cameras or "
+                        "raise max_skew_s"
+                    )
+                lag = 0 if stamps[0] < stamps[1] else 1
+                stamps[lag] = self._grab(lag)
+        images = [self._retrieve(i) for i in range(len(self._caps))]
+        if len(images) == 1:
+            half = images[0].shape[1] // 2
+            return images[0][:, :half], images[0][:, half:2 * half], stamps[0]
+        return images[0], images[1], (stamps[0] + stamps[1]) / 2.0
+
+    def _grab(self, i: int) -> float:
         import cv2
 
         cap = self._caps[i]
-        ok, img = cap.read()
-        if not ok or img is None:
+        if not cap.grab():
             raise SourceDisconnected(
                 f"{self.config.devices[i]} stopped delivering frames (unplugged?); check the cable and reopen the source"
             )
         # OpenCV's V4L2 backend reports the buffer time (CLOCK_MONOTONIC, ms); 0 when the driver gives none.
         ms = cap.get(cv2.CAP_PROP_POS_MSEC)
-        return img, (ms / 1000.0 if ms > 0 else time.monotonic())
+        return ms / 1000.0 if ms > 0 else time.monotonic()
 
-    def _grab_paired(self, timeout_s: float) -> tuple[np.ndarray, np.ndarray, float]:
-        # Two free-running cameras: read both, then keep reading the one that lags until the
-        # timestamps agree within the skew bound (half a frame period by default).
-        skew = self.config.max_skew_s if self.config.max_skew_s is not None else 0.5 / self.config.fps
-        deadline = time.monotonic() + timeout_s
-        (left, tl), (right, tr) = self._read(0), self._read(1)
-        while abs(tl - tr) > skew:
-            if time.monotonic() > deadline:
-                raise SourceTimeout(
-                    f"no left/right frames within {skew * 1000:.0f} ms of each other for {timeout_s:.1f} s "
-                    f"(last gap {abs(tl - tr) * 1000:.0f} ms); use one fps for both cameras or raise max_skew_s"
-                )
-            if tl < tr:
-                left, tl = self._read(0)
-            else:
-                right, tr = self._read(1)
-        return left, right, (tl + tr) / 2.0
+    def _retrieve(self, i: int) -> np.ndarray:
+        ok, img = self._caps[i].retrieve()
+        if not ok or img is None:
+            raise SourceDisconnected(f"{self.config.devices[i]} delivered a frame that cannot be decoded; "
+                                     "check the cable (a corrupt MJPG stream) and reopen the source")
+        return img
 
     def close(self) -> None:
+        worker, self._worker, self._pending = self._worker, None, None
+        if worker is not None:
+            # A call blocked in the driver returns on its own (OpenCV gives up after ~10 s); do not wait for it.
+            worker.shutdown(wait=False, cancel_futures=True)
         for cap in self._caps:
             cap.release()
         self._caps = []
@@ -399,6 +508,14 @@ class StereoPairSource(ProcessedPairSource):
                        extra={"layout": config.layout}),
             {"source": "v4l2", "devices": list(config.devices)},
         )
+
+    def open(self) -> None:
+        super().open()
+        grabber = self.grabber
+        if isinstance(grabber, V4L2Grabber):
+            # What the driver really gives (the service shows info.fps; warnings say what fell back).
+            extra = {**self.info.extra, "fourcc": grabber.actual_fourcc, "warnings": list(grabber.warnings)}
+            self.info = replace(self.info, fps=grabber.actual_fps, extra=extra, state="streaming")
 
 
 _SGBM_KEYS = {"mode": "mode", "ndisp": "num_disparities", "block": "block_size", "p1": "p1", "p2": "p2",
