@@ -465,14 +465,9 @@ class OakSource(SourceBase):
         stereo = pipeline.create(dai.node.StereoDepth).build(
             left.requestOutput(mono, fps=cfg.fps), right.requestOutput(mono, fps=cfg.fps), preset_mode(cfg.preset)
         )
-        # Only what the user set: the preset (applied by build) chooses the rest.
-        if cfg.lr_check is not None:
-            stereo.setLeftRightCheck(cfg.lr_check)
-        if cfg.subpixel is not None:
-            stereo.setSubpixel(cfg.subpixel)
-        if cfg.extended_disparity is not None:
-            stereo.setExtendedDisparity(cfg.extended_disparity)
         stereo.setDisparityToDepthUseSpecTranslation(False)
+        # Only what the user set, on the config build() filled from the preset (the node's own
+        # setLeftRightCheck & co. write the same initialConfig).
         configure_stereo(stereo.initialConfig, cfg)
         sync = pipeline.create(dai.node.Sync)
         sync.setSyncThreshold(timedelta(seconds=0.5 / cfg.fps))

@@ -437,7 +437,7 @@ def test_wiring_colour_aligned(platform):
     # 2: nothing the user left unset overrides the preset
     for setter in ("setExtendedDisparity", "setSubpixel", "setLeftRightCheck", "setSubpixelFractionalBits"):
         getattr(stereo, setter).assert_not_called()
-        getattr(stereo.initialConfig, setter, mock.Mock()).assert_not_called()
+        getattr(stereo.initialConfig, setter).assert_not_called()
     stereo.initialConfig.setDepthUnit.assert_called_once_with(dai.LengthUnit.MILLIMETER)
     # 5: automatic calibration explicitly off
     w.pipeline.setAutoCalibrationMode.assert_called_once_with(dai.Pipeline.AutoCalibrationMode.OFF)
@@ -469,9 +469,9 @@ def test_wiring_left_aligned_delivers_registered_confidence(platform):
     assert w.into("sync.rgb") == {"StereoDepth0.rectifiedLeft"}
     assert w.into("sync.depth") == {"StereoDepth0.depth"}
     assert w.into("sync.conf") == {"StereoDepth0.confidenceMap"}
-    stereo.setExtendedDisparity.assert_called_once_with(True)
-    stereo.setSubpixel.assert_called_once_with(False)
-    stereo.setLeftRightCheck.assert_not_called()
+    stereo.initialConfig.setExtendedDisparity.assert_called_once_with(True)
+    stereo.initialConfig.setSubpixel.assert_called_once_with(False)
+    stereo.initialConfig.setLeftRightCheck.assert_not_called()
     stereo.initialConfig.setConfidenceThreshold.assert_called_once_with(100)
     w.pipeline.setAutoCalibrationMode.assert_called_once_with(dai.Pipeline.AutoCalibrationMode.ON_START)
 

@@ -238,3 +238,40 @@ def test_bad_video_specs(tmp_path):
     video = write_video(tmp_path / "v.mkv", [np.zeros((8, 16, 3), np.uint8)])
     with pytest.raises(SourceError, match="add calib=FILE"):
         open_source(f"video:{video}")
+
+
+def test_realtime_paces_reads_to_the_video_times(tmp_path, monkeypatch):
+    """realtime=1 sleeps until each frame's time has come (a fake clock: no wall-clock assertion)."""
+    import device.video as video
+
+    class Clock:
+        def __init__(self):
+            self.now, self.sleeps = 100.0, []
+
+        def monotonic(self):
+            return self.now
+
+        def sleep(self, s):
+            self.sleeps.append(round(s, 6))
+            self.now += s
+
+    clock = Clock()
+    monkeypatch.setattr(video, "time", clock)
+    frames = [np.full((8, 16, 3), v, np.uint8) for v in (10, 20, 30, 40)]
+    path = write_video(tmp_path / "v.mkv", frames, fps=20.0)
+    grabber = video.VideoGrabber(video.VideoConfig(paths=(str(path),), realtime=True))
+    grabber.open()
+    stamps = [grabber.grab()[2] for _ in range(2)]
+    clock.now += 0.02  # processing the second frame took 20 ms
+    stamps.append(grabber.grab()[2])
+    clock.now += 0.08  # a slow consumer: frame 4 is already due, no sleep
+    stamps.append(grabber.grab()[2])
+    grabber.close()
+    assert stamps == pytest.approx([0.0, 0.05, 0.1, 0.15])
+    assert clock.sleeps == pytest.approx([0.05, 0.03])
+    fast = video.VideoGrabber(video.VideoConfig(paths=(str(path),)))
+    fast.open()
+    for _ in range(4):
+        fast.grab()
+    fast.close()
+    assert clock.sleeps == pytest.approx([0.05, 0.03])  # realtime=0 never sleeps
