@@ -81,7 +81,7 @@ def calibrate(
         if images is not None:
             pairs = load_image_pairs(images, side_by_side=side_by_side)
             typer.echo(f"{len(pairs)} view pairs from {images}")
-        else:
+        elif live is not None:
             from device.calibration import capture_views
 
             pairs = capture_views(_grabber(live), board, views, save_to=save_views, progress=typer.echo)

@@ -366,6 +366,7 @@ def rectification(calib: StereoCalibration, size: tuple[int, int]) -> Rectificat
     if T[0, 0] > 0:
         raise CalibrationError("the calibration puts the right camera to the left of the left one (T_x > 0); "
                                "swap the left and right images (or devices) and recalibrate")
+    undistort: Callable[..., tuple[np.ndarray, np.ndarray]]
     if calib.distortion_model == "equidistant":
         # OpenCV's fisheye model (Kalibr's "equidistant"); balance 0 crops to valid pixels like alpha 0.
         R1, R2, P1, P2, _Q = cv2.fisheye.stereoRectify(

@@ -208,8 +208,8 @@ class VideoSource(ProcessedPairSource):
     def open(self) -> None:
         super().open()
         if self._processor is not None:
-            self._grabber.calib_size = tuple(self._processor.calibration.image_size)  # type: ignore[assignment]
-            w, h = self._grabber.calib_size
+            w, h = self._processor.calibration.image_size
+            self._grabber.calib_size = (int(w), int(h))
             self.info = SourceInfo(kind="video", name=self.info.name, width=w, height=h, fps=self._grabber.fps,
                                    state="playing", extra=self.info.extra)
 

@@ -4,7 +4,6 @@ from __future__ import annotations
 
 import itertools
 import os
-import time
 from pathlib import Path
 
 import cv2
@@ -344,6 +343,27 @@ def test_permission_denied_is_not_busy(tmp_path, monkeypatch):
     # A real node of this machine that opens but does not capture (a UVC metadata node, say): no blame on access.
     with pytest.raises(SourceNotFound, match="metadata node"):
         _grabber((dev,), [Closed([])]).open()
+
+
+def test_calibration_required_and_checked(tmp_path, middlebury_dir):
+    scene = load_scene(middlebury_dir / "Teddy")
+    grab = ImagePairGrabber([(scene.left, scene.right)])
+    with pytest.raises(CalibrationError, match="add calib=FILE"):
+        StereoPairSource(StereoPairConfig(), grabber=grab).open()
+    with pytest.raises(CalibrationError, match="does not exist"):
+        StereoPairSource(StereoPairConfig(calibration=CalibrationRef(str(tmp_path / "rig.json"))), grabber=grab).open()
+    # Calibrated at 4:3, images 450x375 (6:5): refuse rather than measure with wrong intrinsics.
+    cal = StereoCalibration(image_size=(640, 480), K1=np.eye(3), D1=np.zeros(5), K2=np.eye(3), D2=np.zeros(5),
+                            R=np.eye(3), T=np.array([-0.1, 0, 0]))
+    with StereoPairSource(StereoPairConfig(), grabber=grab, calibration=cal) as src:
+        with pytest.raises(CalibrationError, match="aspect ratio"):
+            src.read()
+    # Left and right swapped: the right camera sits on the left.
+    k = np.array([[500.0, 0, 225], [0, 500, 187], [0, 0, 1]])
+    swapped = StereoCalibration(image_size=(450, 375), K1=k, D1=np.zeros(5), K2=k, D2=np.zeros(5), R=np.eye(3),
+                                T=np.array([0.1, 0, 0]))
+    with pytest.raises(CalibrationError, match="swap"):
+        rectification(swapped, (450, 375))
 
 
 @pytest.mark.hardware
