@@ -224,6 +224,7 @@ class V4L2Grabber:
         if not self._caps or self._worker is None:
             raise SourceError("the V4L2 grabber is not open")
         future = self._pending or self._worker.submit(self._capture, timeout_s)
+        self._pending = None
         try:
             left, right, stamp = future.result(timeout=timeout_s)
         except FutureTimeout:
@@ -234,7 +235,6 @@ class V4L2Grabber:
                                          "the source") from None
             raise SourceTimeout(f"no frame from {', '.join(self.config.devices)} within {timeout_s:.1f} s; the camera "
                                 "is connected but stalled (USB bandwidth? another program?)") from None
-        self._pending = None
         return left, right, stamp
 
     def _capture(self, timeout_s: float) -> tuple[np.ndarray, np.ndarray, float]:
@@ -281,13 +281,20 @@ class V4L2Grabber:
         return img
 
     def close(self) -> None:
-        worker, self._worker, self._pending = self._worker, None, None
-        if worker is not None:
-            # A call blocked in the driver returns on its own (OpenCV gives up after ~10 s); do not wait for it.
-            worker.shutdown(wait=False, cancel_futures=True)
-        for cap in self._caps:
-            cap.release()
-        self._caps = []
+        worker, caps = self._worker, self._caps
+        self._worker, self._pending, self._caps = None, None, []
+        if worker is None:
+            _release(caps)
+            return
+        # Released on the capture thread, after any call still blocked in the driver (OpenCV gives up
+        # after ~10 s): releasing a capture under a running grab() is a use-after-free. No waiting here.
+        worker.submit(_release, caps)
+        worker.shutdown(wait=False)
+
+
+def _release(caps: list[Capture]) -> None:
+    for cap in caps:
+        cap.release()
 
 
 class ImagePairGrabber:
