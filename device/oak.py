@@ -44,7 +44,7 @@ import numpy as np  # noqa: E402
 from measure import Frame, PinholeCamera  # noqa: E402
 
 from .base import SourceBase, SourceInfo, SourceSpec, parse_flag  # noqa: E402
-from .discovery import OAK_UDEV_RULE  # noqa: E402
+from .discovery import OAK_UDEV_RULE, list_usb  # noqa: E402
 from .errors import CalibrationError, SourceDisconnected, SourceError, SourceNotFound, SourceTimeout  # noqa: E402
 
 PRESETS: tuple[str, ...] = (
@@ -349,6 +349,11 @@ def find_device(mxid: str, timeout_ms: int) -> dai.DeviceInfo:
                              "(or the other depthruler) and retry")
     if mxid and seen:
         raise SourceNotFound(f"no OAK with id {mxid!r}; attached: {', '.join(seen)}. Use 'oak:<one of those>'")
+    # XLink saw nothing, but the USB bus may still hold an OAK this user cannot open (what lsusb shows).
+    on_usb = [d for d in list_usb() if str(d.extra.get("usb_id", "")).startswith("03e7:")]
+    if on_usb and not seen:
+        raise SourceNotFound(f"the USB bus has an OAK ({on_usb[0].extra['usb_id']}, {on_usb[0].state}) that DepthAI "
+                             f"cannot open; {UDEV_HINT}")
     what = f"OAK {mxid!r}" if mxid else "OAK camera"
     raise SourceNotFound(f"no {what} found within {timeout_ms / 1000:.1f} s; {PLUG_IN_HINT}")
 

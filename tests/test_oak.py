@@ -327,6 +327,19 @@ def test_permission_denied_device_prints_the_udev_rule(monkeypatch):
         find_device("", 100)
     assert calls == [False]
     assert UDEV_RULE in str(err.value) and "udevadm" in str(err.value) and "plug an OAK" not in str(err.value)
+    # XLink lists nothing at all, but pyusb sees the Movidius vendor id (what lsusb shows): the same advice.
+    import device.oak as oak
+    from device import SourceInfo
+
+    monkeypatch.setattr(dai.XLinkConnection, "getAllConnectedDevices", staticmethod(lambda skipInvalidDevices=True: []))
+    monkeypatch.setattr(oak, "list_usb", lambda: [SourceInfo(kind="usb", name="Luxonis OAK (Movidius)", state="unbooted",
+                                                             extra={"usb_id": "03e7:2485"})])
+    with pytest.raises(SourceNotFound, match="03e7:2485.*udev") as err:
+        find_device("", 100)
+    assert UDEV_RULE in str(err.value)
+    monkeypatch.setattr(oak, "list_usb", lambda: [])
+    with pytest.raises(SourceNotFound, match="plug an OAK"):
+        find_device("", 100)
 
 
 def _features(*cams) -> list:
