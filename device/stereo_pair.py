@@ -2,13 +2,16 @@
 
 Capture and processing are separate so tests drive the real processing with recorded or
 rendered pairs: a :class:`FrameGrabber` yields (left, right, timestamp) — :class:`V4L2Grabber`
-from cameras, :class:`ImagePairGrabber` from memory — and :class:`StereoProcessor` turns a pair
-into a :class:`measure.Frame`: rectification from the calibration file (see device/calibration.py
-for its format), SGBM (device/sgbm.py), output registered to the *rectified left* colour image.
+from cameras (any ``cv2.VideoCapture``-like object can be injected), :class:`ImagePairGrabber`
+from memory, ``device.video.VideoGrabber`` from files — and :class:`StereoProcessor` turns a pair
+into a :class:`measure.Frame`: rectification from the calibration (device/calibration.py,
+device/calibration_files.py), SGBM (device/sgbm.py), output registered to the *rectified left*
+colour image. :class:`ProcessedPairSource` is grabber + calibration + processor for every such source.
 
-Spec: ``v4l2:/dev/video0?layout=side-by-side&calib=FILE.json[&size=1280x480&fps=30&fourcc=MJPG
-&mode=sgbm_3way&ndisp=64&block=5&wls=0&lr_confidence=1&fill_left_band=1&scale=1]`` or ``v4l2:/dev/video0,/dev/video2?calib=...``
-(size is per node: both halves together for a side-by-side camera).
+Spec: ``v4l2:/dev/video0?layout=side-by-side&calib=FILE[&calib_units=mm&distortion=opencv|equidistant
+&size=1280x480&fps=30&fourcc=MJPG&mode=sgbm_3way&ndisp=64&block=5&wls=0&lr_confidence=1&fill_left_band=1
+&scale=1]`` or ``v4l2:/dev/video0,/dev/video2?calib=...`` (size is per node: both halves together for a
+side-by-side camera). ``calib`` is the project's JSON, an OpenCV YAML/XML or a ROS ``left.yaml,right.yaml``.
 """
 
 from __future__ import annotations
