@@ -24,6 +24,7 @@ BACKENDS: dict[str, str] = {
     "sim": "sim.source:from_spec",
     "oak": "device.oak:from_spec",
     "v4l2": "device.stereo_pair:from_spec",
+    "video": "device.video:from_spec",
     "replay": "device.recording:from_spec",
     "middlebury": "device.middlebury:from_spec",
     "depthpng": "device.depth_folder:from_spec",

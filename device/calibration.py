@@ -10,13 +10,20 @@ Procedure (OpenCV 5 API):
    reject views whose stereo error is an outlier the same way (e.g. a pair captured out of sync)
    and solve again.
 
-Calibration file (JSON, ``FORMAT`` / ``VERSION``), read by :func:`load_calibration`:
+The project's native calibration file (JSON, ``FORMAT`` / ``VERSION``), read by :func:`load_calibration`
+(OpenCV FileStorage and ROS camera_info files are read and written by device/calibration_files.py):
 
 - ``image_size``: [width, height] of each camera's image, pixels;
 - ``K1``, ``K2``: 3x3 camera matrices (pixels) of the left and right camera;
-- ``D1``, ``D2``: OpenCV distortion coefficients (k1, k2, p1, p2, k3);
+- ``D1``, ``D2``: distortion coefficients of ``distortion_model``;
+- ``distortion_model``: ``"opencv"`` (OpenCV's pinhole model, coefficients k1, k2, p1, p2[, k3[, k4, k5,
+  k6[, s1..s4[, tx, ty]]]], i.e. ROS ``plumb_bob`` / ``rational_polynomial``) or ``"equidistant"``
+  (OpenCV's fisheye model, k1..k4: Kalibr's ``equidistant``, ROS ``equidistant``). A file without
+  it means "opencv", except with four coefficients, which are ambiguous (k1, k2, p1, p2 or a
+  fisheye's k1..k4) and must name the model;
 - ``R``, ``T``: rotation (3x3) and translation (3, metres) taking left-camera coordinates to
-  right-camera coordinates, ``X_right = R X_left + T``; the baseline is ``|T|``;
+  right-camera coordinates, ``X_right = R X_left + T`` (OpenCV's ``stereoCalibrate`` convention);
+  the baseline is ``|T|``;
 - ``rms``: stereo RMS reprojection error (pixels), ``rms_left`` / ``rms_right`` per camera;
 - ``views``: per view name, corners used, errors (pixels) and whether it was used (and why not);
 - ``board``: the ChArUco board (squares, square and marker size in metres, dictionary);
@@ -34,6 +41,7 @@ from collections.abc import Callable, Iterable, Sequence
 from dataclasses import asdict, dataclass, field, fields
 from datetime import datetime, timezone
 from pathlib import Path
+from typing import Protocol
 
 import cv2
 import numpy as np
@@ -42,9 +50,20 @@ from .errors import CalibrationError
 
 FORMAT = "depthruler-stereo-calibration"
 VERSION = 1
+DISTORTION_MODELS = ("opencv", "equidistant")
 IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg", ".bmp", ".tif", ".tiff")
 
 Progress = Callable[[str], None]
+
+
+class PairGrabber(Protocol):
+    """Where calibration views come from (same shape as ``stereo_pair.FrameGrabber``)."""
+
+    def open(self) -> None: ...
+
+    def grab(self, timeout_s: float = 1.0) -> tuple[np.ndarray, np.ndarray, float]: ...
+
+    def close(self) -> None: ...
 
 
 @dataclass(frozen=True)
@@ -74,6 +93,40 @@ class BoardSpec:
     @property
     def n_corners(self) -> int:
         return (self.squares_x - 1) * (self.squares_y - 1)
+
+
+def write_board_png(board: BoardSpec, out: str | Path, dpi: float = 300.0, margin_mm: float = 10.0) -> tuple[Path, float, float]:
+    """Write the printable ChArUco board that :func:`calibrate_stereo` expects; returns (path, width mm, height mm).
+
+    The PNG is rendered at ``dpi`` with a white margin of ``margin_mm`` around the squares and
+    carries its physical resolution (a pHYs chunk), so printing at 100 % ("actual size") gives
+    squares of ``board.square_m``. The returned size is the whole sheet, margins included.
+    """
+    import struct
+    import zlib
+
+    if not (72 <= dpi <= 1200):
+        raise CalibrationError(f"dpi={dpi} must lie in 72..1200")
+    # Whole pixels per square, and the PNG's resolution set from them, so a square prints at exactly
+    # its size (the effective dpi differs from the asked one by less than half a pixel per square).
+    square_px = int(round(board.square_m * 1000.0 * dpi / 25.4))
+    px_per_mm = square_px / (board.square_m * 1000.0)
+    margin_px = int(round(margin_mm * px_per_mm))
+    w = board.squares_x * square_px + 2 * margin_px
+    h = board.squares_y * square_px + 2 * margin_px
+    image = board.board().generateImage((w, h), marginSize=margin_px, borderBits=1)
+    ok, png = cv2.imencode(".png", image)
+    if not ok:
+        raise CalibrationError("OpenCV could not encode the board as PNG")
+    data = png.tobytes()
+    ppm = int(round(px_per_mm * 1000.0))
+    body = b"pHYs" + struct.pack(">IIB", ppm, ppm, 1)  # pixels per metre, unit = metre
+    chunk = struct.pack(">I", 9) + body + struct.pack(">I", zlib.crc32(body) & 0xFFFFFFFF)
+    ihdr_end = 8 + 8 + 13 + 4  # signature, IHDR length + type, IHDR data, CRC
+    out = Path(out)
+    out.parent.mkdir(parents=True, exist_ok=True)
+    out.write_bytes(data[:ihdr_end] + chunk + data[ihdr_end:])
+    return out, w / px_per_mm, h / px_per_mm
 
 
 @dataclass(frozen=True)
@@ -107,6 +160,7 @@ class StereoCalibration:
     board: BoardSpec | None = None
     created: str = ""
     extra: dict = field(default_factory=dict)
+    distortion_model: str = "opencv"
 
     @property
     def baseline_m(self) -> float:
@@ -125,6 +179,7 @@ class StereoCalibration:
             "D1": np.asarray(self.D1, float).ravel().tolist(),
             "K2": np.asarray(self.K2, float).tolist(),
             "D2": np.asarray(self.D2, float).ravel().tolist(),
+            "distortion_model": self.distortion_model,
             "R": np.asarray(self.R, float).tolist(),
             "T": np.asarray(self.T, float).ravel().tolist(),
             "baseline_m": self.baseline_m,
@@ -194,8 +249,17 @@ def calibration_from_json(data: dict, source: str = "calibration") -> StereoCali
     for name, K in (("K1", K1), ("K2", K2)):
         if K[0, 0] <= 0 or K[1, 1] <= 0 or not np.allclose(K[2], [0, 0, 1]):
             raise CalibrationError(f"{source}: {name} is not a camera matrix [[fx,0,cx],[0,fy,cy],[0,0,1]]")
-    dist_sizes = (4, 5, 8, 12, 14)
+    model = data.get("distortion_model")
+    if model is not None and model not in DISTORTION_MODELS:
+        raise CalibrationError(f"{source}: distortion_model {model!r} is unknown; use one of {', '.join(DISTORTION_MODELS)}")
+    dist_sizes = (4,) if model == "equidistant" else (4, 5, 8, 12, 14)
     D1, D2 = arr("D1", None, dist_sizes).ravel(), arr("D2", None, dist_sizes).ravel()
+    if model is None and D1.size == 4:
+        raise CalibrationError(
+            f"{source}: four distortion coefficients are ambiguous (OpenCV k1,k2,p1,p2 or a fisheye's k1..k4, "
+            "e.g. Kalibr's equidistant); name the model: distortion_model \"opencv\" or \"equidistant\" "
+            "(source spec: distortion=opencv|equidistant)"
+        )
     R = arr("R", (3, 3))
     if not np.allclose(R @ R.T, np.eye(3), atol=1e-6):
         raise CalibrationError(f"{source}: R is not a rotation matrix")
@@ -203,7 +267,8 @@ def calibration_from_json(data: dict, source: str = "calibration") -> StereoCali
     if np.linalg.norm(T) <= 0:
         raise CalibrationError(f"{source}: T is zero; the two cameras must be apart (T in metres)")
     if np.linalg.norm(T) > 5:
-        raise CalibrationError(f"{source}: |T| = {np.linalg.norm(T):.1f} m is implausible; T must be in metres, not mm")
+        raise CalibrationError(f"{source}: |T| = {np.linalg.norm(T):.1f} m is implausible; T must be in metres "
+                               "(a file with T in mm: add calib_units=mm to the source spec)")
     board = data.get("board")
     view_fields = {f.name for f in fields(ViewResult)}
     try:
@@ -235,6 +300,7 @@ def calibration_from_json(data: dict, source: str = "calibration") -> StereoCali
         board=board,
         created=str(data.get("created", "")),
         extra=dict(data.get("extra", {})),
+        distortion_model=model or "opencv",
     )
 
 
@@ -471,33 +537,29 @@ def render_board_view(
 
 
 def capture_views(
-    spec: str,
+    grabber: PairGrabber,
     board: BoardSpec,
     n_views: int,
     *,
     save_to: str | Path | None = None,
     progress: Progress | None = None,
-    grabber=None,
     min_corners: int = 12,
     min_move: float = 0.02,
     max_seconds: float = 600.0,
 ) -> list[tuple[str, np.ndarray, np.ndarray]]:
-    """Collect ``n_views`` distinct board views from a live stereo pair (a ``v4l2:`` spec).
+    """Collect ``n_views`` distinct board views from a stereo grabber (a camera pair or a video).
 
     A pair is kept when both cameras see at least ``min_corners`` common corners and the board
     moved by more than ``min_move`` x image width (mean corner shift) from every kept view, so that
-    holding the board still does not fill the set with copies. ``grabber`` replaces the camera
-    (any object with open/grab/close, e.g. ``stereo_pair.ImagePairGrabber``).
+    holding the board still does not fill the set with copies. ``grabber`` is any object with
+    open/grab/close (``stereo_pair.V4L2Grabber``, ``video.VideoGrabber``, ``stereo_pair.ImagePairGrabber``);
+    the caller builds it, so this module does not depend on the capture code (which depends on it).
     """
     import time
 
-    from .base import SourceSpec
     from .errors import SourceDisconnected
-    from .stereo_pair import V4L2Grabber, config_from_spec
 
     say = progress or (lambda _msg: None)
-    if grabber is None:
-        grabber = V4L2Grabber(config_from_spec(SourceSpec.parse(spec)))
     detector = cv2.aruco.CharucoDetector(board.board())
     kept: list[tuple[str, np.ndarray, np.ndarray]] = []
     kept_corners: list[dict[int, np.ndarray]] = []

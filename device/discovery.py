@@ -15,6 +15,9 @@ from .base import SourceInfo
 MOVIDIUS_VENDOR = 0x03E7  # Intel Movidius: every OAK (RVC2) enumerates with this vendor id
 USB_CLASS_VIDEO = 14  # bInterfaceClass of UVC cameras
 # Movidius product ids: what state the OAK is in (it re-enumerates after boot).
+OAK_UDEV_RULE = 'SUBSYSTEM=="usb", ATTRS{idVendor}=="03e7", MODE="0666"'
+UDEV_FIX = (f"echo '{OAK_UDEV_RULE}' | sudo tee /etc/udev/rules.d/80-movidius.rules && "
+            "sudo udevadm control --reload-rules && sudo udevadm trigger  # then replug the OAK")
 OAK_PRODUCTS = {0x2485: "unbooted", 0xF63B: "booted", 0xF63C: "bootloader", 0xF63D: "flash-booted"}
 
 
@@ -28,17 +31,22 @@ def list_depthai() -> list[SourceInfo]:
 
     ``getAllConnectedDevices`` also lists devices already opened by another program (state
     "booted"), which ``getAllAvailableDevices`` hides; telling the user it is busy beats silence.
+    Invalid devices are listed too (``skipInvalidDevices=False``): one this user may not open
+    (``X_LINK_INSUFFICIENT_PERMISSIONS``) gets state "no-permission" and the udev rule in ``extra``.
     """
     os.environ.setdefault("DEPTHAI_LEVEL", "error")
     try:
         import depthai as dai
 
-        infos = dai.Device.getAllConnectedDevices()
+        infos = dai.XLinkConnection.getAllConnectedDevices(skipInvalidDevices=False)
     except Exception:  # no SDK, or XLink cannot initialise (no USB access in a container)
         return []
     out = []
     for info in infos:
+        denied = getattr(info, "status", None) == dai.XLinkError_t.X_LINK_INSUFFICIENT_PERMISSIONS
         state = str(getattr(info, "state", "")).rsplit(".", 1)[-1].replace("X_LINK_", "").lower()
+        if denied:
+            state = "no-permission"
         protocol = str(getattr(info, "protocol", "")).rsplit(".", 1)[-1].replace("X_LINK_", "").lower()
         platform = str(getattr(info, "platform", "")).rsplit(".", 1)[-1].replace("X_LINK_", "").lower()
         mxid = info.getDeviceId() if hasattr(info, "getDeviceId") else getattr(info, "deviceId", "")
@@ -48,29 +56,77 @@ def list_depthai() -> list[SourceInfo]:
                 name=f"OAK {info.name}".strip(),
                 serial=mxid,
                 state=state,
-                extra={"protocol": protocol, "platform": platform, "spec": f"oak:{mxid}" if mxid else "oak"},
+                extra={"protocol": protocol, "platform": platform, "spec": f"oak:{mxid}" if mxid else "oak",
+                       **({"fix": UDEV_FIX} if denied else {})},
             )
         )
     return out
 
 
-def list_v4l2(sys_root: Path = Path("/sys/class/video4linux"), dev_root: Path = Path("/dev")) -> list[SourceInfo]:
-    """V4L2 nodes ``/dev/video*`` with the driver's name for each (from sysfs)."""
+V4L2_CAP_VIDEO_CAPTURE = 0x00000001
+V4L2_CAP_VIDEO_CAPTURE_MPLANE = 0x00001000
+V4L2_CAP_DEVICE_CAPS = 0x80000000
+VIDIOC_QUERYCAP = 0x80685600  # _IOR('V', 0, struct v4l2_capability), 104 bytes
+
+
+def querycap(node: Path) -> int | str:
+    """The node's V4L2 device capabilities (``VIDIOC_QUERYCAP``), or why they cannot be read:
+    "no-permission" (EACCES: fixed by the video group) or "unknown" (busy, not a V4L2 node...)."""
+    import fcntl
+    import struct
+
+    try:
+        fd = os.open(node, os.O_RDWR | os.O_NONBLOCK)
+    except PermissionError:
+        return "no-permission"
+    except OSError:
+        return "unknown"
+    try:
+        buf = fcntl.ioctl(fd, VIDIOC_QUERYCAP, bytes(104))
+    except OSError:
+        return "unknown"
+    finally:
+        os.close(fd)
+    caps, device_caps = struct.unpack_from("=II", buf, 84)  # after driver[16], card[32], bus_info[32], version
+    return device_caps if caps & V4L2_CAP_DEVICE_CAPS else caps
+
+
+def list_v4l2(sys_root: Path = Path("/sys/class/video4linux"), dev_root: Path = Path("/dev"),
+              query=querycap) -> list[SourceInfo]:
+    """V4L2 nodes ``/dev/video*`` that capture video, with the driver's name for each (from sysfs).
+
+    A UVC camera exposes a second node for metadata (``V4L2_CAP_META_CAPTURE``) that delivers no
+    images: nodes whose capabilities lack video capture are left out. When the capabilities cannot
+    be read, sysfs ``index`` decides (a camera's first node has index 0, its metadata node 1), and
+    a node this user may not open is listed with state "no-permission" and the fix.
+    """
     try:
         nodes = sorted(dev_root.glob("video[0-9]*"), key=lambda p: int(p.name[5:]))
     except OSError:
         return []
     out = []
     for node in nodes:
-        name = ""
-        try:
-            name = (sys_root / node.name / "name").read_text().strip()
-        except OSError:
-            pass  # node without a sysfs entry (e.g. a container bind mount): still listable
-        out.append(
-            SourceInfo(kind="v4l2", name=name or node.name, serial=str(node), extra={"spec": f"v4l2:{node}"})
-        )
+        name = _sysfs(sys_root / node.name / "name")
+        caps = query(node)
+        if isinstance(caps, int):
+            if not caps & (V4L2_CAP_VIDEO_CAPTURE | V4L2_CAP_VIDEO_CAPTURE_MPLANE):
+                continue  # metadata / output / codec node: nothing to capture from
+        elif _sysfs(sys_root / node.name / "index") not in ("", "0"):
+            continue
+        extra: dict = {"spec": f"v4l2:{node}"}
+        if caps == "no-permission":
+            extra["fix"] = ("sudo usermod -aG video $USER  # then log out and in (permission denied on "
+                            f"{node}: this is not 'busy')")
+        out.append(SourceInfo(kind="v4l2", name=name or node.name, serial=str(node),
+                              state="no-permission" if caps == "no-permission" else "", extra=extra))
     return out
+
+
+def _sysfs(path: Path) -> str:
+    try:
+        return path.read_text().strip()
+    except OSError:
+        return ""  # node without a sysfs entry (e.g. a container bind mount): still listable
 
 
 def list_usb() -> list[SourceInfo]:

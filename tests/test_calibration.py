@@ -180,10 +180,22 @@ def test_folder_layouts_and_cli(views, tmp_path):
     assert result.exit_code == 0, result.output
     assert "[8/8]" in result.output and "RMS" in result.output and f"wrote {out}" in result.output
     assert load_calibration(out).baseline_m == pytest.approx(np.linalg.norm(T_LR), rel=0.01)
+    # The same calibration as ROS camera_info files, read back through the source-spec path.
+    from device.calibration_files import load_any
+
+    result = CliRunner().invoke(app, ["calibrate", "--images", str(tmp_path / "lr"), "--out", str(tmp_path / "rig.yaml"),
+                                      "--format", "ros"])
+    assert result.exit_code == 0, result.output
+    ros = load_any(f"{tmp_path / 'rig_left.yaml'},{tmp_path / 'rig_right.yaml'}")
+    assert np.allclose(ros.T, load_calibration(out).T, atol=1e-9) and np.allclose(ros.R, load_calibration(out).R, atol=1e-9)
+    result = CliRunner().invoke(app, ["calibrate", "--images", str(tmp_path / "lr"), "--format", "matlab"])
+    assert result.exit_code == 2 and "opencv-yaml" in result.output
     result = CliRunner().invoke(app, ["calibrate", "--images", str(tmp_path / "named" / "nope"), "--out", str(out)])
     assert result.exit_code == 1 and "does not exist" in result.output
     result = CliRunner().invoke(app, ["calibrate", "--out", str(out)])
     assert result.exit_code == 2 and "exactly one of --images DIR or --live SPEC" in result.output
+    result = CliRunner().invoke(app, ["calibrate", "--live", "oak", "--out", str(out)])
+    assert result.exit_code == 1 and "v4l2: or video:" in result.output
     result = CliRunner().invoke(app, ["calibrate", "--live", "v4l2:/dev/video99", "--out", str(out)])
     assert result.exit_code == 1 and "no V4L2 device /dev/video99" in result.output
 
@@ -193,7 +205,7 @@ def test_live_capture_keeps_distinct_views(views):
     # A person holding the board still for a while: repeated pairs must not count as new views.
     stream = [(v[1], v[2]) for v in views[:7] for _ in range(3)]
     lines = []
-    kept = capture_views("v4l2:/dev/null", BOARD, 7, grabber=ImagePairGrabber(stream), progress=lines.append)
+    kept = capture_views(ImagePairGrabber(stream), BOARD, 7, progress=lines.append)
     assert len(kept) == 7
     assert [np.array_equal(k[1], v[1]) for k, v in zip(kept, views[:7])] == [True] * 7
     assert lines[-1].startswith("view 7/7")

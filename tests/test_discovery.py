@@ -23,11 +23,38 @@ def test_v4l2_nodes_listed_with_sysfs_names_in_numeric_order(tmp_path):
     (dev / "videoX").touch()  # not a node name
     (sys / "video0").mkdir(parents=True)
     (sys / "video0" / "name").write_text("3D USB Camera: 3D USB Camera\n")
-    found = discovery.list_v4l2(sys_root=sys, dev_root=dev)
+    found = discovery.list_v4l2(sys_root=sys, dev_root=dev, query=lambda _n: "unknown")
     assert [i.serial for i in found] == [str(dev / "video0"), str(dev / "video2"), str(dev / "video10")]
     assert found[0].name == "3D USB Camera: 3D USB Camera" and found[1].name == "video2"
     assert found[0].extra["spec"] == f"v4l2:{dev / 'video0'}"
     assert discovery.list_v4l2(sys_root=sys, dev_root=tmp_path / "missing") == []
+
+
+def test_uvc_metadata_nodes_are_not_listed_and_permission_is_named(tmp_path):
+    dev, sys = tmp_path / "dev", tmp_path / "sys"
+    dev.mkdir()
+    for n, index in ((0, "0"), (1, "1"), (2, "0"), (3, "1"), (4, "0")):
+        (dev / f"video{n}").touch()
+        (sys / f"video{n}").mkdir(parents=True)
+        (sys / f"video{n}" / "index").write_text(index + "\n")
+    caps = {
+        "video0": discovery.V4L2_CAP_VIDEO_CAPTURE | 0x04000000,  # capture + streaming
+        "video1": 0x00800000 | 0x04000000,  # UVC metadata node: META_CAPTURE, no video
+        "video2": "no-permission",
+        "video3": "unknown",  # cannot be queried: sysfs index 1 says metadata
+        "video4": "unknown",
+    }
+    found = discovery.list_v4l2(sys_root=sys, dev_root=dev, query=lambda node: caps[node.name])
+    assert [i.serial.rsplit("/", 1)[-1] for i in found] == ["video0", "video2", "video4"]
+    denied = found[1]
+    assert denied.state == "no-permission" and "usermod -aG video" in denied.extra["fix"]
+    assert "busy" not in denied.state
+
+
+def test_querycap_on_something_that_is_not_a_v4l2_node(tmp_path):
+    plain = tmp_path / "video0"
+    plain.write_text("")
+    assert discovery.querycap(plain) == "unknown"  # a file answers no VIDIOC_QUERYCAP
 
 
 def _usb(vid, pid, iface_classes=(), device_class=0, strings=None):
@@ -68,10 +95,18 @@ def test_depthai_devices_reported_with_state(monkeypatch):
     info.state = dai.XLinkDeviceState.X_LINK_BOOTED
     info.protocol = dai.XLinkProtocol.X_LINK_USB_VSC
     info.platform = dai.XLinkPlatform.X_LINK_MYRIAD_X
-    monkeypatch.setattr(dai.Device, "getAllConnectedDevices", staticmethod(lambda: [info]))
-    (oak,) = discovery.list_depthai()
+    denied = dai.DeviceInfo("1.4")
+    denied.status = dai.XLinkError_t.X_LINK_INSUFFICIENT_PERMISSIONS
+    monkeypatch.setattr(dai.XLinkConnection, "getAllConnectedDevices",
+                        staticmethod(lambda skipInvalidDevices=True: [info] + ([] if skipInvalidDevices else [denied])))
+    oak, no_perm = discovery.list_depthai()
     assert (oak.kind, oak.serial, oak.state) == ("oak", "1844301011B546F500", "booted")
     assert oak.extra == {"protocol": "usb_vsc", "platform": "myriad_x", "spec": "oak:1844301011B546F500"}
+    # A device without USB permission is listed, with the rule that fixes it (not dropped).
+    assert no_perm.state == "no-permission" and discovery.OAK_UDEV_RULE in no_perm.extra["fix"]
+    monkeypatch.setattr(discovery, "list_devices", lambda: [no_perm])
+    result = runner.invoke(app, ["devices"])
+    assert "[no-permission]" in result.output and 'ATTRS{idVendor}=="03e7"' in result.output
 
 
 def test_probes_fail_soft(monkeypatch):
@@ -85,7 +120,7 @@ def test_probes_fail_soft(monkeypatch):
     assert discovery.list_usb() == []
     monkeypatch.setattr(libusb_package, "get_libusb1_backend", lambda: None)  # no libusb at all
     assert discovery.list_usb() == []
-    monkeypatch.setattr(dai.Device, "getAllConnectedDevices", boom)
+    monkeypatch.setattr(dai.XLinkConnection, "getAllConnectedDevices", boom)
     assert discovery.list_depthai() == []
 
 

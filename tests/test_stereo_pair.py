@@ -2,7 +2,10 @@
 
 from __future__ import annotations
 
+import itertools
 import os
+import threading
+from pathlib import Path
 
 import cv2
 import numpy as np
@@ -11,6 +14,7 @@ import pytest
 from device import CalibrationError, SourceDisconnected, SourceError, SourceNotFound, SourceSpec, SourceTimeout
 from device import open_source
 from device.calibration import StereoCalibration, render_board_view
+from device.calibration_files import CalibrationRef
 from device.middlebury import load_scene, read_calib
 from device.sgbm import SGBMConfig, round_up_disparities
 from device.stereo_pair import (
@@ -55,7 +59,7 @@ def test_missing_devices_raise_not_found():
 def test_spec_parsing():
     cfg = config_from_spec(SourceSpec.parse("v4l2:/dev/video0?layout=side-by-side&calib=rig.json&size=2560x960"
                                             "&fps=15&mode=hh&ndisp=96&block=7&wls=1&scale=0.5"))
-    assert cfg.devices == ("/dev/video0",) and cfg.layout == "side-by-side" and cfg.calibration == "rig.json"
+    assert cfg.devices == ("/dev/video0",) and cfg.layout == "side-by-side" and cfg.calibration.path == "rig.json"
     assert (cfg.width, cfg.height, cfg.fps, cfg.scale, cfg.eye_size) == (2560, 960, 15.0, 0.5, (1280, 960))
     assert (cfg.sgbm.mode, cfg.sgbm.num_disparities, cfg.sgbm.block_size, cfg.sgbm.wls) == ("hh", 96, 7, True)
     two = config_from_spec(SourceSpec.parse("v4l2:/dev/video0,/dev/video2?calib=rig.json&fourcc=yuyv"))
@@ -157,68 +161,201 @@ def test_rendered_rig_with_rotation_gives_true_depth():
     assert np.median(centre[valid]) == pytest.approx(z_wall, rel=0.01)
 
 
-class _FakeCap:
-    """A cv2.VideoCapture stand-in with scripted frames and device timestamps (ms)."""
+class FakeCapture:
+    """A cv2.VideoCapture stand-in injected into V4L2Grabber: scripted (ms, image) frames, a driver
+    that may fall back to another format or rate, a grab that may stall, and the end of the script
+    as a failed grab (what a pulled cable gives)."""
 
-    def __init__(self, stamps_ms, value):
-        self.stamps = list(stamps_ms)
-        self.value = value
-        self.now = 0.0
+    def __init__(self, frames, *, fourcc="MJPG", fps_cap=None, stall=None):
+        self.frames = iter(frames)
+        self.props = {}
+        self.fourcc = fourcc
+        self.fps_cap = fps_cap
+        self.stall = stall  # threading.Event: grab blocks until it is set
+        self.now, self.current, self.calls = 0.0, None, []
+        self.released = threading.Event()
 
-    def read(self):
-        if not self.stamps:
-            return False, None
-        self.now = self.stamps.pop(0)
-        return True, np.full((4, 6, 3), self.value, np.uint8)
+    def isOpened(self):
+        return True
+
+    def set(self, prop, value):
+        self.props[prop] = value
+        return True
 
     def get(self, prop):
-        return self.now if prop == cv2.CAP_PROP_POS_MSEC else 0.0
+        if prop == cv2.CAP_PROP_POS_MSEC:
+            return self.now
+        if prop == cv2.CAP_PROP_FOURCC:
+            return float(cv2.VideoWriter.fourcc(*self.fourcc))
+        if prop == cv2.CAP_PROP_FPS:
+            fps = self.props.get(prop, 0.0)
+            return min(fps, self.fps_cap) if self.fps_cap else fps
+        return float(self.props.get(prop, 0.0))
+
+    def grab(self):
+        self.calls.append("grab")
+        if self.stall is not None:
+            self.stall.wait(5.0)
+        nxt = next(self.frames, None)
+        if nxt is None:
+            return False
+        self.now, self.current = nxt
+        return True
+
+    def retrieve(self):
+        self.calls.append("retrieve")
+        return self.current is not None, self.current
+
+    def read(self):
+        raise AssertionError("the grabber must grab() then retrieve(), not read()")
 
     def release(self):
-        pass
+        self.calls.append("release")
+        self.released.set()
 
 
-def _two_node_grabber(left_ms, right_ms, max_skew_s=None) -> V4L2Grabber:
-    g = V4L2Grabber(StereoPairConfig(devices=("/dev/video0", "/dev/video2"), layout="two-nodes", width=32, height=16,
-                                     fps=30, max_skew_s=max_skew_s))
-    g._caps = [_FakeCap(left_ms, 1), _FakeCap(right_ms, 2)]
-    return g
+def _solid(value, shape=(16, 32, 3)):
+    return np.full(shape, value, np.uint8)
 
 
-def test_two_nodes_paired_by_timestamp():
-    g = _two_node_grabber([1000, 1033, 1066, 1100], [1060, 1093])
-    left, right, stamp = g.grab()  # L1000/R1060 too far apart: left catches up to L1066
-    assert (left[0, 0, 0], right[0, 0, 0]) == (1, 2) and stamp == pytest.approx(1.063)
-    left, right, stamp = g.grab()
-    assert stamp == pytest.approx(1.0965)
-    with pytest.raises(SourceDisconnected, match="/dev/video0"):
+def _nodes(tmp_path, *names):
+    """Stand-ins for /dev/videoN: files that exist (a connected camera) until deleted (unplugged)."""
+    paths = []
+    for n in names:
+        (tmp_path / n).write_text("")
+        paths.append(str(tmp_path / n))
+    return tuple(paths)
+
+
+def _grabber(devices, caps, **cfg) -> V4L2Grabber:
+    layout = "two-nodes" if len(devices) == 2 else "side-by-side"
+    config = StereoPairConfig(devices=devices, layout=layout, width=32, height=16, fps=30, **cfg)
+    by_dev = dict(zip(devices, caps))
+    return V4L2Grabber(config, capture_factory=lambda dev: by_dev[dev])
+
+
+def test_two_nodes_grabbed_together_then_retrieved_and_paired_by_timestamp(tmp_path):
+    devs = _nodes(tmp_path, "video0", "video2")
+    left = FakeCapture([(ms, _solid(1)) for ms in (1000, 1033, 1066, 1100)])
+    right = FakeCapture([(ms, _solid(2)) for ms in (1060, 1093)])
+    g = _grabber(devs, [left, right])
+    g.open()
+    img_l, img_r, stamp = g.grab()  # L1000/R1060 too far apart: left catches up to L1066
+    assert (img_l[0, 0, 0], img_r[0, 0, 0]) == (1, 2) and stamp == pytest.approx(1.063)
+    # grab both, a catch-up grab of the lagging one, and only then decode both
+    assert left.calls == ["grab", "grab", "grab", "retrieve"] and right.calls == ["grab", "retrieve"]
+    assert g.grab()[2] == pytest.approx(1.0965)
+    with pytest.raises(SourceDisconnected, match="video0"):
         g.grab()
+    g.close()
     # Cameras 10 ms apart on every frame can never pair within a 5 ms bound.
-    drifting = _two_node_grabber(list(range(1, 10**6, 33)), list(range(11, 10**6, 33)), max_skew_s=0.005)
-    with pytest.raises(SourceTimeout, match="one fps for both"):
-        drifting.grab(timeout_s=0.05)
+    one, two = _solid(1), _solid(2)
+    drifting = _grabber(devs, [FakeCapture((ms, one) for ms in itertools.count(1, 33)),
+                               FakeCapture((ms, two) for ms in itertools.count(11, 33))], max_skew_s=0.005)
+    drifting.open()
+    for _ in range(2):  # each call tries afresh (a failed call is not replayed)
+        with pytest.raises(SourceTimeout, match="one fps for both"):
+            drifting.grab(timeout_s=0.05)
+    drifting.close()
 
 
-def test_side_by_side_split():
-    g = V4L2Grabber(StereoPairConfig(width=32, height=16))
-
-    class Cap(_FakeCap):
-        def read(self):
-            self.now = 40.0
-            return True, np.dstack([np.tile(np.r_[np.zeros(3), np.ones(3)], (4, 1))] * 3).astype(np.uint8)
-
-    g._caps = [Cap([], 0)]
+def test_side_by_side_split(tmp_path):
+    (dev,) = _nodes(tmp_path, "video0")
+    frame = np.dstack([np.tile(np.r_[np.zeros(16), np.ones(16)], (16, 1))] * 3).astype(np.uint8)
+    g = _grabber((dev,), [FakeCapture([(40.0, frame)])])
+    g.open()
     left, right, stamp = g.grab()
-    assert left.shape == right.shape == (4, 3, 3) and left.max() == 0 and right.min() == 1 and stamp == 0.04
+    assert left.shape == right.shape == (16, 16, 3) and left.max() == 0 and right.min() == 1 and stamp == 0.04
+    g.close()
+
+
+def test_read_timeout_is_enforced_and_told_from_a_disconnect(tmp_path):
+    """A stalled camera blocks in the driver: the caller gets SourceTimeout within its timeout (not
+    OpenCV's ~10 s), the stalled call is not queued twice, and a vanished node is a disconnect."""
+    (dev,) = _nodes(tmp_path, "video0")
+    stall = threading.Event()
+    cap = FakeCapture([(10.0, _solid(5)), (43.0, _solid(6))], stall=stall)
+    g = _grabber((dev,), [cap])
+    g.open()
+    with pytest.raises(SourceTimeout, match="stalled") as err:
+        g.grab(timeout_s=0.1)
+    assert not isinstance(err.value, SourceDisconnected)
+    with pytest.raises(SourceTimeout):
+        g.grab(timeout_s=0.05)
+    assert cap.calls == ["grab"] and not stall.is_set()  # both answers came while the first call was still blocked
+    stall.set()  # the camera recovers: the pending call's frame arrives
+    left, _, stamp = g.grab(timeout_s=1.0)
+    assert left[0, 0, 0] == 5 and stamp == pytest.approx(0.010)
+    stall.clear()
+    Path(dev).unlink()  # unplugged while the next call stalls
+    with pytest.raises(SourceDisconnected, match="disappeared"):
+        g.grab(timeout_s=0.1)
+    g.close()  # returns at once; the capture is released only after the blocked grab() is over
+    assert not cap.released.is_set()
+    stall.set()
+    assert cap.released.wait(5.0) and cap.calls[-1] == "release"
+
+
+def test_format_and_rate_fallbacks_are_read_back_and_warned(tmp_path, caplog, middlebury_dir):
+    """The driver silently gives YUYV at 10 fps for MJPG at 30: the source says so, and the pair
+    still goes through the real processing (rectification + SGBM) as a live camera would."""
+    (dev,) = _nodes(tmp_path, "video0")
+    scene = load_scene(middlebury_dir / "Teddy")
+    sbs = np.hstack([scene.left, scene.right])
+    h, w = scene.left.shape[:2]
+    cap = FakeCapture([(1000.0, sbs)], fourcc="YUYV", fps_cap=10)
+    config = StereoPairConfig(devices=(dev,), width=2 * w, height=h, fps=30,
+                              sgbm=SGBMConfig(num_disparities=round_up_disparities(scene.ndisp)))
+    src = StereoPairSource(config, grabber=V4L2Grabber(config, capture_factory=lambda _d: cap),
+                           calibration=_scene_calibration(middlebury_dir / "Teddy", scene, rectified=True))
+    with caplog.at_level("WARNING", logger="device.stereo_pair"), src:
+        frame = src.read()
+    warnings = src.info.extra["warnings"]
+    assert any("YUYV although MJPG" in x for x in warnings) and any("10 fps although 30" in x for x in warnings)
+    assert src.info.fps == 10 and src.info.extra["fourcc"] == "YUYV"
+    assert sum("although" in r.message for r in caplog.records) == 2
+    m = scene.nonocc_mask
+    share = float(np.mean(np.abs(frame.disparity[m] - scene.gt_disparity[m]) <= 1.0))
+    assert share >= SHARE_RAW["Teddy"] - MARGIN and frame.timestamp == pytest.approx(1.0)
+
+
+def test_permission_denied_is_not_busy(tmp_path, monkeypatch):
+    """A node this user may not open is a permission problem (fix: the video group), not "busy"."""
+    import errno
+
+    from device import stereo_pair
+
+    (dev,) = _nodes(tmp_path, "video9")
+
+    class Closed(FakeCapture):
+        def isOpened(self):
+            return False
+
+    def refuse(err):
+        def _open(path, flags, *a):
+            raise (PermissionError(errno.EACCES, "Permission denied") if err == errno.EACCES
+                   else OSError(err, os.strerror(err)))
+        return _open
+
+    for err, expected, not_expected in ((errno.EACCES, "video' group", "busy"), (errno.EBUSY, "is busy", "permission")):
+        monkeypatch.setattr(stereo_pair.os, "open", refuse(err))
+        with pytest.raises(SourceNotFound) as exc:
+            _grabber((dev,), [Closed([])]).open()
+        msg = str(exc.value).replace(str(tmp_path), "DIR")
+        assert expected in msg and not_expected not in msg.lower()
+    monkeypatch.undo()
+    # A real node of this machine that opens but does not capture (a UVC metadata node, say): no blame on access.
+    with pytest.raises(SourceNotFound, match="metadata node"):
+        _grabber((dev,), [Closed([])]).open()
 
 
 def test_calibration_required_and_checked(tmp_path, middlebury_dir):
     scene = load_scene(middlebury_dir / "Teddy")
     grab = ImagePairGrabber([(scene.left, scene.right)])
-    with pytest.raises(CalibrationError, match="calib=FILE.json"):
+    with pytest.raises(CalibrationError, match="add calib=FILE"):
         StereoPairSource(StereoPairConfig(), grabber=grab).open()
     with pytest.raises(CalibrationError, match="does not exist"):
-        StereoPairSource(StereoPairConfig(calibration=str(tmp_path / "rig.json")), grabber=grab).open()
+        StereoPairSource(StereoPairConfig(calibration=CalibrationRef(str(tmp_path / "rig.json"))), grabber=grab).open()
     # Calibrated at 4:3, images 450x375 (6:5): refuse rather than measure with wrong intrinsics.
     cal = StereoCalibration(image_size=(640, 480), K1=np.eye(3), D1=np.zeros(5), K2=np.eye(3), D2=np.zeros(5),
                             R=np.eye(3), T=np.array([-0.1, 0, 0]))
