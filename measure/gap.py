@@ -58,6 +58,18 @@ def is_gap(ext: tuple[ExtensionDepth, ExtensionDepth], z_refined: tuple[float, f
     )
 
 
+MIN_EXTENSION_SAMPLES = 10  # valid pixels each extension needs before it may show a gap
+GAP_STEP_REL = 0.2  # each extension at least this much nearer (relative depth) than its end point
+
+
+def is_clear_gap(ext: tuple[ExtensionDepth, ExtensionDepth], z_refined: tuple[float, float], margins: tuple[float, float]) -> bool:
+    """The robust method's gap rule: both extensions with at least ``MIN_EXTENSION_SAMPLES`` valid
+    pixels, each nearer than its end point by ``GAP_STEP_REL`` of the end's depth and by its margin."""
+    return all(e.n_valid >= MIN_EXTENSION_SAMPLES for e in ext) and is_gap(
+        ext, z_refined, tuple(max(m, GAP_STEP_REL * z) for m, z in zip(margins, z_refined))
+    )
+
+
 def robust_margins(z_refined: tuple[float, float], point_sigma_z: float, mean_depth: float, fb: float, quantum: float) -> tuple[float, float]:
     """Three per-pixel depth sigmas at each end point's depth (noise grows as Z²), at least one quantum."""
     out = []
