@@ -243,8 +243,11 @@ def _robust(frame, xy1, xy2, options, basic: BasicEnds, samples: SegmentSamples,
     q1f, q2f, gap = q1, q2, False
     if options.gap_detection:
         ext = (extension_depth(frame, xy1, xy2, options.extension_px), extension_depth(frame, xy2, xy1, options.extension_px))
-        zz = (float(z[0]), float(z[1]))
-        zm = float(z.mean())
+        # The gap question is about the segment's own surface (the global line), whatever an end's piece says.
+        dg = np.array([line.at(0.0), line.at(length)]) + frame.doffs
+        zg = fb / dg if (dg > 0).all() else z
+        zz = (float(zg[0]), float(zg[1]))
+        zm = float(zg.mean())
         margins = robust_margins(zz, zm * zm / fb * line.sigma_d * inflate, zm, fb, quantum)
         if is_clear_gap(ext, zz, margins):
             g1, g2 = r1 * ext[0].depth_m, r2 * ext[1].depth_m

@@ -32,7 +32,7 @@ from .dline import DisparityLine, fit_disparity_line
 from .robust_range import median
 
 MIN_LOCAL = 10  # fewer valid samples than this in an end's piece: no line of its own
-MIN_PIECE_PX = 30  # a shorter piece is a click that slipped off the surface, not a surface of its own
+MIN_PIECE_PX = 15  # a shorter piece is a click that slipped off the surface, not a surface of its own
 PIECE_INLIERS = 0.1  # an end's piece: a leading run at most this share of which the global line supports
 PIECE_FIT_PX = 40.0  # an end's own line is fit on the piece's part nearest the click
 DISAGREE_REL = 0.1  # relative disparity (= depth) offset an end's piece must show (module docstring)
@@ -92,9 +92,11 @@ def select_end_models(t: np.ndarray, d: np.ndarray, length: float, line: Dispari
             near = np.ones(k, bool)
         local = fit_disparity_line(t[sel][near], d[sel][near], 0.5, seed, quantum)
         dl = float(local.at(te))
-        if local.support.mean() < LOCAL_SUPPORT or not thr < abs(dl - d_end[e]) < abs(d_end[e]):
+        dp = d[sel][near][local.support]
+        span = float(dp.max() - dp.min()) if dp.size else 0.0
+        if local.support.mean() < LOCAL_SUPPORT or abs(dl - d_end[e]) <= thr or not (dp.min() - span <= dl <= dp.max() + span):
             # Scattered outliers, not a surface; a surface that meets the line at the click; or a
-            # line run off to twice (or less than zero) the disparity: an extrapolation, not a depth.
+            # line run off beyond its own data: an extrapolation, not a depth.
             continue
         d_end[e] = local.at(te)
         slope[e] = local.beta
