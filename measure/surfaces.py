@@ -10,8 +10,8 @@ does not support (the longest leading run of which at most ``PIECE_INLIERS`` are
 that scattered wrong matches do not cut it short) is that end's own piece. An end *disagrees* when its piece spans at least ``MIN_PIECE_PX`` px (a click that
 slipped a few pixels off an object onto the background behind it is not meant to measure the
 background) with at least ``MIN_LOCAL`` valid samples, and their
-median residual from the global line exceeds ``max(4 sigma_d, 10 % of the end's disparity)``
-(sigma_d the line's noise scale). The 10 % floor is a depth change that smooth, correlated stereo
+median residual from the global line exceeds ``max(4 s, 10 % of the end's disparity)``
+(s = 1.4826 MAD of the line's support residuals). The 10 % floor is a depth change that smooth, correlated stereo
 error does not make over a piece of this size: on the Middlebury stress segments (one straight
 surface each) SGBM and StereoBM bias the last few pixels before an edge by 4-8 %, while the wall,
 board and floor of the simulated rooms differ by 14-300 %. A disagreeing end gets its own robust
@@ -37,7 +37,7 @@ PIECE_INLIERS = 0.1  # an end's piece: a leading run at most this share of which
 PIECE_FIT_PX = 40.0  # an end's own line is fit on the piece's part nearest the click
 DISAGREE_REL = 0.1  # relative disparity (= depth) offset an end's piece must show (module docstring)
 DISAGREE_SIGMAS = 4.0
-LOCAL_SUPPORT = 0.6  # share of its piece an end's own line must support: a surface, not scattered outliers
+LOCAL_SUPPORT = 0.5  # share of its piece an end's own line must support: a surface, not scattered outliers
 
 
 def _piece_length(support: np.ndarray) -> int:
@@ -74,6 +74,9 @@ def select_end_models(t: np.ndarray, d: np.ndarray, length: float, line: Dispari
     offsets = [0.0, 0.0]
     local_cov = [0.0, 0.0]
     n = len(t)
+    # The noise scale of the line's support (MAD: the RMS of a bisquare support is inflated by the
+    # half-fitting samples of another surface).
+    scale = 1.4826 * median(np.abs(r[line.support])) if line.support.any() else line.sigma_d
     for e in (0, 1):
         k = _piece_length(line.support if e == 0 else line.support[::-1])
         if k < MIN_LOCAL or k > n - MIN_LOCAL:  # no piece, or no global line left beside it
@@ -83,7 +86,7 @@ def select_end_models(t: np.ndarray, d: np.ndarray, length: float, line: Dispari
             continue
         off = median(r[sel])
         offsets[e] = float(off)
-        thr = max(DISAGREE_SIGMAS * line.sigma_d, DISAGREE_REL * abs(float(d_end[e])))
+        thr = max(DISAGREE_SIGMAS * scale, DISAGREE_REL * abs(float(d_end[e])))
         if abs(off) <= thr:
             continue
         te = 0.0 if e == 0 else length
