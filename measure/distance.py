@@ -239,7 +239,8 @@ def _robust(frame, xy1, xy2, options, basic: BasicEnds, samples: SegmentSamples,
         z1 = fb / (np.array([line.at(0.0), line.at(length)]) + frame.doffs)
         if (z1 > 0).all():
             model = MODEL_SHARE * abs(float(np.linalg.norm(r2 * z1[1] - r1 * z1[0])) - dist)
-    sigma = calibrated_sigma(math.sqrt(fit_sigma**2 + quant**2 + click**2 + model**2), dist)
+    structure = math.hypot(grad[0] * ends.offsets[0], grad[1] * ends.offsets[1])
+    sigma = calibrated_sigma(math.sqrt(fit_sigma**2 + quant**2 + click**2 + model**2 + structure**2), dist)
     q1f, q2f, gap = q1, q2, False
     if options.gap_detection:
         ext = (extension_depth(frame, xy1, xy2, options.extension_px), extension_depth(frame, xy2, xy1, options.extension_px))

@@ -56,7 +56,7 @@ class EndModels:
     slope: np.ndarray
     cov: np.ndarray
     own: tuple[bool, bool]
-    offsets: tuple[float, float]  # each end window's median residual from the global line (px)
+    offsets: tuple[float, float]  # median residual (px) of the samples nearest each end from its model
 
     @property
     def several(self) -> bool:
@@ -105,6 +105,15 @@ def select_end_models(t: np.ndarray, d: np.ndarray, length: float, line: Dispari
         slope[e] = local.beta
         local_cov[e] = float(local.cov_at(te, te)[0, 0])
         own[e] = True
+    # Residual structure next to each end: the median residual of the nearest supported samples (a shoe in
+    # front of a leg, a rounded head, edge fattening). Counted in the uncertainty as a possible bias.
+    m = max(MIN_LOCAL // 2, n // 10)
+    near_off = [0.0, 0.0]
+    if n >= 2 * m:
+        for e, sl in ((0, slice(0, m)), (1, slice(n - m, n))):
+            sup = r[sl][line.support[sl]]
+            if not own[e] and sup.size:
+                near_off[e] = float(median(sup))
     if any(own):
         # Ends on their own lines are independent of each other and of the global line.
         full = cov.copy()
@@ -114,7 +123,7 @@ def select_end_models(t: np.ndarray, d: np.ndarray, length: float, line: Dispari
                 full[:, e] = 0.0
                 full[e, e] = local_cov[e]
         cov = full
-    return EndModels(d_end, slope, cov, (own[0], own[1]), (offsets[0], offsets[1]))
+    return EndModels(d_end, slope, cov, (own[0], own[1]), (near_off[0], near_off[1]))
 
 
 def on_depth_edge(disparity: np.ndarray, valid_of, start: tuple[float, float], other: tuple[float, float], d_end: float, step: float, px: int) -> bool:
