@@ -112,6 +112,7 @@ from .verdict import EDGE_PX, EDGE_STEP, EXTRAPOLATED_PX, FEW_SAMPLES, FEW_SHARE
 __all__ = ["backproject", "measure_distance", "window_median_disparity"]
 
 BASIC_CLICK_SHARE = 1.5  # px: the basic answer's click error, as a share of the segment's pixel length
+IMPRECISE = 0.08  # relative one-sigma above which the robust line yields to clean click windows
 MIN_FIT_SAMPLES = 5  # fewer valid samples than this cannot support a robust 3-D fit
 NO_DEPTH = "endpoint has no depth within window"
 
@@ -291,6 +292,14 @@ def _robust(frame, xy1, xy2, options, basic: BasicEnds, samples: SegmentSamples,
     if other:
         reasons.append(other)
     fit = "constant-depth" if line.beta == 0.0 and not ends.several else ("surfaces" if ends.several else "line")
+    if not gap and not ends.several and basic.ok and sigma > IMPRECISE * out:
+        # The line says little here (short, sparse or full of wrong matches); click windows off any
+        # depth edge, with the standard error of one matching window, measure the same two points.
+        edge = _on_edge(frame, xy1, xy2, fb / basic.p1_m[2] - frame.doffs) or _on_edge(frame, xy2, xy1, fb / basic.p2_m[2] - frame.doffs)
+        bs = basic.uncertainty_m * options.window
+        if not edge and math.isfinite(bs) and bs < sigma:
+            return _basic_measurement(basic, "robust", t0, samples, tuple(warnings) + ("imprecise line; basic answer",), support=line.support,
+                                      reasons=[r for r in reasons if not r.startswith("methods disagree")], window_sigma=bs)
     return _measurement(q1f, q2f, "robust", "none" if gap else fit, basic, sigma, samples, line.support, gap, warnings, t0, reasons)
 
 
@@ -350,6 +359,7 @@ def _basic_measurement(
     gap: bool = False,
     support: np.ndarray | None = None,
     reasons: list[str] | tuple[str, ...] = (),
+    window_sigma: float | None = None,
 ) -> Measurement:
     if samples is None:  # the basic method samples only the two clicks
         pixels = np.array([basic.click1, basic.click2], dtype=np.float64)
@@ -360,7 +370,8 @@ def _basic_measurement(
     sup = np.zeros(len(pixels), bool) if support is None else support
     dist = basic.distance_m
     # The window medians' standard errors leave out the click and edge effects the robust answer models.
-    sigma = calibrated_sigma(math.hypot(basic.uncertainty_m, BASIC_CLICK_SHARE * dist * 2.0 / max(1.0, math.dist(basic.click1, basic.click2))), dist)
+    base = basic.uncertainty_m if window_sigma is None else window_sigma
+    sigma = calibrated_sigma(math.hypot(base, BASIC_CLICK_SHARE * dist * 2.0 / max(1.0, math.dist(basic.click1, basic.click2))), dist)
     lo, hi = interval(dist, sigma)
     why = list(reasons) + (["gap detected"] if gap and "gap detected" not in reasons else [])
     quality, why = judge(why, None if samples is None else len(samples.points), dist, 0.5 * (hi - lo))
