@@ -92,3 +92,23 @@ def test_wall_to_floor_through_a_board_is_not_confidently_wrong():
     assert abs(m.distance_m - g) / g < 0.05
     assert "segment crosses several surfaces" in m.reasons
     assert m.to_dict()["quality"] == m.quality and m.to_dict()["interval_m"] == list(m.interval_m)
+
+
+def test_stress_protocol_command_writes_tables_and_plots(tmp_path, middlebury_dir):
+    import json
+
+    from typer.testing import CliRunner
+
+    from evaluation.cli import app
+    from evaluation.report import PNG_SIGNATURE
+
+    out = tmp_path / "stress"
+    res = CliRunner().invoke(app, ["middlebury", "--protocol", "stress", "--data", str(middlebury_dir), "--scene", "Piano", "--max-segments", "2", "--out", str(out)])
+    assert res.exit_code == 0, res.output + repr(res.exception)
+    data = json.loads((out / "results.json").read_text())
+    figs = data["splits"]["dev"]["figures"]
+    assert {"sgbm/exact", "bm/jitter", "gt_out50/nogap", "sgbm/all"} <= set(figs)
+    assert (out / "stress_dev.png").read_bytes()[:8] == PNG_SIGNATURE
+    assert "good & A<90" in (out / "report.md").read_text()
+    bad = CliRunner().invoke(app, ["middlebury", "--protocol", "nonsense", "--data", str(middlebury_dir), "--out", str(out)])
+    assert bad.exit_code != 0 and "edge or stress" in bad.output
