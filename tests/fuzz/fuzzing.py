@@ -17,7 +17,7 @@ T = TypeVar("T")
 ODD_TEXT = st.text(
     alphabet=st.one_of(
         st.characters(codec="utf-8", exclude_categories=("Cs",)),
-        st.sampled_from(list("\x00\n\r\t ?&=:#%[]{}\"'\\/.,;") + ["é", "\u202e", "\ufeff", "😀", "..", "~"]),
+        st.sampled_from(list("\x00\n\r\t ?&=:#%[]{}\"'\\/.,;") + ["é", "\u202e", "\ufeff", "😀", "~"]),
     ),
     max_size=40,
 )
