@@ -125,7 +125,7 @@ def cases(draw: st.DrawFn) -> tuple:
         p2 = (p1[0] + r * math.cos(a), p1[1] + r * math.sin(a))
     else:
         p2 = draw(clicks(w, h))
-        if p2 == p1 and draw(st.integers(0, 9)):  # hypothesis likes equal draws; keep a few
+        if p2 == p1 and isinstance(p1, tuple) and len(p1) == 2 and draw(st.integers(0, 9)):  # hypothesis likes equal draws; keep a few
             p2 = (w - 1 - p1[0], h - 1 - p1[1])
     return disparity, cam, fields["baseline_m"], fields["doffs"], p1, p2, opts
 
