@@ -10,14 +10,14 @@ import pytest
 from hypothesis import HealthCheck, settings
 
 # Property-based tests (tests/fuzz/): a small, reproducible budget in the default run; a nightly-style
-# exploration with `--hypothesis-profile=long` (README "Fuzzing"). No example database: the tree stays
+# exploration with `--hypothesis-profile=long` (README "Fuzzing"; DEPTHRULER_FUZZ_EXAMPLES sets its examples per test). No example database: the tree stays
 # clean, and a failure prints the example and `@reproduce_failure` blob to replay it.
 settings.register_profile(
     "default", max_examples=40, deadline=None, derandomize=True, database=None, print_blob=True,
     suppress_health_check=[HealthCheck.too_slow],
 )
 settings.register_profile(
-    "long", max_examples=20_000, deadline=None, database=None, print_blob=True,
+    "long", max_examples=int(os.environ.get("DEPTHRULER_FUZZ_EXAMPLES", "20000")), deadline=None, database=None, print_blob=True,
     suppress_health_check=[HealthCheck.too_slow],
 )
 settings.load_profile("default")
