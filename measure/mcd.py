@@ -7,10 +7,12 @@ and scatter S used by METHOD.md steps 2-4 (h = 0.5 N tolerates up to 50 % outlie
 How it runs (inputs in any unit; tolerances are relative to a robust data scale):
 
 1. Centre on the coordinate-wise median and divide by one robust scale ``s`` (root sum of
-   squared MADs), so every tolerance below is dimensionless. ``s`` is at least 1e-12 of the
-   farthest point's distance from the median (``_MAX_SPREAD``): the normalised coordinates stay
-   below 1e12, their squares, products and 3x3 determinants far inside float32 and float64
-   range, whatever the outliers (a disparity of 1e-30 px is a point 1e31 m away).
+   squared MADs), so every tolerance below is dimensionless. ``s`` is at least 1e-6 of the
+   farthest point's distance from the median (``_MAX_SPREAD``), whatever the outliers (a
+   disparity of 1e-30 px is a point 1e31 m away): the normalised coordinates stay below 1e6,
+   their squares, products and 3x3 determinants far inside float32 and float64 range, and the
+   exact-fit tolerance (1e-6 s, at least 1e-12 of the extent) stays 1e4 times above float64's
+   rounding of the farthest point, so a fitted subspace never loses its own points to rounding.
 2. Random starts: ``n_starts`` (p+1)-point subsets drawn at once. For n > 600 the starts are
    split over up to five disjoint random subsamples of 300 points (R&VD section 3.3: the
    "nested" scheme), so a C-step costs O(starts x 300), not O(starts x n).
@@ -50,7 +52,7 @@ from .types import MeasureError
 _SUBSAMPLE = 300  # R&VD nested scheme: subsample size
 _MAX_GROUPS = 5
 _RIDGE = 1e-8  # regularises singular starts (relative to the start's scale, at least 1)
-_MAX_SPREAD = 1e12  # normalised coordinates stay below this (see step 1 of the module docstring)
+_MAX_SPREAD = 1e6  # normalised coordinates stay below this (see step 1 of the module docstring)
 _MAX_ABS = 1e100  # coordinates beyond this are rejected: their squares would leave float64
 
 
@@ -360,7 +362,7 @@ def fast_mcd(
 
     if s == 0.0 or h == n or n <= p:
         sub = _subspace_of(z, np.ones(n, bool), tol)
-        if sub.basis.shape[1] < p:
+        if sub.basis.shape[1] < p and sub.on.any():
             return _exact_fit_result(x, s, sub, h)
         return _finish(x, z, center, s, np.ones(n, bool), h)
 

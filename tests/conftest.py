@@ -33,7 +33,11 @@ def pytest_collection_modifyitems(config: pytest.Config, items: list[pytest.Item
     skip_hw = pytest.mark.skip(reason="needs a camera: set DEPTHRULER_HARDWARE=1 with a device attached")
     has_chromium = shutil.which(CHROMIUM) is not None or Path(CHROMIUM).exists()
     skip_browser = pytest.mark.skip(reason="needs Debian's chromium at /usr/bin/chromium (apt-get install chromium)")
+    # The long fuzzing profile runs each property for many minutes: pytest-timeout's 600 s per test would cut it.
+    long_fuzz = config.getoption("hypothesis_profile", default=None) == "long"
     for item in items:
+        if long_fuzz and "fuzz" in item.nodeid.split("/"):
+            item.add_marker(pytest.mark.timeout(0))
         if "hardware" in item.keywords and not hardware:
             item.add_marker(skip_hw)
         if "browser" in item.keywords and not has_chromium:
