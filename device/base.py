@@ -5,7 +5,7 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 from types import TracebackType
 from typing import Protocol, runtime_checkable
-from urllib.parse import parse_qsl
+from urllib.parse import parse_qsl, quote, unquote
 
 from measure import Frame
 
@@ -81,9 +81,16 @@ def parse_flag(text: str) -> bool:
     raise ValueError(f"{text!r} is not a yes/no (boolean) value (use 1/0, true/false)")
 
 
+_SAFE = "/,:@.-_~"  # left as they are when a spec is printed: paths, device lists, sizes stay readable
+
+
 @dataclass(frozen=True)
 class SourceSpec:
-    """A parsed spec string ``kind[:target][?key=value&...]``, e.g. ``sim:poster?distance=4``."""
+    """A parsed spec string ``kind[:target][?key=value&...]``, e.g. ``sim:poster?distance=4``.
+
+    Target, keys and values are percent-decoded (``replay:rec/a%3Fb`` is the folder ``rec/a?b``);
+    ``str()`` encodes what would read otherwise, so a printed spec parses back to the same one.
+    """
 
     kind: str
     target: str = ""
@@ -100,7 +107,9 @@ class SourceSpec:
             params = dict(parse_qsl(query, keep_blank_values=True, strict_parsing=bool(query)))
         except ValueError as exc:
             raise SourceError(f"cannot parse the options {query!r} of source spec {spec!r}; write key=value&key=value") from exc
-        return cls(kind=kind.lower(), target=target, params=params)
+        if not kind.strip():
+            raise SourceError(f"source spec {spec!r} names no kind; start it with one of sim, oak, v4l2, replay, middlebury, depthpng")
+        return cls(kind=kind.lower(), target=unquote(target), params=params)
 
     def check_keys(self, allowed: tuple[str, ...]) -> None:
         """Raise SourceError naming the options of this spec that its kind does not know."""
@@ -120,7 +129,8 @@ class SourceSpec:
             raise SourceError(f"{key}={self.params[key]!r} is not a yes/no value; write {key}=1 or {key}=0") from None
 
     def __str__(self) -> str:
-        s = self.kind + (f":{self.target}" if self.target else "")
+        s = self.kind + (f":{quote(self.target, safe=_SAFE)}" if self.target else "")
         if self.params:
-            s += "?" + "&".join(f"{k}={v}" for k, v in self.params.items())
+            # Percent-encoded where parse_qsl would read something else (&, =, +, %, #, spaces, ...).
+            s += "?" + "&".join(f"{quote(k, safe=_SAFE)}={quote(v, safe=_SAFE)}" for k, v in self.params.items())
         return s

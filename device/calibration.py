@@ -46,7 +46,11 @@ from typing import Protocol
 import cv2
 import numpy as np
 
+from measure import MeasureError, PinholeCamera
+
 from .errors import CalibrationError
+
+MAX_IMAGE_SIDE = 65536  # px; a calibration for larger images is a corrupt file (rectification maps would not fit)
 
 FORMAT = "depthruler-stereo-calibration"
 VERSION = 1
@@ -212,8 +216,8 @@ def load_calibration(path: str | Path) -> StereoCalibration:
             "`depthruler calibrate --images DIR --out FILE` or fix the calib= path"
         )
     try:
-        data = json.loads(path.read_text())
-    except (OSError, UnicodeDecodeError, json.JSONDecodeError) as exc:
+        data = json.loads(path.read_text(encoding="utf-8"))
+    except (OSError, UnicodeDecodeError, json.JSONDecodeError, RecursionError) as exc:
         raise CalibrationError(f"calibration file {str(path)!r} is not valid JSON ({exc}); recreate it") from exc
     return calibration_from_json(data, source=str(path))
 
@@ -224,8 +228,11 @@ def calibration_from_json(data: dict, source: str = "calibration") -> StereoCali
         raise CalibrationError(f"{source}: expected a JSON object with K1, D1, K2, D2, R, T, image_size")
     if data.get("format", FORMAT) != FORMAT:
         raise CalibrationError(f"{source}: format {data.get('format')!r} is not {FORMAT!r}")
-    if int(data.get("version", VERSION)) > VERSION:
-        raise CalibrationError(f"{source}: version {data['version']} is newer than this depthruler reads ({VERSION})")
+    version = data.get("version", VERSION)
+    if not isinstance(version, int) or isinstance(version, bool) or version < 1:
+        raise CalibrationError(f"{source}: version {version!r} must be a whole number >= 1 (this depthruler writes {VERSION})")
+    if version > VERSION:
+        raise CalibrationError(f"{source}: version {version} is newer than this depthruler reads ({VERSION})")
 
     def arr(name: str, shape: tuple[int, ...] | None, sizes: tuple[int, ...] = ()) -> np.ndarray:
         if name not in data:
@@ -243,8 +250,10 @@ def calibration_from_json(data: dict, source: str = "calibration") -> StereoCali
         return a
 
     size = arr("image_size", (2,))
-    if np.any(size < 1) or np.any(size != np.round(size)):
-        raise CalibrationError(f"{source}: image_size must be two positive whole numbers, got {size.tolist()}")
+    if np.any(size < 1) or np.any(size > MAX_IMAGE_SIDE) or np.any(size != np.round(size)):
+        raise CalibrationError(
+            f"{source}: image_size must be two whole numbers of pixels in 1..{MAX_IMAGE_SIDE}, got {size.tolist()}"
+        )
     K1, K2 = arr("K1", (3, 3)), arr("K2", (3, 3))
     for name, K in (("K1", K1), ("K2", K2)):
         if K[0, 0] <= 0 or K[1, 1] <= 0 or not np.allclose(K[2], [0, 0, 1]):
@@ -252,6 +261,11 @@ def calibration_from_json(data: dict, source: str = "calibration") -> StereoCali
     model = data.get("distortion_model")
     if model is not None and model not in DISTORTION_MODELS:
         raise CalibrationError(f"{source}: distortion_model {model!r} is unknown; use one of {', '.join(DISTORTION_MODELS)}")
+    for name, K in (("K1", K1), ("K2", K2)):
+        try:  # the same physical ranges as every frame's camera (measure.types.validate_camera)
+            PinholeCamera(fx=K[0, 0], fy=K[1, 1], cx=K[0, 2], cy=K[1, 2], width=int(size[0]), height=int(size[1]))
+        except MeasureError as exc:
+            raise CalibrationError(f"{source}: {name}: {exc}") from None
     dist_sizes = (4,) if model == "equidistant" else (4, 5, 8, 12, 14)
     D1, D2 = arr("D1", None, dist_sizes).ravel(), arr("D2", None, dist_sizes).ravel()
     if model is None and D1.size == 4:
@@ -261,9 +275,11 @@ def calibration_from_json(data: dict, source: str = "calibration") -> StereoCali
             "(source spec: distortion=opencv|equidistant)"
         )
     R = arr("R", (3, 3))
-    if not np.allclose(R @ R.T, np.eye(3), atol=1e-6):
-        raise CalibrationError(f"{source}: R is not a rotation matrix")
+    if np.abs(R).max() > 1 + 1e-6 or not np.allclose(R @ R.T, np.eye(3), atol=1e-6) or np.linalg.det(R) < 0:
+        raise CalibrationError(f"{source}: R is not a rotation matrix (orthonormal with determinant +1)")
     T = arr("T", None, (3,)).reshape(3)
+    if np.abs(T).max() > 5:  # before the norm: its squares could overflow
+        raise CalibrationError(f"{source}: T = {T.tolist()} is implausible; T must be in metres, not mm")
     if np.linalg.norm(T) <= 0:
         raise CalibrationError(f"{source}: T is zero; the two cameras must be apart (T in metres)")
     if np.linalg.norm(T) > 5:
@@ -278,12 +294,20 @@ def calibration_from_json(data: dict, source: str = "calibration") -> StereoCali
             for v in data.get("views", [])
         )
         board = BoardSpec(**board) if isinstance(board, dict) else None
-    except (TypeError, AttributeError) as exc:
+    except (TypeError, AttributeError, ValueError, CalibrationError, cv2.error) as exc:
         raise CalibrationError(f"{source}: 'views' or 'board' is malformed ({exc}); recreate the file") from exc
 
     def num(key: str) -> float:
         v = data.get(key)
-        return math.nan if v is None else float(v)
+        if v is None:
+            return math.nan
+        if not isinstance(v, (int, float)) or isinstance(v, bool):
+            raise CalibrationError(f"{source}: field {key!r} must be a number or null, got {v!r}")
+        return float(v)
+
+    extra = data.get("extra", {})
+    if not isinstance(extra, dict):
+        raise CalibrationError(f"{source}: field 'extra' must be a JSON object, got {type(extra).__name__}")
 
     return StereoCalibration(
         image_size=(int(size[0]), int(size[1])),
@@ -299,7 +323,7 @@ def calibration_from_json(data: dict, source: str = "calibration") -> StereoCali
         views=views,
         board=board,
         created=str(data.get("created", "")),
-        extra=dict(data.get("extra", {})),
+        extra=dict(extra),
         distortion_model=model or "opencv",
     )
 

@@ -17,6 +17,7 @@ side-by-side camera). ``calib`` is the project's JSON, an OpenCV YAML/XML or a R
 from __future__ import annotations
 
 import logging
+import math
 import os
 import time
 from collections.abc import Callable, Sequence
@@ -28,7 +29,7 @@ from typing import Protocol
 
 import numpy as np
 
-from measure import Frame, PinholeCamera
+from measure import Frame, MeasureError, PinholeCamera
 
 from .base import SourceBase, SourceInfo, SourceSpec, parse_flag
 from .calibration import StereoCalibration
@@ -367,7 +368,7 @@ def rectification(calib: StereoCalibration, size: tuple[int, int]) -> Rectificat
     scale = np.array([[s, 0, (s - 1) * 0.5], [0, s, (s - 1) * 0.5], [0, 0, 1]])  # pixel-centre convention
     K1, K2 = scale @ calib.K1, scale @ calib.K2
     if calib.extra.get("rectified"):
-        cam = PinholeCamera(fx=K1[0, 0], fy=K1[1, 1], cx=K1[0, 2], cy=K1[1, 2], width=w, height=h)
+        cam = _camera(K1, w, h)
         return Rectification(size, cam, calib.baseline_m, float(K2[0, 2] - K1[0, 2]), None)
     T = np.asarray(calib.T, np.float64).reshape(3, 1)  # OpenCV 5 asserts on any other shape
     if abs(T[0, 0]) < np.abs(T[1:, 0]).max():
@@ -392,9 +393,21 @@ def rectification(calib: StereoCalibration, size: tuple[int, int]) -> Rectificat
         *undistort(K1, calib.D1, R1, P1, (w, h), cv2.CV_32FC1),
         *undistort(K2, calib.D2, R2, P2, (w, h), cv2.CV_32FC1),
     )
-    cam = PinholeCamera(fx=P1[0, 0], fy=P1[1, 1], cx=P1[0, 2], cy=P1[1, 2], width=w, height=h)
+    cam = _camera(P1, w, h)
     baseline = float(-P2[0, 3] / P2[0, 0])
+    if not (math.isfinite(baseline) and baseline > 0 and np.isfinite(P2[:, :3]).all()):
+        raise CalibrationError(f"rectifying this calibration gives no usable right camera (baseline {baseline:g} m); "
+                               "its D2, R or T are implausible: recalibrate")
     return Rectification(size, cam, baseline, float(P2[0, 2] - P1[0, 2]), maps)
+
+
+def _camera(K: np.ndarray, w: int, h: int) -> PinholeCamera:
+    """The rectified left camera, or CalibrationError when the calibration's numbers give none in range."""
+    try:
+        return PinholeCamera(fx=float(K[0, 0]), fy=float(K[1, 1]), cx=float(K[0, 2]), cy=float(K[1, 2]), width=w, height=h)
+    except MeasureError as exc:
+        raise CalibrationError(f"rectifying this calibration gives no usable camera ({exc}); "
+                               "its distortion coefficients or R are implausible: recalibrate") from None
 
 
 class StereoProcessor:

@@ -41,5 +41,11 @@ def basic_ends(frame: Frame, xy1: tuple[float, float], xy2: tuple[float, float],
     fb = frame.camera.fx * frame.baseline_m
     s1 = window_depth_sigma(w1, float(pts[0, 2]), fb, q)
     s2 = window_depth_sigma(w2, float(pts[1, 2]), fb, q)
-    sigma = endpoint_depth_sigma(pts[0], pts[1], s1, s2) if math.isfinite(dist) else math.nan
+    if dist > 0 and math.isfinite(dist):
+        sigma = endpoint_depth_sigma(pts[0], pts[1], s1, s2)
+    elif dist == 0:
+        # Both clicks on one viewing ray r (one pixel, to float precision): D = |r| |Z1 - Z2|.
+        sigma = float(np.linalg.norm(pts[0] / pts[0][2])) * math.hypot(s1, s2)
+    else:
+        sigma = math.nan
     return BasicEnds(pts[0], pts[1], dist, sigma, (s1, s2), xy1, xy2)

@@ -7,7 +7,12 @@ and scatter S used by METHOD.md steps 2-4 (h = 0.5 N tolerates up to 50 % outlie
 How it runs (inputs in any unit; tolerances are relative to a robust data scale):
 
 1. Centre on the coordinate-wise median and divide by one robust scale ``s`` (root sum of
-   squared MADs), so every tolerance below is dimensionless.
+   squared MADs), so every tolerance below is dimensionless. ``s`` is at least 1e-6 of the
+   farthest point's distance from the median (``_MAX_SPREAD``), whatever the outliers (a
+   disparity of 1e-30 px is a point 1e31 m away): the normalised coordinates stay below 1e6,
+   their squares, products and 3x3 determinants far inside float32 and float64 range, and the
+   exact-fit tolerance (1e-6 s, at least 1e-12 of the extent) stays 1e4 times above float64's
+   rounding of the farthest point, so a fitted subspace never loses its own points to rounding.
 2. Random starts: ``n_starts`` (p+1)-point subsets drawn at once. For n > 600 the starts are
    split over up to five disjoint random subsamples of 300 points (R&VD section 3.3: the
    "nested" scheme), so a C-step costs O(starts x 300), not O(starts x n).
@@ -46,7 +51,9 @@ from .types import MeasureError
 
 _SUBSAMPLE = 300  # R&VD nested scheme: subsample size
 _MAX_GROUPS = 5
-_RIDGE = 1e-8  # regularises singular starts (dimensionless, data scale = 1)
+_RIDGE = 1e-8  # regularises singular starts (relative to the start's scale, at least 1)
+_MAX_SPREAD = 1e6  # normalised coordinates stay below this (see step 1 of the module docstring)
+_MAX_ABS = 1e100  # coordinates beyond this are rejected: their squares would leave float64
 
 
 @dataclass(frozen=True)
@@ -226,9 +233,13 @@ def _c_step(mono: np.ndarray, mean: np.ndarray, cov: np.ndarray, lam: np.ndarray
     :func:`_det_lam`). Returns the new subset masks (G x S x n), means, covariances,
     determinants and lambda_min estimates (each G x S ...).
     """
-    singular = lam <= _RIDGE
+    # The ridge and the singularity test scale with the trace: a start spanning far outliers has a
+    # covariance of up to 1e24 whose rounding alone exceeds an absolute ridge (its determinant
+    # could come out zero or negative). At data scale (trace <= 1) it is the absolute 1e-8.
+    ridge = _RIDGE * np.maximum(np.trace(cov, axis1=-2, axis2=-1), 1.0)
+    singular = lam <= ridge
     if singular.any():
-        cov = cov + singular[..., None, None] * (_RIDGE * np.eye(p))
+        cov = cov + (singular * ridge)[..., None, None] * np.eye(p)
     det, adj = _det_adj(cov)
     inv = adj / det[..., None, None]
     quad = _quad_weights(p) * inv.reshape(inv.shape[:-2] + (p * p,))[..., _upper_flat(p)]
@@ -331,6 +342,8 @@ def fast_mcd(
         raise MeasureError(f"fast_mcd needs an n x p array with n >= 1 and 1 <= p <= 3, got shape {x.shape}")
     if not np.isfinite(x).all():
         raise MeasureError("fast_mcd got NaN or infinite coordinates; drop invalid points first")
+    if np.abs(x).max() > _MAX_ABS:
+        raise MeasureError(f"fast_mcd got coordinates beyond {_MAX_ABS:g} in magnitude; rescale the points")
     n, p = x.shape
     if h is None:
         h = default_h(n, p, support_fraction)
@@ -343,12 +356,13 @@ def fast_mcd(
     s = float(np.sqrt((mad**2).sum()))
     if s == 0.0:
         s = float(np.sqrt(x.var(axis=0).sum()))
+    s = max(s, float(np.abs(x - center).max()) / _MAX_SPREAD)
     z = (x - center) / s if s > 0 else np.zeros_like(x)
     tol = exact_tol
 
     if s == 0.0 or h == n or n <= p:
         sub = _subspace_of(z, np.ones(n, bool), tol)
-        if sub.basis.shape[1] < p:
+        if sub.basis.shape[1] < p and sub.on.any():
             return _exact_fit_result(x, s, sub, h)
         return _finish(x, z, center, s, np.ones(n, bool), h)
 

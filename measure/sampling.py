@@ -57,11 +57,13 @@ def extension_pixels(frame: Frame, start: tuple[float, float], away_from: tuple[
     """Pixels of the ``length``-pixel extension beyond ``start``, pointing away from ``away_from``
     (METHOD.md step 6), excluding ``start`` itself and clipped to the image. N x 2 int64."""
     x0, y0 = start
+    h, w = frame.disparity.shape
+    # Beyond the image diagonal every pixel would be clipped: don't enumerate them.
+    length = min(length, int(math.hypot(w, h)) + 2)
     ux, uy = x0 - away_from[0], y0 - away_from[1]
     norm = math.hypot(ux, uy)
     ux, uy = ux / norm, uy / norm
     px = segment_pixels(x0 + ux, y0 + uy, x0 + ux * length, y0 + uy * length)
-    h, w = frame.disparity.shape
     inside = (px[:, 0] >= 0) & (px[:, 0] < w) & (px[:, 1] >= 0) & (px[:, 1] < h)
     return px[inside]
 
@@ -91,7 +93,8 @@ def ray(frame: Frame, x: float, y: float) -> np.ndarray:
 
 
 def valid_disparity(frame: Frame, d: np.ndarray) -> np.ndarray:
-    return np.isfinite(d) & (d + frame.doffs > 0)
+    """Samples with a disparity (px) a camera can produce (:meth:`Frame.valid`); others are holes."""
+    return frame.valid(d)
 
 
 def window_disparities(frame: Frame, x: float, y: float, window: int) -> np.ndarray:

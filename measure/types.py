@@ -21,6 +21,58 @@ class MeasureError(ValueError):
     """Bad input to the measurement core; the message says what to change."""
 
 
+# Physical ranges of the numbers a calibration gives (outside them the numbers are a unit or
+# parsing mistake, and the arithmetic overflows long before it measures anything).
+# Focal length per pixel of the image's larger side: 0.05 is a 169-degree field of view, 1e4
+# a 0.006-degree one (or a 0.6-degree one of an image cropped to 1/100 of its side).
+FOCAL_PER_SIZE = (0.05, 1e4)
+# Principal point: within this many image sizes of the image (a crop's lies outside it).
+PRINCIPAL_POINT_SIZES = 1e3
+# Stereo baseline in metres: 0.1 mm (dual-pixel sensors) to 1 km.
+BASELINE_RANGE_M = (1e-4, 1e3)
+
+
+def _is_number(value: object) -> bool:
+    return isinstance(value, (int, float, np.floating, np.integer)) and not isinstance(value, (bool, np.bool_))
+
+
+def _is_whole(value: object) -> bool:
+    return isinstance(value, (int, np.integer)) and not isinstance(value, (bool, np.bool_))
+
+
+def validate_camera(cam: PinholeCamera) -> None:
+    """Raise :class:`MeasureError` naming the intrinsic that is not a number, not finite or
+    outside its physical range (``FOCAL_PER_SIZE``, ``PRINCIPAL_POINT_SIZES``)."""
+    for name in ("width", "height"):
+        value = getattr(cam, name)
+        if not _is_number(value) or not math.isfinite(value) or int(value) != value or value < 1:
+            raise MeasureError(f"camera {name}={value!r} must be a positive whole number of pixels")
+    for name in ("fx", "fy", "cx", "cy"):
+        value = getattr(cam, name)
+        if not _is_number(value) or not math.isfinite(value):
+            raise MeasureError(f"camera {name}={value!r} is not a finite number; check the calibration")
+    size = max(int(cam.width), int(cam.height))
+    lo, hi = FOCAL_PER_SIZE
+    for name in ("fx", "fy"):
+        value = getattr(cam, name)
+        if value <= 0:
+            raise MeasureError(f"camera focal lengths must be positive ({name}={value})")
+        if not lo * size <= value <= hi * size:
+            raise MeasureError(
+                f"camera {name}={value:g} px is outside the physical range [{lo * size:g}, {hi * size:g}] "
+                f"for a {cam.width}x{cam.height} image (a field of view of 169 to 0.006 degrees); "
+                "check the calibration's units and that it belongs to this resolution"
+            )
+    reach = PRINCIPAL_POINT_SIZES * size
+    for name, extent in (("cx", cam.width), ("cy", cam.height)):
+        value = getattr(cam, name)
+        if not -reach <= value <= extent + reach:
+            raise MeasureError(
+                f"camera {name}={value:g} px is more than {PRINCIPAL_POINT_SIZES:g} image sizes outside the "
+                f"{cam.width}x{cam.height} image; check the calibration"
+            )
+
+
 @dataclass(frozen=True)
 class PinholeCamera:
     """Intrinsics of the colour image the disparity is registered to (pixels, zero skew)."""
@@ -33,14 +85,7 @@ class PinholeCamera:
     height: int
 
     def __post_init__(self) -> None:
-        for name in ("fx", "fy", "cx", "cy"):
-            value = getattr(self, name)
-            if not isinstance(value, (int, float, np.floating, np.integer)) or not math.isfinite(value):
-                raise MeasureError(f"camera {name}={value!r} is not a finite number; check the calibration")
-        if self.fx <= 0 or self.fy <= 0:
-            raise MeasureError(f"camera focal lengths must be positive (fx={self.fx}, fy={self.fy})")
-        if int(self.width) != self.width or int(self.height) != self.height or self.width < 1 or self.height < 1:
-            raise MeasureError(f"camera size {self.width}x{self.height} must be positive whole pixels")
+        validate_camera(self)
 
     def scaled(self, width: int, height: int) -> PinholeCamera:
         """The same camera seen at another resolution (pixel-centre convention)."""
@@ -78,12 +123,18 @@ class Frame:
     def shape(self) -> tuple[int, int]:
         return self.disparity.shape  # type: ignore[return-value]
 
+    def valid(self, disparity: np.ndarray) -> np.ndarray:
+        """Where ``disparity`` (px) is one a camera can produce: finite, ``d + doffs > 0`` (in
+        front of the camera) and at most the image width (the match lies inside the other image)."""
+        d = np.asarray(disparity)
+        with np.errstate(invalid="ignore", over="ignore"):
+            return np.isfinite(d) & (d + self.doffs > 0) & (d <= self.camera.width)
+
     def depth(self) -> np.ndarray:
-        """Depth in metres, NaN where the disparity is missing or non-positive."""
-        d = self.disparity.astype(np.float64) + self.doffs
-        with np.errstate(divide="ignore", invalid="ignore"):
-            z = self.camera.fx * self.baseline_m / d
-        z[~(d > 0)] = np.nan
+        """Depth in metres, NaN where the disparity is invalid (:meth:`valid`)."""
+        ok = self.valid(self.disparity)
+        z = np.full(self.disparity.shape, np.nan)
+        z[ok] = self.camera.fx * self.baseline_m / (self.disparity[ok].astype(np.float64) + self.doffs)
         return z
 
 
@@ -92,6 +143,7 @@ def validate_frame(frame: Frame) -> None:
     cam = frame.camera
     if not isinstance(cam, PinholeCamera):
         raise MeasureError(f"frame.camera must be a PinholeCamera, got {type(cam).__name__}")
+    validate_camera(cam)
     disp = frame.disparity
     if not isinstance(disp, np.ndarray) or disp.ndim != 2:
         raise MeasureError(
@@ -120,10 +172,23 @@ def validate_frame(frame: Frame) -> None:
             )
     for name in ("baseline_m", "doffs"):
         value = getattr(frame, name)
-        if not isinstance(value, (int, float, np.floating, np.integer)) or not math.isfinite(value):
+        if not _is_number(value) or not math.isfinite(value):
             raise MeasureError(f"frame.{name}={value!r} is not a finite number; check the calibration")
     if frame.baseline_m <= 0:
         raise MeasureError(f"frame.baseline_m={frame.baseline_m} must be positive (metres)")
+    # doffs is the difference of the two cameras' principal points: the same range applies.
+    reach = (2 * PRINCIPAL_POINT_SIZES + 1) * max(w, h)
+    if abs(frame.doffs) > reach:
+        raise MeasureError(
+            f"frame.doffs={frame.doffs:g} px is larger than a difference of two principal points can be "
+            f"({reach:g} px for a {w}x{h} image); check the calibration"
+        )
+    lo, hi = BASELINE_RANGE_M
+    if not lo <= frame.baseline_m <= hi:
+        raise MeasureError(
+            f"frame.baseline_m={frame.baseline_m:g} is outside the physical range [{lo:g}, {hi:g}] m; "
+            "check the calibration's units (metres, not millimetres)"
+        )
 
 
 @dataclass(frozen=True)
@@ -138,14 +203,18 @@ class MeasureOptions:
     seed: int = 0
 
     def __post_init__(self) -> None:
-        if self.method not in METHODS:
+        if not isinstance(self.method, str) or self.method not in METHODS:
             raise MeasureError(f"method {self.method!r} is unknown; use one of {', '.join(METHODS)}")
-        if not (0.5 <= self.support_fraction <= 1.0):
-            raise MeasureError(f"support_fraction={self.support_fraction} must lie in [0.5, 1.0]")
-        if self.window < 1 or self.window % 2 == 0:
-            raise MeasureError(f"window={self.window} must be a positive odd number of pixels")
-        if self.extension_px < 3:
-            raise MeasureError(f"extension_px={self.extension_px} must be at least 3 pixels")
+        if not _is_number(self.support_fraction) or not (0.5 <= self.support_fraction <= 1.0):
+            raise MeasureError(f"support_fraction={self.support_fraction!r} must be a number in [0.5, 1.0]")
+        if not _is_whole(self.window) or self.window < 1 or self.window % 2 == 0:
+            raise MeasureError(f"window={self.window!r} must be a positive odd whole number of pixels")
+        if not _is_whole(self.extension_px) or self.extension_px < 3:
+            raise MeasureError(f"extension_px={self.extension_px!r} must be a whole number of at least 3 pixels")
+        if not isinstance(self.gap_detection, (bool, np.bool_)):
+            raise MeasureError(f"gap_detection={self.gap_detection!r} must be True or False")
+        if not _is_whole(self.seed) or self.seed < 0:
+            raise MeasureError(f"seed={self.seed!r} must be a non-negative whole number")
 
 
 @dataclass(frozen=True)

@@ -22,7 +22,7 @@ from .gap import extension_depth, is_gap
 from .mcd import fast_mcd
 from .sampling import backproject_depth, sample_segment
 from .types import Frame, MeasureError, MeasureOptions, Measurement
-from .uncertainty import endpoint_depth_sigma
+from .uncertainty import disparity_quantum, endpoint_depth_sigma
 
 
 def measure_z_only(
@@ -57,6 +57,11 @@ def measure_z_only(
     tc = t[sup] - t[sup].mean()
     sxx = float((tc**2).sum()) or math.inf
     se = [s_z * math.sqrt(1.0 / max(1, sup.sum()) + (tt - t[sup].mean()) ** 2 / sxx) for tt in (0.0, length)]
+    # No residual (one quantized level, an exact fit) is no certainty: at least one disparity
+    # quantum's rounding, Z² / (fB) * q / sqrt(12), at each end.
+    fb = frame.camera.fx * frame.baseline_m
+    q = disparity_quantum(samples.disparity)
+    se = [max(s, float(zz) ** 2 / fb * q / math.sqrt(12.0)) for s, zz in zip(se, z_end)]
     sigma = endpoint_depth_sigma(q1, q2, se[0], se[1])
     gap = False
     warnings: tuple[str, ...] = () if basic.ok else (NO_DEPTH,)

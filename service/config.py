@@ -14,6 +14,8 @@ from typing import Annotated, Any, Literal, Union
 
 from pydantic import BaseModel, ConfigDict, Field, ValidationError
 
+from device.base import SourceSpec
+
 
 class ConfigError(ValueError):
     """A config file is missing, unparsable or has a wrong key or value; the message names them."""
@@ -94,7 +96,7 @@ class V4L2Source(_Model):
 
 class ReplaySource(_Model):
     kind: Literal["replay"] = "replay"
-    path: str
+    path: str = Field(min_length=1)
     loop: bool = True
     realtime: bool = True
 
@@ -116,24 +118,25 @@ def _fmt(value: Any) -> str:
 
 
 def source_spec(source: SimSource | OakSource | V4L2Source | ReplaySource) -> str:
-    """The ``open_source`` spec string of a validated source table."""
+    """The ``open_source`` spec string of a validated source table (percent-encoded where a path or
+    value holds ``?``, ``&``, ``%`` or spaces, so it parses back to the same values)."""
     if isinstance(source, SimSource):
         keys = ("distance", "lighting", "contention", "quantization", "seed", "fps", "width", "height", "mode")
-        params = {k: getattr(source, k) for k in keys}
-        return f"sim:{source.scene}?" + "&".join(f"{k}={_fmt(v)}" for k, v in params.items())
-    if isinstance(source, OakSource):
+        kind, target, params = "sim", source.scene, {k: getattr(source, k) for k in keys}
+    elif isinstance(source, OakSource):
         params = {k: getattr(source, k) for k in ("preset", "fps", "subpixel", "lr_check", "extended_disparity")}
         params["size"] = f"{source.width}x{source.height}"
-        head = f"oak:{source.mxid}" if source.mxid else "oak"
-        return head + "?" + "&".join(f"{k}={_fmt(v)}" for k, v in params.items())
-    if isinstance(source, V4L2Source):
+        kind, target = "oak", source.mxid
+    elif isinstance(source, V4L2Source):
         params = {k: getattr(source, k) for k in ("layout", "calib", "fps", "fourcc", "scale")}
         params["size"] = f"{source.width}x{source.height}"
         params.update({_SGBM_SPEC_KEYS.get(k, k): v for k, v in source.sgbm.model_dump().items()})
-        return f"v4l2:{source.device}?" + "&".join(f"{k}={_fmt(v)}" for k, v in params.items())
-    if isinstance(source, ReplaySource):
-        return f"replay:{source.path}?loop={_fmt(source.loop)}&realtime={_fmt(source.realtime)}"
-    raise ConfigError(f"unknown source config {type(source).__name__}")
+        kind, target = "v4l2", source.device
+    elif isinstance(source, ReplaySource):
+        kind, target, params = "replay", source.path, {"loop": source.loop, "realtime": source.realtime}
+    else:
+        raise ConfigError(f"unknown source config {type(source).__name__}")
+    return str(SourceSpec(kind, target, {k: _fmt(v) for k, v in params.items()}))
 
 
 _SOURCE_MODELS: dict[str, type[BaseModel]] = {
@@ -196,6 +199,10 @@ def load_config(path: str | Path) -> ServeConfig:
         raise ConfigError(f"{p}: config file not found; pick one of configs/*.toml or pass --source instead")
     try:
         data = tomllib.loads(p.read_text(encoding="utf-8"))
+    except UnicodeDecodeError as exc:
+        raise ConfigError(f"{p}: not UTF-8 text (byte {exc.start}: {exc.object[exc.start:exc.start + 1]!r}); save it as UTF-8") from None
     except tomllib.TOMLDecodeError as exc:
         raise ConfigError(f"{p}: not valid TOML ({exc})") from None
+    except OSError as exc:
+        raise ConfigError(f"{p}: cannot read the config file ({exc.strerror or exc})") from None
     return parse_config(data, str(p))

@@ -7,6 +7,20 @@ import shutil
 from pathlib import Path
 
 import pytest
+from hypothesis import HealthCheck, settings
+
+# Property-based tests (tests/fuzz/): a small, reproducible budget in the default run; a nightly-style
+# exploration with `--hypothesis-profile=long` (README "Fuzzing"; DEPTHRULER_FUZZ_EXAMPLES sets its examples per test). No example database: the tree stays
+# clean, and a failure prints the example and `@reproduce_failure` blob to replay it.
+settings.register_profile(
+    "default", max_examples=40, deadline=None, derandomize=True, database=None, print_blob=True,
+    suppress_health_check=[HealthCheck.too_slow],
+)
+settings.register_profile(
+    "long", max_examples=int(os.environ.get("DEPTHRULER_FUZZ_EXAMPLES", "20000")), deadline=None, database=None, print_blob=True,
+    suppress_health_check=[HealthCheck.too_slow],
+)
+settings.load_profile("default")
 
 ROOT = Path(__file__).resolve().parents[1]
 SHARED = Path(os.environ.get("DEPTHRULER_SHARED", ROOT.parent / "shared"))
@@ -19,7 +33,11 @@ def pytest_collection_modifyitems(config: pytest.Config, items: list[pytest.Item
     skip_hw = pytest.mark.skip(reason="needs a camera: set DEPTHRULER_HARDWARE=1 with a device attached")
     has_chromium = shutil.which(CHROMIUM) is not None or Path(CHROMIUM).exists()
     skip_browser = pytest.mark.skip(reason="needs Debian's chromium at /usr/bin/chromium (apt-get install chromium)")
+    # The long fuzzing profile runs each property for many minutes: pytest-timeout's 600 s per test would cut it.
+    long_fuzz = config.getoption("hypothesis_profile", default=None) == "long"
     for item in items:
+        if long_fuzz and "fuzz" in item.nodeid.split("/"):
+            item.add_marker(pytest.mark.timeout(0))
         if "hardware" in item.keywords and not hardware:
             item.add_marker(skip_hw)
         if "browser" in item.keywords and not has_chromium:

@@ -137,7 +137,8 @@ def test_bad_calibration_files(tmp_path):
     bad.write_text("{not json")
     with pytest.raises(CalibrationError, match="not valid JSON"):
         load_calibration(bad)
-    good = {"image_size": [640, 480], "K1": np.eye(3).tolist(), "K2": np.eye(3).tolist(), "D1": [0] * 5,
+    k = [[500.0, 0, 319.5], [0, 500.0, 239.5], [0, 0, 1]]
+    good = {"image_size": [640, 480], "K1": k, "K2": k, "D1": [0] * 5,
             "D2": [0] * 5, "R": np.eye(3).tolist(), "T": [-0.06, 0, 0]}
     assert calibration_from_json(good).baseline_m == pytest.approx(0.06)
     cases = {
@@ -149,6 +150,10 @@ def test_bad_calibration_files(tmp_path):
         "'D2' must have": {**good, "D2": [0, 0]},
         "T is zero": {**good, "T": [0, 0, 0]},
         "'board' is malformed": {**good, "board": {"squares": 3}},
+        "K1: camera fx=1 px is outside the physical range": {**good, "K1": np.eye(3).tolist()},
+        "version 'one' must be a whole number": {**good, "version": "one"},
+        "'rms' must be a number": {**good, "rms": [0.3]},
+        "R is not a rotation": {**good, "R": np.diag([1.0, 1.0, -1.0]).tolist()},
     }
     for message, data in cases.items():
         with pytest.raises(CalibrationError, match=message):
