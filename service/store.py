@@ -62,12 +62,37 @@ CREATE TABLE IF NOT EXISTS measurements (
     elapsed_ms REAL NOT NULL,
     thumb BLOB
 );
+CREATE TABLE IF NOT EXISTS measurement_info (
+    id INTEGER PRIMARY KEY REFERENCES measurements(id),
+    name TEXT NOT NULL DEFAULT '',
+    note TEXT NOT NULL DEFAULT '',
+    extra TEXT NOT NULL DEFAULT '{}'
+);
 """
 
+UNITS = {"m": 1.0, "cm": 100.0, "mm": 1000.0, "in": 1 / 0.0254}
+
 CSV_COLUMNS = (
-    "id", "created", "frame_id", "source", "p1_x", "p1_y", "p2_x", "p2_y", "distance_m", "uncertainty_m",
-    "method", "fit", "basic_distance_m", "n_samples", "n_valid", "n_support", "gap_detected", "warnings",
-    "p1_m_x", "p1_m_y", "p1_m_z", "p2_m_x", "p2_m_y", "p2_m_z",
+    "id", "created_utc", "name", "note", "source", "frame_id", "frame_index", "units", "distance", "uncertainty_1sigma",
+    "interval_low", "interval_high", "quality", "reasons", "method", "fit", "basic_distance",
+    "p1_x_px", "p1_y_px", "p2_x_px", "p2_y_px", "p1_X", "p1_Y", "p1_Z", "p2_X", "p2_Y", "p2_Z",
+    "n_samples", "n_valid", "n_support", "gap_detected", "warnings", "frame_url",
+)  # fmt: skip
+"""Lengths and 3D coordinates are in ``units``, rounded to what the measurement supports
+(:func:`supported_decimals`); pixels to 0.1 px. ``frame_url`` opens the saved colour image."""
+
+
+def supported_decimals(sigma: float | None, factor: float) -> int:
+    """Decimals that keep two significant digits of the 1-sigma uncertainty ``sigma`` (m) in a unit of
+    ``factor`` per metre: more would be noise, fewer would hide the precision. 4 when unknown."""
+    if sigma is None or not math.isfinite(sigma) or sigma <= 0:
+        return 4
+    return int(min(6, max(0, 1 - math.floor(math.log10(sigma * factor)))))
+
+
+_COLUMN_FIELDS = frozenset(
+    ("distance_m", "method", "fit", "p1_m", "p2_m", "basic_distance_m", "uncertainty_m", "n_samples", "n_valid",
+     "n_support", "samples_px", "support", "gap_detected", "warnings", "elapsed_ms")
 )  # fmt: skip
 
 
@@ -227,8 +252,12 @@ class Store:
         options: dict[str, Any],
         result: dict[str, Any],
         thumb: bytes | None,
+        extra: dict[str, Any] | None = None,
     ) -> dict[str, Any]:
-        """Insert one measurement (``result`` is ``Measurement.to_dict()``) and return its stored record."""
+        """Insert one measurement (``result`` is ``Measurement.to_dict()``) and return its stored record.
+        Result fields without a column of their own (e.g. ``quality``, ``reasons``, ``interval_m``) and
+        ``extra`` (e.g. ``frame_index`` of a replay) are kept as JSON beside it."""
+        more = {k: v for k, v in result.items() if k not in _COLUMN_FIELDS} | (extra or {})
         created = time.time()
         values = (
             created, frame_id, frame_uid, source, float(p1[0]), float(p1[1]), float(p2[0]), float(p2[1]),
@@ -246,6 +275,7 @@ class Store:
                 values,
             )
             mid = cur.lastrowid
+            self._db.execute("INSERT INTO measurement_info(id, extra) VALUES (?, ?)", (mid, json.dumps(more)))
         record = self.get(mid)
         assert record is not None
         return record
@@ -278,16 +308,45 @@ class Store:
             "elapsed_ms": row["elapsed_ms"],
         }
 
+    def _with_info(self, records: list[dict[str, Any]]) -> list[dict[str, Any]]:
+        """Add each record's name, note and the fields kept as JSON (``measurement_info``)."""
+        if not records:
+            return records
+        ids = [r["id"] for r in records]
+        with self._lock:
+            rows = self._db.execute(
+                f"SELECT id, name, note, extra FROM measurement_info WHERE id IN ({','.join('?' * len(ids))})", ids
+            ).fetchall()
+        info = {row["id"]: row for row in rows}
+        for r in records:
+            row = info.get(r["id"])
+            r.update(json.loads(row["extra"]) if row else {})
+            r["name"], r["note"] = (row["name"], row["note"]) if row else ("", "")
+        return records
+
     def get(self, mid: int) -> dict[str, Any] | None:
         with self._lock:
             row = self._db.execute("SELECT * FROM measurements WHERE id=?", (mid,)).fetchone()
-        return self._record(row) if row else None
+        return self._with_info([self._record(row)])[0] if row else None
 
     def list(self, limit: int = 1000) -> list[dict[str, Any]]:
         """Newest first."""
         with self._lock:
             rows = self._db.execute("SELECT * FROM measurements ORDER BY id DESC LIMIT ?", (limit,)).fetchall()
-        return [self._record(r) for r in rows]
+        return self._with_info([self._record(r) for r in rows])
+
+    def annotate(self, mid: int, name: str | None = None, note: str | None = None) -> dict[str, Any] | None:
+        """Set the name and/or note of measurement ``mid`` (None leaves one as it is); its record, or
+        None when there is no such measurement."""
+        with self._lock:
+            if not self._db.execute("SELECT 1 FROM measurements WHERE id=?", (mid,)).fetchone():
+                return None
+            self._db.execute("INSERT OR IGNORE INTO measurement_info(id) VALUES (?)", (mid,))
+            if name is not None:
+                self._db.execute("UPDATE measurement_info SET name=? WHERE id=?", (name, mid))
+            if note is not None:
+                self._db.execute("UPDATE measurement_info SET note=? WHERE id=?", (note, mid))
+        return self.get(mid)
 
     def thumb(self, mid: int) -> bytes | None:
         with self._lock:
@@ -302,6 +361,7 @@ class Store:
                 return False
             uid = row["frame_uid"]
             self._db.execute("DELETE FROM measurements WHERE id=?", (mid,))
+            self._db.execute("DELETE FROM measurement_info WHERE id=?", (mid,))
             orphan = not self._db.execute("SELECT 1 FROM measurements WHERE frame_uid=? LIMIT 1", (uid,)).fetchone()
             file = None
             if orphan:
@@ -312,16 +372,28 @@ class Store:
             (self.frames_dir / file).unlink(missing_ok=True)
         return True
 
-    def csv(self) -> str:
-        """All measurements as CSV (oldest first), one column per field in :data:`CSV_COLUMNS`."""
+    def csv(self, units: str = "m", base_url: str = "") -> str:
+        """All measurements as CSV (oldest first), columns :data:`CSV_COLUMNS`; lengths in ``units``
+        rounded to what each measurement supports; ``frame_url`` is ``base_url`` + the route of its frame."""
+        k = UNITS[units]
         buf = io.StringIO()
         writer = csv.writer(buf, lineterminator="\n")
         writer.writerow(CSV_COLUMNS)
         for r in reversed(self.list(limit=1_000_000)):
+            dec = supported_decimals(r["uncertainty_m"], k)
+
+            def length(v: Any, dec: int = dec) -> str:
+                return "" if v is None else f"{float(v) * k:.{dec}f}"
+
+            sigma = "" if r["uncertainty_m"] is None else f"{r['uncertainty_m'] * k:.2g}"
+            lo, hi = (list(r.get("interval_m") or []) + [None, None])[:2]
             created = time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime(r["created"]))
             writer.writerow(
-                [r["id"], created, r["frame_id"], r["source"], *r["p1"], *r["p2"], r["distance_m"], r["uncertainty_m"],
-                 r["method"], r["fit"], r["basic_distance_m"], r["n_samples"], r["n_valid"], r["n_support"],
-                 int(r["gap_detected"]), "; ".join(r["warnings"]), *r["p1_m"], *r["p2_m"]]
+                [r["id"], created, r["name"], r["note"], r["source"], r["frame_id"], r.get("frame_index", ""), units,
+                 length(r["distance_m"]), sigma, length(lo), length(hi), r.get("quality", ""), "; ".join(r.get("reasons", [])),
+                 r["method"], r["fit"], length(r["basic_distance_m"]),
+                 *(f"{v:.1f}" for v in (*r["p1"], *r["p2"])), *(length(v) for v in (*r["p1_m"], *r["p2_m"])),
+                 r["n_samples"], r["n_valid"], r["n_support"], int(r["gap_detected"]), "; ".join(r["warnings"]),
+                 f"{base_url}api/measurements/{r['id']}/color.png"]
             )  # fmt: skip
         return buf.getvalue()
