@@ -246,7 +246,14 @@ class Capture:
             }
 
     def _replay_status(self, info: SourceInfo) -> dict[str, Any]:
-        return {"paused": self._paused, "index": self._replay_index, "frames": int(info.extra.get("frames", 0) or 0)}
+        path = str(info.extra.get("path", "") or "")
+        return {
+            "paused": self._paused,
+            "index": self._replay_index,
+            "frames": int(info.extra.get("frames", 0) or 0),
+            "recording": path.rstrip("/").rsplit("/", 1)[-1],
+            "recorded_source": info.name,
+        }
 
     def control(self, action: str, index: int | None = None) -> dict[str, Any]:
         """Drive a replay: "pause", "play", "step" (one frame while paused) or "seek" to frame ``index``

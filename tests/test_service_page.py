@@ -12,7 +12,7 @@ import cv2
 import numpy as np
 import pytest
 
-from device.mcap_export import load_measurements
+from device.mcap_export import export_mcap, load_measurements
 from device.recording import RecordingWriter
 from service.frames import FrameRing
 from service.store import CSV_COLUMNS, Store, supported_decimals
@@ -181,6 +181,10 @@ def test_replay_pause_step_seek(tmp_path):
         # a frame measured on a replay remembers its index in the recording
         c.post(f"/api/frames/{seeked['id']}/freeze", json={})
         assert measure(c, seeked["id"], (20, 30), (300, 30)).json()["frame_index"] == 2
+        # the JSON export goes straight into `depthruler export --measurements`, on that frame
+        (tmp_path / "m.json").write_text(c.get("/api/measurements.json").text)
+        counts = export_mcap(rec, tmp_path / "r.mcap", measurements=load_measurements(tmp_path / "m.json"))
+        assert counts["/measurements"] == 1
         assert c.post("/api/source/replay", json={"action": "seek", "index": 6}).status_code == 422
         assert c.post("/api/source/replay", json={"action": "rewind"}).status_code == 422
         c.post("/api/source/replay", json={"action": "play"})

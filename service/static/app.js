@@ -155,6 +155,7 @@ async function showFrame(frame, gen) {
   state.img = img;
   canvas.dataset.frameId = String(frame.id);
   updateTag();
+  showReplayPosition();
   if (state.view === "disparity") loadScale(frame, gen);
   draw();
   return true;
@@ -461,17 +462,18 @@ function drawLoupe() {
     for (const [dx, dy] of [[1, 0], [-1, 0], [0, 1], [0, -1]]) { lctx.moveTo(c + dx * 6 * dpr, c + dy * 6 * dpr); lctx.lineTo(c + dx * 26 * dpr, c + dy * 26 * dpr); }
     lctx.stroke();
   }
-  // position: above the point for touch (the finger covers below), beside it for a mouse
-  const stage = $("stage").getBoundingClientRect();
+  // position (viewport coordinates; it may cover the toolbar): above the point for touch, where the
+  // finger is not, beside it for a mouse; below or to the side when there is no room
   const r = canvas.getBoundingClientRect();
-  const sx = r.left - stage.left + (p[0] + 0.5) / s, sy = r.top - stage.top + (p[1] + 0.5) / s;
-  let lx = press.type === "mouse" ? sx + 30 : sx - size / 2;
-  let ly = press.type === "mouse" ? sy - size - 30 : sy - size - 56;
-  if (ly < 4) ly = press.type === "mouse" ? sy + 30 : sy + 56;
-  if (lx + size > stage.width - 4) lx = press.type === "mouse" ? sx - size - 30 : stage.width - size - 4;
-  lx = Math.max(4, lx);
-  loupe.style.left = `${lx}px`;
-  loupe.style.top = `${Math.min(ly, Math.max(4, stage.height - size - 4))}px`;
+  const sx = r.left + (p[0] + 0.5) / s, sy = r.top + (p[1] + 0.5) / s;
+  const vw = document.documentElement.clientWidth, vh = window.innerHeight;
+  const touchy = press.type !== "mouse";
+  let lx = touchy ? sx - size / 2 : sx + 30;
+  let ly = touchy ? sy - size - 56 : sy - size - 30;
+  if (ly < 4) ly = touchy ? sy + 70 : sy + 30;
+  if (lx + size > vw - 4) lx = touchy ? vw - size - 4 : sx - size - 30;
+  loupe.style.left = `${Math.max(4, lx)}px`;
+  loupe.style.top = `${Math.max(4, Math.min(ly, vh - size - 4))}px`;
   loupe.classList.remove("hidden");
   loupe.dataset.x = String(Math.round(p[0]));
   loupe.dataset.y = String(Math.round(p[1]));
@@ -525,11 +527,7 @@ canvas.addEventListener("pointermove", (ev) => {
   const p = toImage(ev);
   const press = state.press;
   if (press && press.pointerId === ev.pointerId) {
-    const q = clampToImage([p[0] + press.offset[0], p[1] + press.offset[1]]);
-    const old = state.points[press.index];
-    if (Math.hypot(q[0] - old[0], q[1] - old[1]) > 0) press.moved = true;
-    state.points[press.index] = q;
-    queryDepth(q);
+    queryDepth(movePress(press, ev));
     draw();
   } else if (!press && ev.pointerType === "mouse") {
     const inside = p[0] >= -0.5 && p[1] >= -0.5 && p[0] <= canvas.width - 0.5 && p[1] <= canvas.height - 0.5;
@@ -538,9 +536,19 @@ canvas.addEventListener("pointermove", (ev) => {
   }
 });
 
+function movePress(press, ev) {
+  const p = toImage(ev);
+  const q = clampToImage([p[0] + press.offset[0], p[1] + press.offset[1]]);
+  const old = state.points[press.index];
+  if (Math.hypot(q[0] - old[0], q[1] - old[1]) > 0) press.moved = true;
+  state.points[press.index] = q;
+  return q;
+}
+
 async function endPress(ev) {
   const press = state.press;
   if (!press || press.pointerId !== ev.pointerId) return;
+  if (ev.type === "pointerup") movePress(press, ev); // where the finger lifted, even if its last move was coalesced
   state.press = null;
   if (canvas.hasPointerCapture(ev.pointerId)) canvas.releasePointerCapture(ev.pointerId);
   loupe.classList.add("hidden");
@@ -884,7 +892,7 @@ async function reopen(id) {
 // ---- source: badge, status, replay controls, recording ------------------------------------------
 function sourceBadge(s) {
   const kind = s.kind || (s.spec || "").split(":")[0];
-  if (kind === "replay") return ["replay", `REPLAY ${s.name || ""}`];
+  if (kind === "replay") return ["replay", `REPLAY ${(s.replay && s.replay.recording) || s.name || ""}`];
   if (kind === "sim") return ["sim", "SIMULATOR"];
   if (!kind) return ["", "source"];
   const fps = s.fps ? ` · ${(+s.fps).toFixed(0)} fps` : "";
@@ -901,7 +909,7 @@ async function pollSource() {
     const b = $("source-badge");
     b.className = `badge badge-${cls0}`;
     b.textContent = badge;
-    b.title = `${s.name || ""} ${s.spec || ""}`.trim();
+    b.title = s.replay ? `recording ${s.replay.recording} of ${s.replay.recorded_source} (${s.replay.frames} frames)` : `${s.name || ""} ${s.spec || ""}`.trim();
     b.dataset.kind = cls0;
     const size = s.width ? ` · ${s.width}×${s.height}` : "";
     const fps = s.measured_fps ? ` · ${s.measured_fps.toFixed(1)} fps` : s.fps ? ` · ${s.fps} fps` : "";
@@ -940,11 +948,21 @@ function showReplay(r) {
   if (!r) return;
   $("replay-play").textContent = r.paused ? "Play" : "Pause";
   bar.dataset.paused = r.paused ? "1" : "";
+  $("replay-scrub").max = String(Math.max(0, r.frames - 1));
+  $("replay-pos").dataset.frames = String(r.frames);
+  showReplayPosition();
+}
+
+// The replay position is that of the frame on screen (the stream may be ahead of it).
+function showReplayPosition() {
+  const pos = $("replay-pos");
+  const f = state.frame;
+  const r = state.source && state.source.replay;
+  const index = f && f.replay_index !== null && f.replay_index !== undefined ? f.replay_index : r ? r.index : null;
   const scrub = $("replay-scrub");
-  scrub.max = String(Math.max(0, r.frames - 1));
-  if (document.activeElement !== scrub && r.index !== null) scrub.value = String(r.index);
-  $("replay-pos").textContent = `frame ${r.index === null ? "—" : r.index} / ${r.frames}`;
-  $("replay-pos").dataset.index = r.index === null ? "" : String(r.index);
+  if (document.activeElement !== scrub && index !== null) scrub.value = String(index);
+  pos.textContent = `frame ${index === null ? "—" : index} / ${pos.dataset.frames || "—"}`;
+  pos.dataset.index = index === null ? "" : String(index);
 }
 
 async function replay(action, index) {
