@@ -205,6 +205,16 @@ def test_annotated_png_csv_and_history_edits(server, page, tmp_path):
     assert httpx.get(row["frame_url"]).status_code == 200
     page.select_option("#units", "m")
 
+    # reopen it from the history after going live: its saved frame comes back, frozen, with its segment
+    page.click("#clear")
+    page.keyboard.press("Escape")
+    page.wait_for_function("document.getElementById('frame-tag').textContent.startsWith('live')")
+    page.locator(f"#history li[data-id='{mid}'] .h-dist").click()
+    page.wait_for_function(f"document.getElementById('distance').dataset.id === '{mid}' && document.getElementById('canvas').dataset.frozen === '1'")
+    reopened = httpx.get(f"{server}/api/frames/{page.get_attribute('#canvas', 'data-frame-id')}").json()
+    assert reopened["frozen"] and reopened["uid"] == httpx.get(f"{server}/api/measurements/{mid}").json()["frame_uid"]
+    assert float(page.get_attribute("#distance", "data-metres")) == shown
+
     # the source filter lists the sources; delete with undo
     assert "sim" in page.locator("#history-filter option").all_text_contents()
     n = page.locator("#history li").count()

@@ -156,7 +156,11 @@ async function showFrame(frame, gen) {
   canvas.dataset.frameId = String(frame.id);
   updateTag();
   showReplayPosition();
-  if (state.view === "disparity") loadScale(frame, gen);
+  // the colour bar's scale: for every frozen frame, at most once a second while live
+  if (state.view === "disparity" && (state.mode !== "live" || !(state.scaleAt > performance.now() - 1000))) {
+    state.scaleAt = performance.now();
+    loadScale(frame);
+  }
   draw();
   return true;
 }
@@ -206,6 +210,7 @@ function freeze() {
       state.mode = "frozen";
       updateFreezeButton();
       updateTag();
+      if (state.view === "disparity") loadScale(f);
       return true;
     },
     (e) => {
@@ -294,7 +299,7 @@ function showDepth(r) {
   if (state.press) drawLoupe();
 }
 
-async function loadScale(frame, gen) {
+async function loadScale(frame) {
   try {
     const s = await api(`api/frames/${frame.id}/depth-scale`);
     if (!state.frame || state.frame.id !== frame.id) return;
@@ -856,7 +861,8 @@ function commitPendingDelete() {
   clearTimeout(p.timer);
   state.pendingDelete = null;
   $("undo").classList.add("hidden");
-  api(`api/measurements/${p.record.id}`, { method: "DELETE" }).catch((e) => showError(e.message)).then(refreshHistory);
+  // keepalive: the deletion still goes out when it is committed because the page is being left
+  api(`api/measurements/${p.record.id}`, { method: "DELETE", keepalive: true }).catch((e) => showError(e.message)).then(refreshHistory);
 }
 
 function undoDelete() {
@@ -868,25 +874,36 @@ function undoDelete() {
   renderHistory();
 }
 
-async function reopen(id) {
-  try {
-    const previous = state.mode === "frozen" ? state.frame : null;
-    const gen = ++state.gen;
-    state.mode = "frozen";
-    updateFreezeButton();
-    const { frame } = await api(`api/measurements/${id}/open`, { method: "POST" });
-    const measurement = await api(`api/measurements/${id}`); // the per-sample arrays live here
-    if (gen !== state.gen) return;
-    if (previous && previous.id !== frame.id) api(`api/frames/${previous.id}/freeze`, { method: "DELETE" }).catch(() => {});
-    state.points = [measurement.p1, measurement.p2];
-    state.result = measurement;
-    state.seq++;
-    await showFrame(frame, gen);
-    showResult(measurement);
-    draw();
-  } catch (e) {
-    showError(e.message);
-  }
+// Reopen a measurement on its saved frame; until that frame is on screen the page is "freezing",
+// so a click meanwhile waits for it instead of landing on the frame being replaced.
+function reopen(id) {
+  const previous = state.mode === "frozen" ? state.frame : null;
+  const gen = ++state.gen;
+  state.mode = "freezing";
+  updateFreezeButton();
+  updateTag();
+  state.freezing = (async () => {
+    try {
+      const { frame } = await api(`api/measurements/${id}/open`, { method: "POST" });
+      const measurement = await api(`api/measurements/${id}`); // the per-sample arrays live here
+      if (gen !== state.gen) return false;
+      if (previous && previous.id !== frame.id) api(`api/frames/${previous.id}/freeze`, { method: "DELETE" }).catch(() => {});
+      if (!(await showFrame(frame, gen))) return false;
+      state.mode = "frozen";
+      state.points = [measurement.p1, measurement.p2];
+      state.result = measurement;
+      state.seq++;
+      updateFreezeButton();
+      updateTag();
+      showResult(measurement);
+      draw();
+      return true;
+    } catch (e) {
+      if (gen === state.gen) { showError(e.message); state.mode = "live"; state.gen++; updateFreezeButton(); updateTag(); liveLoop(); }
+      return false;
+    }
+  })();
+  return state.freezing;
 }
 
 // ---- source: badge, status, replay controls, recording ------------------------------------------
