@@ -732,15 +732,15 @@ function clearPoints() {
 }
 
 // ---- the annotated PNG ---------------------------------------------------------------------------
-// The frame at its own resolution with the segment, the value, the interval and the verdict drawn on
-// it, built in the page from the image on screen (which is the measured frame).
-function annotatedCanvas() {
+// The measured frame's colour image at its own resolution (the exact PNG, also when the view shows
+// depth) with the segment, the value, the interval and the verdict drawn on it, built in the page.
+function annotatedCanvas(img) {
   const res = state.result;
   const out = document.createElement("canvas");
-  out.width = state.img.naturalWidth;
-  out.height = state.img.naturalHeight;
+  out.width = img.naturalWidth;
+  out.height = img.naturalHeight;
   const c = out.getContext("2d");
-  c.drawImage(state.img, 0, 0);
+  c.drawImage(img, 0, 0);
   const s = Math.max(1, out.width / 900);
   const pts = [res.p1, res.p2].map(([x, y]) => [x + 0.5, y + 0.5]);
   drawSegment(c, pts, s);
@@ -756,10 +756,17 @@ function annotatedCanvas() {
   return out;
 }
 
-function savePng() {
-  if (!state.result || !state.img) return;
+async function savePng() {
+  if (!state.result || !state.frame || state.mode !== "frozen") return;
   const res = state.result;
-  annotatedCanvas().toBlob((blob) => {
+  let img;
+  try {
+    img = await loadImage(`api/frames/${state.frame.id}/color.png`); // exact pixels, whatever the view shows
+  } catch (e) {
+    showError(e.message);
+    return;
+  }
+  annotatedCanvas(img).toBlob((blob) => {
     const a = document.createElement("a");
     a.href = URL.createObjectURL(blob);
     a.download = `depthruler-${res.id}${res.name ? "-" + res.name.replace(/[^\w.-]+/g, "_") : ""}.png`;
