@@ -92,7 +92,8 @@ class FrameRing:
     def _evict(self) -> None:
         live = [fid for fid, e in self._frames.items() if not e.frozen]
         excess = len(live) - self.capacity
-        for fid in [fid for fid in live if fid not in self._viewed][: max(0, excess)]:
+        newest = live[-1] if live else None  # never the frame just pushed: "latest" must move on
+        for fid in [fid for fid in live if fid not in self._viewed and fid != newest][: max(0, excess)]:
             del self._frames[fid]
 
     def _limit_frozen(self, keep: int) -> None:

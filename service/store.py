@@ -62,13 +62,11 @@ CREATE TABLE IF NOT EXISTS measurements (
     elapsed_ms REAL NOT NULL,
     thumb BLOB
 );
-CREATE TABLE IF NOT EXISTS measurement_info (
-    id INTEGER PRIMARY KEY REFERENCES measurements(id),
-    name TEXT NOT NULL DEFAULT '',
-    note TEXT NOT NULL DEFAULT '',
-    extra TEXT NOT NULL DEFAULT '{}'
-);
 """
+_MIGRATIONS = (  # columns added since the first schema: (table, column, declaration)
+    # JSON: result fields without a column (quality, reasons, interval_m, ...), frame_index, name, note
+    ("measurements", "extra", "TEXT NOT NULL DEFAULT '{}'"),
+)
 
 UNITS = {"m": 1.0, "cm": 100.0, "mm": 1000.0, "in": 1 / 0.0254}
 
@@ -90,7 +88,7 @@ def supported_decimals(sigma: float | None, factor: float) -> int:
     return int(min(6, max(0, 1 - math.floor(math.log10(sigma * factor)))))
 
 
-_COLUMN_FIELDS = frozenset(
+_FIXED_RESULT_KEYS = frozenset(
     ("distance_m", "method", "fit", "p1_m", "p2_m", "basic_distance_m", "uncertainty_m", "n_samples", "n_valid",
      "n_support", "samples_px", "support", "gap_detected", "warnings", "elapsed_ms")
 )  # fmt: skip
@@ -170,6 +168,9 @@ class Store:
             self._db.execute("PRAGMA journal_mode=WAL")
             self._db.execute("PRAGMA synchronous=NORMAL")
             self._db.executescript(_SCHEMA)
+            for table, column, decl in _MIGRATIONS:
+                if column not in {r[1] for r in self._db.execute(f"PRAGMA table_info({table})")}:
+                    self._db.execute(f"ALTER TABLE {table} ADD COLUMN {column} {decl}")
         except (OSError, sqlite3.Error) as exc:
             raise StoreError(f"cannot open the history database {self.path}: {exc}; pass --db with a writable path") from exc
         self._db.row_factory = sqlite3.Row
@@ -252,37 +253,40 @@ class Store:
         options: dict[str, Any],
         result: dict[str, Any],
         thumb: bytes | None,
-        extra: dict[str, Any] | None = None,
+        context: dict[str, Any] | None = None,
     ) -> dict[str, Any]:
         """Insert one measurement (``result`` is ``Measurement.to_dict()``) and return its stored record.
         Result fields without a column of their own (e.g. ``quality``, ``reasons``, ``interval_m``) and
-        ``extra`` (e.g. ``frame_index`` of a replay) are kept as JSON beside it."""
-        more = {k: v for k, v in result.items() if k not in _COLUMN_FIELDS} | (extra or {})
+        ``context`` (e.g. ``frame_index`` of a replay) are kept in the ``extra`` JSON column."""
+        extra = {k: v for k, v in result.items() if k not in _FIXED_RESULT_KEYS} | (context or {})
         created = time.time()
         values = (
             created, frame_id, frame_uid, source, float(p1[0]), float(p1[1]), float(p2[0]), float(p2[1]),
             json.dumps(options), result["distance_m"], result["method"], result["fit"], json.dumps(result["p1_m"]),
             json.dumps(result["p2_m"]), result["basic_distance_m"], result["uncertainty_m"], result["n_samples"],
             result["n_valid"], result["n_support"], json.dumps(result["samples_px"]), json.dumps(result["support"]),
-            int(result["gap_detected"]), json.dumps(result["warnings"]), result["elapsed_ms"], thumb,
+            int(result["gap_detected"]), json.dumps(result["warnings"]), result["elapsed_ms"], thumb, json.dumps(extra),
         )  # fmt: skip
         with self._lock:
             cur = self._db.execute(
                 "INSERT INTO measurements(created, frame_id, frame_uid, source, p1_x, p1_y, p2_x, p2_y, options, "
                 "distance_m, method, fit, p1_m, p2_m, basic_distance_m, uncertainty_m, n_samples, n_valid, "
-                "n_support, samples_px, support, gap_detected, warnings, elapsed_ms, thumb) "
-                "VALUES (?,?,?,?,?,?,?,?,?,?,?,?,?,?,?,?,?,?,?,?,?,?,?,?,?)",
+                "n_support, samples_px, support, gap_detected, warnings, elapsed_ms, thumb, extra) "
+                "VALUES (?,?,?,?,?,?,?,?,?,?,?,?,?,?,?,?,?,?,?,?,?,?,?,?,?,?)",
                 values,
             )
             mid = cur.lastrowid
-            self._db.execute("INSERT INTO measurement_info(id, extra) VALUES (?, ?)", (mid, json.dumps(more)))
         record = self.get(mid)
         assert record is not None
         return record
 
     @staticmethod
     def _record(row: sqlite3.Row) -> dict[str, Any]:
+        extra = json.loads(row["extra"] or "{}")
         return {
+            **extra,  # newer Measurement fields (quality, reasons, ...) and frame_index; never shadow ours
+            "name": str(extra.get("name", "")),
+            "note": str(extra.get("note", "")),
             "id": row["id"],
             "created": row["created"],
             "frame_id": row["frame_id"],
@@ -308,44 +312,27 @@ class Store:
             "elapsed_ms": row["elapsed_ms"],
         }
 
-    def _with_info(self, records: list[dict[str, Any]]) -> list[dict[str, Any]]:
-        """Add each record's name, note and the fields kept as JSON (``measurement_info``)."""
-        if not records:
-            return records
-        ids = [r["id"] for r in records]
-        with self._lock:
-            rows = self._db.execute(
-                f"SELECT id, name, note, extra FROM measurement_info WHERE id IN ({','.join('?' * len(ids))})", ids
-            ).fetchall()
-        info = {row["id"]: row for row in rows}
-        for r in records:
-            row = info.get(r["id"])
-            r.update(json.loads(row["extra"]) if row else {})
-            r["name"], r["note"] = (row["name"], row["note"]) if row else ("", "")
-        return records
-
     def get(self, mid: int) -> dict[str, Any] | None:
         with self._lock:
             row = self._db.execute("SELECT * FROM measurements WHERE id=?", (mid,)).fetchone()
-        return self._with_info([self._record(row)])[0] if row else None
+        return self._record(row) if row else None
 
     def list(self, limit: int = 1000) -> list[dict[str, Any]]:
         """Newest first."""
         with self._lock:
             rows = self._db.execute("SELECT * FROM measurements ORDER BY id DESC LIMIT ?", (limit,)).fetchall()
-        return self._with_info([self._record(r) for r in rows])
+        return [self._record(r) for r in rows]
 
     def annotate(self, mid: int, name: str | None = None, note: str | None = None) -> dict[str, Any] | None:
         """Set the name and/or note of measurement ``mid`` (None leaves one as it is); its record, or
         None when there is no such measurement."""
         with self._lock:
-            if not self._db.execute("SELECT 1 FROM measurements WHERE id=?", (mid,)).fetchone():
+            row = self._db.execute("SELECT extra FROM measurements WHERE id=?", (mid,)).fetchone()
+            if row is None:
                 return None
-            self._db.execute("INSERT OR IGNORE INTO measurement_info(id) VALUES (?)", (mid,))
-            if name is not None:
-                self._db.execute("UPDATE measurement_info SET name=? WHERE id=?", (name, mid))
-            if note is not None:
-                self._db.execute("UPDATE measurement_info SET note=? WHERE id=?", (note, mid))
+            extra = json.loads(row["extra"] or "{}")
+            extra.update({k: v for k, v in (("name", name), ("note", note)) if v is not None})
+            self._db.execute("UPDATE measurements SET extra=? WHERE id=?", (json.dumps(extra), mid))
         return self.get(mid)
 
     def thumb(self, mid: int) -> bytes | None:
@@ -361,7 +348,6 @@ class Store:
                 return False
             uid = row["frame_uid"]
             self._db.execute("DELETE FROM measurements WHERE id=?", (mid,))
-            self._db.execute("DELETE FROM measurement_info WHERE id=?", (mid,))
             orphan = not self._db.execute("SELECT 1 FROM measurements WHERE frame_uid=? LIMIT 1", (uid,)).fetchone()
             file = None
             if orphan:

@@ -55,8 +55,18 @@ def test_freeze_click_drag_at_human_speed(server):
     with chromium() as browser:
         page = browser.new_page(viewport={"width": 1280, "height": 800})
         problems = watch(page)
+        polls: list[str] = []
+        page.on("request", lambda r: polls.append(r.url) if "/api/frames/latest" in r.url else None)
         page.goto(server + "/")
         page.wait_for_function("document.getElementById('canvas').dataset.frameId", timeout=30_000)
+        # the live view follows the stream by long-polling for the next frame (figure printed, not asserted)
+        shown = page.evaluate(
+            """() => new Promise((done) => { const ids = new Set(); const t0 = performance.now();
+                 (function tick() { ids.add(document.getElementById('canvas').dataset.frameId);
+                   if (performance.now() - t0 < 3000) requestAnimationFrame(tick); else done(ids.size); })(); })"""
+        )
+        print(f"live view: {shown / 3:.1f} frames/s shown")
+        assert polls and all("after=" in u and "wait=" in u for u in polls)
         mid = None
         for i in range(ROUNDS):
             page.wait_for_timeout(rng.uniform(200, 800))

@@ -7,6 +7,7 @@ import csv
 import io
 import json
 import math
+import sqlite3
 
 import cv2
 import numpy as np
@@ -32,6 +33,17 @@ def test_ring_keeps_frames_handed_out_as_latest():
     ring.push(plane_frame(6))
     with pytest.raises(KeyError, match="evicted"):
         ring.get(first.id)
+
+
+def test_ring_moves_on_when_every_frame_was_viewed():
+    """A page that views every frame must not pin the ring: the newest frame is always the latest,
+    and at most capacity + keep_viewed frames are held."""
+    ring = FrameRing(capacity=2, max_frozen=4, keep_viewed=3)
+    for i in range(1, 12):
+        entry = ring.push(plane_frame(i))
+        assert ring.latest() is entry and ring.wait_latest(entry.id - 1, 0.01) is entry
+        ring.mark_viewed(entry.id)
+        assert len(ring) <= 2 + 3
 
 
 def hilly_frame(index: int):
@@ -137,6 +149,9 @@ def test_supported_decimals():
 
 def test_result_fields_without_a_column_are_kept(tmp_path):
     """The verdict fields of the core (quality, reasons, interval_m) survive storage and reopening."""
+    Store(tmp_path / "h.db").close()
+    with sqlite3.connect(tmp_path / "h.db") as db:  # a history database from before the extra column
+        db.execute("ALTER TABLE measurements DROP COLUMN extra")
     store = Store(tmp_path / "h.db")
     result = {
         "distance_m": 0.835, "method": "robust", "fit": "line", "p1_m": [0, 0, 2], "p2_m": [0.835, 0, 2],
@@ -145,7 +160,7 @@ def test_result_fields_without_a_column_are_kept(tmp_path):
         "quality": "check", "reasons": ["the end p2 is extrapolated 12 px beyond the support"], "interval_m": [0.832, 0.838],
     }  # fmt: skip
     rec = store.add(frame_id=1, frame_uid="u", source="sim", p1=(1, 2), p2=(3, 4), options={}, result=result, thumb=None,
-                    extra={"frame_index": 7})  # fmt: skip
+                    context={"frame_index": 7})  # fmt: skip
     store.close()
     again = Store(tmp_path / "h.db")
     got = again.get(rec["id"])
@@ -154,6 +169,7 @@ def test_result_fields_without_a_column_are_kept(tmp_path):
     )
     row = next(csv.DictReader(io.StringIO(again.csv())))
     assert (row["quality"], row["interval_low"], row["interval_high"]) == ("check", "0.8320", "0.8380")
+    assert again.annotate(rec["id"], name="door")["quality"] == "check"  # naming keeps the verdict
     assert again.delete(rec["id"]) and again.get(rec["id"]) is None
     again.close()
 

@@ -41,7 +41,7 @@ def measure(state: State, body: MeasureIn) -> dict[str, Any]:
         options=options,
         result=result.to_dict(),
         thumb=make_thumb(frame, body.p1, body.p2),
-        extra={"frame_index": replay["index"]} if isinstance(replay := frame.meta.get("replay"), dict) else None,
+        context={"frame_index": replay["index"]} if isinstance(replay := frame.meta.get("replay"), dict) else None,
     )
     state.store.ensure_frame(entry.uid, frame)  # after the row exists: the writer drops frames nobody refers to
     return record
