@@ -309,17 +309,21 @@ def test_verdict_reasons_and_interval_render(server, page):
 
     d = record["distance_m"]
     check = {**plain, "quality": "check", "interval_m": [d - 0.0021, d + 0.0019],
-             "reasons": ["the end p2 is extrapolated 14 px beyond the support", "few valid samples (12 of 60)"]}  # fmt: skip
+             "reasons": ["end point extrapolated", "few valid samples", "uncertainty above 24 %"]}  # the core's phrases
     page.evaluate("r => { state.result = r; showResult(r); draw(); }", check)
     assert page.text_content("#verdict") == "⚠ check" and page.locator("#verdict").is_visible()
     assert page.text_content("#interval") == f"{d:.3f} m ± 2 mm · 95 % interval"
     assert page.locator("#reasons li").all_text_contents() == check["reasons"]
     advice = page.locator("#advice li").all_text_contents()
-    assert any("inside the object's edges" in a for a in advice) and any("Move closer" in a for a in advice)
+    assert len(advice) == 3 and "inside the object's edges" in advice[0] and all("Move closer" in a for a in advice[1:])
 
     good = {**check, "quality": "good", "reasons": []}
     page.evaluate("r => { state.result = r; showResult(r); draw(); }", good)
     assert page.text_content("#verdict") == "✓ good" and page.locator("#why").is_hidden()
+    noted = {**check, "quality": "good", "reasons": ["end point on a depth edge"]}  # informational: shown, no advice
+    page.evaluate("r => { state.result = r; showResult(r); draw(); }", noted)
+    assert page.locator("#reasons li").all_text_contents() == ["end point on a depth edge"]
+    assert page.locator("#advice li").count() == 0 and page.locator("#why").is_visible()
     lopsided = {**check, "quality": "unreliable", "interval_m": [d - 0.05, d + 0.2]}
     page.evaluate("r => { state.result = r; showResult(r); draw(); }", lopsided)
     assert page.text_content("#interval").startswith(f"{d:.3f} m ({d - 0.05:.3f} – {d + 0.2:.3f} m)")

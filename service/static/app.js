@@ -614,14 +614,17 @@ function showError(message) {
   el.classList.toggle("hidden", !message);
 }
 
-// What a reason means for the person, and what to do about it.
+// What a reason of the core's verdict means for the person, and what to do about it. The core's
+// phrases: "few valid samples", "methods disagree by N %", "end point on a depth edge", "segment
+// crosses several surfaces", "gap detected", "end point extrapolated", "uncertainty above N %".
 const ADVICE = [
-  [/extrapolat|no depth|outside.*support|beyond/i, "Place the ends just inside the object's edges, where the depth view has colour."],
+  [/extrapolat|no depth/i, "Place the ends just inside the object's edges, where the depth view has colour."],
   [/edge|mixed/i, "Move the end a few pixels off the depth edge, onto the object itself."],
-  [/few|valid|support|sparse|missing|hole/i, "Move closer or add light and texture so more of the segment has depth."],
-  [/surface|piece|crease|gap|step|wall|floor/i, "Keep both ends on one flat surface, or measure each piece on its own."],
+  [/few|valid|sparse|missing|hole/i, "Move closer or add light and texture so more of the segment has depth."],
+  [/surface|piece|crease/i, "Keep both ends on one flat surface, or measure each piece on its own."],
+  [/gap/i, "The segment spans a gap: check in the depth view that both ends are on the objects you mean."],
   [/disagree|methods|model/i, "Re-place the ends carefully and compare with method “basic”."],
-  [/far|distance|range|resolution|quantiz/i, "Move closer: the depth error grows with the square of the distance."],
+  [/uncertainty|far|distance|range|resolution|quantiz/i, "Move closer: the depth error grows with the square of the distance."],
 ];
 
 function adviceFor(reasons) {
@@ -634,8 +637,9 @@ function adviceFor(reasons) {
   return out;
 }
 
-// Whether an end point's depth was measured there or extrapolated along the fitted line: measured
-// when an inlier sample lies within the sampling window (5 px) of the click.
+// Whether an end point's depth was measured there or extrapolated along the fitted line, as the
+// core's verdict defines it: extrapolated when the nearest inlier sample is more than 5 px and more
+// than 15 % of the segment's length away from the click.
 function endState(res, i) {
   const explicit = res[`p${i + 1}_extrapolated`];
   if (typeof explicit === "boolean") return explicit ? "extrapolated" : "measured";
@@ -644,10 +648,10 @@ function endState(res, i) {
   if (!res.samples_px || !res.support) return "unknown";
   const p = i === 0 ? res.p1 : res.p2;
   if (!p) return "unknown";
-  const window = (res.options && res.options.window) || 5;
+  const length = Math.hypot(res.p2[0] - res.p1[0], res.p2[1] - res.p1[1]);
   let nearest = Infinity;
   res.samples_px.forEach(([x, y], k) => { if (res.support[k]) nearest = Math.min(nearest, Math.hypot(x - p[0], y - p[1])); });
-  return nearest <= window ? "measured" : "extrapolated";
+  return nearest > Math.max(5, 0.15 * length) ? "extrapolated" : "measured";
 }
 
 function showResult(res) {
@@ -689,13 +693,13 @@ function showResult(res) {
     verdict.className = "verdict hidden"; // a service without verdicts: the warnings below still say what they can
     d.className = "distance";
   }
-  const showWhy = q && q !== "good";
-  $("why").classList.toggle("hidden", !showWhy);
-  if (showWhy) {
-    const rs = reasons.length ? reasons : ["the service gave no reason"];
-    $("reasons").replaceChildren(...rs.map((r) => Object.assign(document.createElement("li"), { textContent: r })));
-    $("advice").replaceChildren(...adviceFor(rs).map((a) => Object.assign(document.createElement("li"), { textContent: a })));
-  }
+  // not good: why, and what to do; good with notes (an edge click, an extrapolated end): the notes
+  const notGood = q && q !== "good";
+  $("why").classList.toggle("hidden", !(notGood || reasons.length));
+  $("why").classList.toggle("notes", !notGood);
+  const rs = reasons.length || !notGood ? reasons : ["the service gave no reason"];
+  $("reasons").replaceChildren(...rs.map((r) => Object.assign(document.createElement("li"), { textContent: r })));
+  $("advice").replaceChildren(...(notGood ? adviceFor(rs) : []).map((a) => Object.assign(document.createElement("li"), { textContent: a })));
   const ends = [0, 1].map((i) => {
     const p3 = i === 0 ? res.p1_m : res.p2_m;
     const st = endState(res, i);
