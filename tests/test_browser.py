@@ -10,6 +10,7 @@ from __future__ import annotations
 import csv
 import io
 import os
+import re
 from pathlib import Path
 
 import cv2
@@ -95,9 +96,12 @@ def test_click_poster_ends_reads_true_length(server, page, tmp_path):
 
     # the interval reads as "0.835 m ± 2 mm" and spans the 95 % interval the page was given
     interval = page.text_content("#interval")
-    assert interval.startswith(f"{shown:.3f} m ± ") and " mm" in interval
     lo, hi = float(page.get_attribute("#interval", "data-low")), float(page.get_attribute("#interval", "data-high"))
     assert lo < shown < hi
+    m = re.match(rf"{shown:.3f} m ± (\d+(?:\.(\d+))?) (mm|cm) · 95 %", interval)
+    assert m, interval
+    half = (hi - lo) / 2 * {"mm": 1000, "cm": 100}[m[3]]
+    assert abs(float(m[1]) - half) <= 0.5 * 10 ** -len(m[2] or "") + 1e-9  # the half-width, rounded as written
     # each end: its depth, and whether it was measured there; the poster's ends are on the poster
     ends = page.locator("#ends .end")
     assert ends.count() == 2
