@@ -42,6 +42,8 @@ const state = {
   filter: "",
   pendingDelete: null, // {record, timer} of a deletion that can still be undone
   depthQuery: { busy: false, next: null },
+  hoverDepth: null,   // the last depth readout (GET /api/frames/{id}/depth)
+  scaleAt: 0,         // when the colour bar's scale was last fetched (performance.now())
 };
 
 // ---- HTTP ---------------------------------------------------------------------------------------
@@ -1076,7 +1078,10 @@ document.addEventListener("keydown", (e) => {
     case "r": toggleRecording(); break;
     case ".": replayStep(1); break;
     case ",": replayStep(-1); break;
-    case " ": if (!state.source || !state.source.replay) return; $("replay-play").click(); break;
+    case " ": // a focused button takes space itself
+      if (!state.source || !state.source.replay || e.target.tagName === "BUTTON") return;
+      $("replay-play").click();
+      break;
     default: return;
   }
   e.preventDefault();
