@@ -82,13 +82,22 @@ def chromium() -> Iterator[object]:
 
 
 def watch(page) -> list[str]:
-    """Collect what must not happen on a page: script errors, console errors, API answers >= 400."""
+    """Collect what must not happen on a page: script errors, console errors, API answers >= 400,
+    state changes that are not JSON."""
     problems: list[str] = []
     page.on("pageerror", lambda e: problems.append(f"page error: {e}"))
     page.on("console", lambda m: problems.append(f"console {m.type}: {m.text}") if m.type == "error" else None)
     page.on(
         "response",
         lambda r: problems.append(f"{r.status} {r.request.method} {r.url}") if "/api/" in r.url and r.status >= 400 else None,
+    )
+    # the server refuses a state change without a JSON content type (cross-site forms cannot send one)
+    page.on(
+        "request",
+        lambda r: problems.append(f"{r.method} {r.url} without Content-Type: application/json")
+        if r.method in ("POST", "PUT", "PATCH") and "/api/" in r.url
+        and not (r.headers.get("content-type") or "").startswith("application/json")
+        else None,
     )
     page.problems = problems  # type: ignore[attr-defined]
     return problems

@@ -47,9 +47,13 @@ def test_replay_badge_and_frame_stepping(server):
 
         page.click("#replay-play")  # pause
         page.wait_for_function("document.getElementById('replay-bar').dataset.paused === '1'")
-        page.wait_for_timeout(600)
-        paused_at = shown_index()
-        page.wait_for_function("n => +document.getElementById('replay-pos').dataset.index === n", arg=paused_at)
+        # the last frame delivered (a read already under way when the pause came may still land)
+        paused_at = None
+        while (now := httpx.get(f"{server}/api/source").json()["replay"]["index"]) != paused_at:
+            paused_at = now
+            page.wait_for_timeout(400)
+        page.wait_for_function(f"document.getElementById('frame-tag').textContent.includes('replay #{paused_at}')")
+        assert shown_index() == paused_at and index() == paused_at
         assert page.text_content("#replay-pos") == f"frame {paused_at} / {FRAMES}"
         assert f"replay #{paused_at}" in page.text_content("#frame-tag")
         page.wait_for_timeout(500)
