@@ -1010,7 +1010,7 @@ function replayStep(delta) {
   if (!r) return;
   if (delta > 0) return replay("step");
   const now = state.frame && state.frame.replay_index !== null && state.frame.replay_index !== undefined ? state.frame.replay_index : r.index;
-  return replay("seek", Math.max(0, (now || 0) - 1));
+  return replay("seek", now > 0 ? now - 1 : Math.max(0, r.frames - 1)); // from the first frame back to the last
 }
 
 function setRecording(rec) {
