@@ -60,6 +60,7 @@ def create_app(
     token: str = "",
     ring_size: int = 32,
     max_frozen: int = 16,
+    keep_viewed: int = 8,
     capture_fps: float = 15.0,
     reconnect_initial_s: float = 0.5,
     reconnect_max_s: float = 10.0,
@@ -67,7 +68,7 @@ def create_app(
     """The service app on ``source`` (a spec string or a factory of unopened sources)."""
     spec = source if isinstance(source, str) else getattr(source, "__name__", "custom")
     factory: Callable[[], Source] = (lambda: make_source(source)) if isinstance(source, str) else source  # type: ignore[arg-type]
-    ring = FrameRing(ring_size, max_frozen)
+    ring = FrameRing(ring_size, max_frozen, keep_viewed)
     capture = Capture(
         factory, ring, spec=spec, fps=capture_fps, backoff_initial_s=reconnect_initial_s, backoff_max_s=reconnect_max_s
     )

@@ -12,7 +12,7 @@ import itertools
 import threading
 import time
 import uuid
-from collections import OrderedDict
+from collections import OrderedDict, deque
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import Any
@@ -27,6 +27,10 @@ class FrameGone(KeyError):
 
 class FrameUnknown(KeyError):
     """The frame id was never issued (HTTP 404)."""
+
+
+class ReplayControlError(ValueError):
+    """Pause, step or seek asked of a source that is no replay, or past its end (HTTP 409 / 422)."""
 
 
 @dataclass
@@ -54,9 +58,13 @@ class FrameRing:
 
     At most ``capacity`` unfrozen frames are kept (oldest evicted first); at most ``max_frozen``
     frames are frozen, freezing one more releases the oldest frozen one back to the live pool.
+    Eviction passes over the last ``keep_viewed`` frames handed out as "latest": a page shows such a
+    frame and may freeze it a moment later, when a fast source with a small ring would have evicted
+    it already (30 fps into 4 frames leaves 0.13 s, less than a click). At most ``capacity +
+    keep_viewed`` unfrozen frames are held.
     """
 
-    def __init__(self, capacity: int = 32, max_frozen: int = 16) -> None:
+    def __init__(self, capacity: int = 32, max_frozen: int = 16, keep_viewed: int = 8) -> None:
         if capacity < 1 or max_frozen < 1:
             raise ValueError(f"ring capacity ({capacity}) and max_frozen ({max_frozen}) must be at least 1")
         self.capacity = capacity
@@ -64,6 +72,7 @@ class FrameRing:
         self._frames: OrderedDict[int, RingFrame] = OrderedDict()
         self._ids = itertools.count(1)
         self._next = 1
+        self._viewed: deque[int] = deque(maxlen=keep_viewed)
         self._cond = threading.Condition()
 
     def push(self, frame: Frame, *, frozen: bool = False, uid: str | None = None) -> RingFrame:
@@ -82,7 +91,9 @@ class FrameRing:
 
     def _evict(self) -> None:
         live = [fid for fid, e in self._frames.items() if not e.frozen]
-        for fid in live[: max(0, len(live) - self.capacity)]:
+        excess = len(live) - self.capacity
+        newest = live[-1] if live else None  # never the frame just pushed: "latest" must move on
+        for fid in [fid for fid in live if fid not in self._viewed and fid != newest][: max(0, excess)]:
             del self._frames[fid]
 
     def _limit_frozen(self, keep: int) -> None:
@@ -118,6 +129,13 @@ class FrameRing:
                 if left <= 0:
                     return None
                 self._cond.wait(left)
+
+    def mark_viewed(self, fid: int) -> None:
+        """Keep frame ``fid`` while it is among the last ``keep_viewed`` frames shown to a client."""
+        with self._cond:
+            if fid in self._frames and fid not in self._viewed:
+                self._viewed.append(fid)
+                self._evict()
 
     def freeze(self, fid: int, frozen: bool = True) -> RingFrame:
         with self._cond:
@@ -183,6 +201,12 @@ class Capture:
         self._retries = 0
         self._next_retry: float | None = None
         self._times: list[float] = []
+        # replay control: paused, frames to deliver while paused, position to jump to, last index shown
+        self._paused = False
+        self._steps = 0
+        self._seek: int | None = None
+        self._replay_index: int | None = None
+        self._wake = threading.Event()
 
     def start(self) -> None:
         self._thread = threading.Thread(target=self._run, name="depthruler-capture", daemon=True)
@@ -219,7 +243,61 @@ class Capture:
                 "frames": self._frames,
                 "retries": self._retries,
                 "retry_in_s": retry_in,
+                "replay": self._replay_status(info) if info and info.kind == "replay" else None,
             }
+
+    def _replay_status(self, info: SourceInfo) -> dict[str, Any]:
+        path = str(info.extra.get("path", "") or "")
+        return {
+            "paused": self._paused,
+            "index": self._replay_index,
+            "frames": int(info.extra.get("frames", 0) or 0),
+            "recording": path.rstrip("/").rsplit("/", 1)[-1],
+            "recorded_source": info.name,
+        }
+
+    def control(self, action: str, index: int | None = None) -> dict[str, Any]:
+        """Drive a replay: "pause", "play", "step" (one frame while paused) or "seek" to frame ``index``
+        (pauses and shows it). Raises :class:`ReplayControlError` when the source is not a replay."""
+        with self._lock:
+            info = self._info
+            if info is None or info.kind != "replay":
+                raise ReplayControlError(f"the source {self.spec!r} is not a replay; pause, step and seek drive replays only")
+            frames = int(info.extra.get("frames", 0) or 0)
+            if action == "pause":
+                self._paused = True
+            elif action == "play":
+                self._paused, self._steps = False, 0
+            elif action == "step":
+                self._paused, self._steps = True, self._steps + 1
+            elif action == "seek":
+                if index is None or not 0 <= index < frames:
+                    raise ReplayControlError(
+                        f"seek needs an index in 0..{frames - 1} (the replay has {frames} frames), got {index}"
+                    )
+                self._paused, self._seek, self._steps = True, index, 1
+            status = self._replay_status(info)
+        self._wake.set()
+        return status
+
+    def _await_turn(self, src: Source) -> None:
+        """While a replay is paused, block until a step or a seek asks for a frame (or stop)."""
+        while not self._stop.is_set():
+            with self._lock:
+                if self._seek is not None:
+                    seek = getattr(src, "seek", None)
+                    if callable(seek):
+                        seek(self._seek)
+                    else:  # ReplaySource reads from _pos; it has no public seek yet
+                        src._pos = self._seek  # type: ignore[attr-defined]
+                    self._seek = None
+                if not self._paused:
+                    return
+                if self._steps > 0:
+                    self._steps -= 1
+                    return
+                self._wake.clear()
+            self._wake.wait(0.2)
 
     @property
     def info(self) -> SourceInfo | None:
@@ -237,6 +315,7 @@ class Capture:
                 src.open()
                 self._set(info=src.info)
                 while not self._stop.is_set():
+                    self._await_turn(src)
                     t0 = time.monotonic()
                     frame = src.read(self.read_timeout_s)
                     self._deliver(frame, src.info)
@@ -273,5 +352,7 @@ class Capture:
             self._info = info
             self._frames += 1
             self._times = (self._times + [now])[-30:]
+            replay = frame.meta.get("replay")
+            self._replay_index = replay.get("index") if isinstance(replay, dict) else None
         for sink in list(self.sinks):
             sink(frame)

@@ -23,13 +23,29 @@ def encode_png(image: np.ndarray) -> bytes:
     return buf.tobytes()
 
 
+def disparity_range(disparity: np.ndarray) -> tuple[float, float] | None:
+    """The disparity (px) mapped to the ends of the colour map: its 1st and 99th percentile."""
+    valid = np.isfinite(disparity)
+    if not valid.any():
+        return None
+    lo, hi = np.percentile(disparity[valid], [1, 99])
+    return float(lo), float(hi)
+
+
+def turbo_colors(n: int = 16) -> list[str]:
+    """``n`` evenly spaced colours of the turbo map as ``#rrggbb``, low disparity (far) first."""
+    ramp = cv2.applyColorMap(np.linspace(0, 255, n).astype(np.uint8).reshape(-1, 1), cv2.COLORMAP_TURBO)
+    return [f"#{r:02x}{g:02x}{b:02x}" for b, g, r in ramp.reshape(-1, 3).tolist()]
+
+
 def colorize_disparity(disparity: np.ndarray) -> np.ndarray:
     """BGR image of a disparity map (px): turbo colour map over its 1st..99th percentile; no data is black."""
     valid = np.isfinite(disparity)
     out = np.zeros(disparity.shape + (3,), np.uint8)
-    if not valid.any():
+    span = disparity_range(disparity)
+    if span is None:
         return out
-    lo, hi = np.percentile(disparity[valid], [1, 99])
+    lo, hi = span
     scale = 255.0 / max(hi - lo, 1e-6)
     norm = np.clip((np.where(valid, disparity, lo) - lo) * scale, 0, 255).astype(np.uint8)
     mapped = cv2.applyColorMap(norm, cv2.COLORMAP_TURBO)
@@ -83,4 +99,5 @@ def frame_json(entry: RingFrame) -> dict[str, Any]:
         "source": str(f.meta.get("source", "")),
         "meta": {k: (v if not isinstance(v, float) or math.isfinite(v) else None) for k, v in meta.items()},
         "truth": truth_json(f.meta.get("truth")),
+        "replay_index": replay.get("index") if isinstance(replay := f.meta.get("replay"), dict) else None,
     }

@@ -35,3 +35,19 @@ class RecordingIn(BaseModel):
     model_config = ConfigDict(extra="forbid")
     action: Literal["start", "stop"]
     out: str | None = None
+
+
+class ReplayIn(BaseModel):
+    """``POST /api/source/replay``: pause, play, step one frame, or seek to frame ``index`` (0-based)."""
+
+    model_config = ConfigDict(extra="forbid")
+    action: Literal["pause", "play", "step", "seek"]
+    index: Annotated[int, Strict(), Field(ge=0, le=10_000_000)] | None = None
+
+
+class AnnotationIn(BaseModel):
+    """``PATCH /api/measurements/{id}``: a name and a note for a measurement (omitted = unchanged)."""
+
+    model_config = ConfigDict(extra="forbid")
+    name: Annotated[str, Field(max_length=200)] | None = None
+    note: Annotated[str, Field(max_length=4000)] | None = None

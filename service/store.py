@@ -63,11 +63,34 @@ CREATE TABLE IF NOT EXISTS measurements (
     thumb BLOB
 );
 """
+_MIGRATIONS = (  # columns added since the first schema: (table, column, declaration)
+    # JSON: result fields without a column (quality, reasons, interval_m, ...), frame_index, name, note
+    ("measurements", "extra", "TEXT NOT NULL DEFAULT '{}'"),
+)
+
+UNITS = {"m": 1.0, "cm": 100.0, "mm": 1000.0, "in": 1 / 0.0254}
 
 CSV_COLUMNS = (
-    "id", "created", "frame_id", "source", "p1_x", "p1_y", "p2_x", "p2_y", "distance_m", "uncertainty_m",
-    "method", "fit", "basic_distance_m", "n_samples", "n_valid", "n_support", "gap_detected", "warnings",
-    "p1_m_x", "p1_m_y", "p1_m_z", "p2_m_x", "p2_m_y", "p2_m_z",
+    "id", "created_utc", "name", "note", "source", "frame_id", "frame_index", "units", "distance", "uncertainty_1sigma",
+    "interval_low", "interval_high", "quality", "reasons", "method", "fit", "basic_distance",
+    "p1_x_px", "p1_y_px", "p2_x_px", "p2_y_px", "p1_X", "p1_Y", "p1_Z", "p2_X", "p2_Y", "p2_Z",
+    "n_samples", "n_valid", "n_support", "gap_detected", "warnings", "frame_url",
+)  # fmt: skip
+"""Lengths and 3D coordinates are in ``units``, rounded to what the measurement supports
+(:func:`supported_decimals`); pixels to 0.1 px. ``frame_url`` opens the saved colour image."""
+
+
+def supported_decimals(sigma: float | None, factor: float) -> int:
+    """Decimals that keep two significant digits of the 1-sigma uncertainty ``sigma`` (m) in a unit of
+    ``factor`` per metre: more would be noise, fewer would hide the precision. 4 when unknown."""
+    if sigma is None or not math.isfinite(sigma) or sigma <= 0:
+        return 4
+    return int(min(6, max(0, 1 - math.floor(math.log10(sigma * factor)))))
+
+
+_FIXED_RESULT_KEYS = frozenset(
+    ("distance_m", "method", "fit", "p1_m", "p2_m", "basic_distance_m", "uncertainty_m", "n_samples", "n_valid",
+     "n_support", "samples_px", "support", "gap_detected", "warnings", "elapsed_ms")
 )  # fmt: skip
 
 
@@ -145,6 +168,9 @@ class Store:
             self._db.execute("PRAGMA journal_mode=WAL")
             self._db.execute("PRAGMA synchronous=NORMAL")
             self._db.executescript(_SCHEMA)
+            for table, column, decl in _MIGRATIONS:
+                if column not in {r[1] for r in self._db.execute(f"PRAGMA table_info({table})")}:
+                    self._db.execute(f"ALTER TABLE {table} ADD COLUMN {column} {decl}")
         except (OSError, sqlite3.Error) as exc:
             raise StoreError(f"cannot open the history database {self.path}: {exc}; pass --db with a writable path") from exc
         self._db.row_factory = sqlite3.Row
@@ -227,22 +253,26 @@ class Store:
         options: dict[str, Any],
         result: dict[str, Any],
         thumb: bytes | None,
+        context: dict[str, Any] | None = None,
     ) -> dict[str, Any]:
-        """Insert one measurement (``result`` is ``Measurement.to_dict()``) and return its stored record."""
+        """Insert one measurement (``result`` is ``Measurement.to_dict()``) and return its stored record.
+        Result fields without a column of their own (e.g. ``quality``, ``reasons``, ``interval_m``) and
+        ``context`` (e.g. ``frame_index`` of a replay) are kept in the ``extra`` JSON column."""
+        extra = {k: v for k, v in result.items() if k not in _FIXED_RESULT_KEYS} | (context or {})
         created = time.time()
         values = (
             created, frame_id, frame_uid, source, float(p1[0]), float(p1[1]), float(p2[0]), float(p2[1]),
             json.dumps(options), result["distance_m"], result["method"], result["fit"], json.dumps(result["p1_m"]),
             json.dumps(result["p2_m"]), result["basic_distance_m"], result["uncertainty_m"], result["n_samples"],
             result["n_valid"], result["n_support"], json.dumps(result["samples_px"]), json.dumps(result["support"]),
-            int(result["gap_detected"]), json.dumps(result["warnings"]), result["elapsed_ms"], thumb,
+            int(result["gap_detected"]), json.dumps(result["warnings"]), result["elapsed_ms"], thumb, json.dumps(extra),
         )  # fmt: skip
         with self._lock:
             cur = self._db.execute(
                 "INSERT INTO measurements(created, frame_id, frame_uid, source, p1_x, p1_y, p2_x, p2_y, options, "
                 "distance_m, method, fit, p1_m, p2_m, basic_distance_m, uncertainty_m, n_samples, n_valid, "
-                "n_support, samples_px, support, gap_detected, warnings, elapsed_ms, thumb) "
-                "VALUES (?,?,?,?,?,?,?,?,?,?,?,?,?,?,?,?,?,?,?,?,?,?,?,?,?)",
+                "n_support, samples_px, support, gap_detected, warnings, elapsed_ms, thumb, extra) "
+                "VALUES (?,?,?,?,?,?,?,?,?,?,?,?,?,?,?,?,?,?,?,?,?,?,?,?,?,?)",
                 values,
             )
             mid = cur.lastrowid
@@ -252,7 +282,11 @@ class Store:
 
     @staticmethod
     def _record(row: sqlite3.Row) -> dict[str, Any]:
+        extra = json.loads(row["extra"] or "{}")
         return {
+            **extra,  # newer Measurement fields (quality, reasons, ...) and frame_index; never shadow ours
+            "name": str(extra.get("name", "")),
+            "note": str(extra.get("note", "")),
             "id": row["id"],
             "created": row["created"],
             "frame_id": row["frame_id"],
@@ -289,6 +323,18 @@ class Store:
             rows = self._db.execute("SELECT * FROM measurements ORDER BY id DESC LIMIT ?", (limit,)).fetchall()
         return [self._record(r) for r in rows]
 
+    def annotate(self, mid: int, name: str | None = None, note: str | None = None) -> dict[str, Any] | None:
+        """Set the name and/or note of measurement ``mid`` (None leaves one as it is); its record, or
+        None when there is no such measurement."""
+        with self._lock:
+            row = self._db.execute("SELECT extra FROM measurements WHERE id=?", (mid,)).fetchone()
+            if row is None:
+                return None
+            extra = json.loads(row["extra"] or "{}")
+            extra.update({k: v for k, v in (("name", name), ("note", note)) if v is not None})
+            self._db.execute("UPDATE measurements SET extra=? WHERE id=?", (json.dumps(extra), mid))
+        return self.get(mid)
+
     def thumb(self, mid: int) -> bytes | None:
         with self._lock:
             row = self._db.execute("SELECT thumb FROM measurements WHERE id=?", (mid,)).fetchone()
@@ -312,16 +358,28 @@ class Store:
             (self.frames_dir / file).unlink(missing_ok=True)
         return True
 
-    def csv(self) -> str:
-        """All measurements as CSV (oldest first), one column per field in :data:`CSV_COLUMNS`."""
+    def csv(self, units: str = "m", base_url: str = "") -> str:
+        """All measurements as CSV (oldest first), columns :data:`CSV_COLUMNS`; lengths in ``units``
+        rounded to what each measurement supports; ``frame_url`` is ``base_url`` + the route of its frame."""
+        k = UNITS[units]
         buf = io.StringIO()
         writer = csv.writer(buf, lineterminator="\n")
         writer.writerow(CSV_COLUMNS)
         for r in reversed(self.list(limit=1_000_000)):
+            dec = supported_decimals(r["uncertainty_m"], k)
+
+            def length(v: Any, dec: int = dec) -> str:
+                return "" if v is None else f"{float(v) * k:.{dec}f}"
+
+            sigma = "" if r["uncertainty_m"] is None else f"{r['uncertainty_m'] * k:.2g}"
+            lo, hi = (list(r.get("interval_m") or []) + [None, None])[:2]
             created = time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime(r["created"]))
             writer.writerow(
-                [r["id"], created, r["frame_id"], r["source"], *r["p1"], *r["p2"], r["distance_m"], r["uncertainty_m"],
-                 r["method"], r["fit"], r["basic_distance_m"], r["n_samples"], r["n_valid"], r["n_support"],
-                 int(r["gap_detected"]), "; ".join(r["warnings"]), *r["p1_m"], *r["p2_m"]]
+                [r["id"], created, r["name"], r["note"], r["source"], r["frame_id"], r.get("frame_index", ""), units,
+                 length(r["distance_m"]), sigma, length(lo), length(hi), r.get("quality", ""), "; ".join(r.get("reasons", [])),
+                 r["method"], r["fit"], length(r["basic_distance_m"]),
+                 *(f"{v:.1f}" for v in (*r["p1"], *r["p2"])), *(length(v) for v in (*r["p1_m"], *r["p2_m"])),
+                 r["n_samples"], r["n_valid"], r["n_support"], int(r["gap_detected"]), "; ".join(r["warnings"]),
+                 f"{base_url}api/measurements/{r['id']}/color.png"]
             )  # fmt: skip
         return buf.getvalue()

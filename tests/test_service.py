@@ -122,7 +122,8 @@ def test_measurement_uses_exactly_the_named_frame(tmp_path):
 
 def test_evicted_frame_is_410_and_frozen_survives(tmp_path):
     state = {"gate": threading.Semaphore(0)}  # the test releases frames one by one: no race with eviction
-    with make_client(tmp_path, factory=lambda: PlaneSource(state=state), ring_size=4) as c:
+    # keep_viewed=1: of the frames handed out as latest only the last one is kept beyond the ring
+    with make_client(tmp_path, factory=lambda: PlaneSource(state=state), ring_size=4, keep_viewed=1) as c:
         state["gate"].release(1)
         old = latest(c)
         state["gate"].release(1)
@@ -212,7 +213,8 @@ def test_restart_keeps_history_and_reopens_frame(tmp_path):
         assert again["distance_m"] == pytest.approx(first["distance_m"], rel=1e-9)
         rows = list(csv.DictReader(io.StringIO(c.get("/api/measurements.csv").text)))
         assert [int(r["id"]) for r in rows] == [first["id"], second["id"], again["id"]]
-        assert float(rows[0]["distance_m"]) == pytest.approx(first["distance_m"])
+        # lengths are rounded to two significant digits of the 1-sigma uncertainty
+        assert float(rows[0]["distance"]) == pytest.approx(first["distance_m"], abs=float(rows[0]["uncertainty_1sigma"]) / 10)
         assert c.get("/api/measurements", params={"format": "csv"}).text == c.get("/api/measurements.csv").text
     # the deleted measurement's frame is shared with kept ones, so it stays; one file per frame
     assert len(list((tmp_path / "h-frames").glob("*.npz"))) == 1

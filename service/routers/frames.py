@@ -4,10 +4,11 @@ from __future__ import annotations
 
 from typing import Annotated, Any
 
+import numpy as np
 from fastapi import APIRouter, HTTPException, Query
 from fastapi.responses import Response
 
-from ..render import colorize_disparity, encode_png, frame_json
+from ..render import colorize_disparity, disparity_range, encode_png, frame_json, turbo_colors
 from ..state import State
 
 router = APIRouter(prefix="/api/frames", tags=["frames"])
@@ -15,12 +16,14 @@ router = APIRouter(prefix="/api/frames", tags=["frames"])
 
 @router.get("/latest")
 def latest(state: State, after: int = 0, wait: Annotated[float, Query(ge=0, le=10)] = 0.0) -> dict[str, Any]:
-    entry = state.ring.wait_latest(after, wait) if wait else state.ring.latest()
+    # after a wait with nothing newer (a paused or ended replay) the newest frame is still the answer
+    entry = (state.ring.wait_latest(after, wait) if wait else None) or state.ring.latest()
     if entry is None:
         status = state.capture.status()
         raise HTTPException(
             503, f"no frame yet from {status['spec'] or 'the source'} (state {status['state']}) {status['message']}".strip()
         )
+    state.ring.mark_viewed(entry.id)  # the page shows it next and may freeze it after the ring moved on
     return frame_json(entry)
 
 
@@ -39,6 +42,52 @@ def color_png(state: State, frame_id: int) -> Response:
 def disparity_png(state: State, frame_id: int) -> Response:
     data = state.entry(frame_id).encoded("disparity.png", lambda f: encode_png(colorize_disparity(f.disparity)))
     return Response(data, media_type="image/png", headers={"Cache-Control": "private, max-age=3600"})
+
+
+@router.get("/{frame_id}/depth")
+def depth_at(
+    state: State, frame_id: int, x: Annotated[float, Query(allow_inf_nan=False)], y: Annotated[float, Query(allow_inf_nan=False)]
+) -> dict[str, Any]:
+    """Depth (m) and disparity (px) at the pixel nearest to (x, y), pixel-centre convention; ``None``
+    where the disparity has no data. Depth is ``Frame.depth()``: Z = fx * baseline / (d + doffs)."""
+    frame = state.entry(frame_id).frame
+    h, w = frame.disparity.shape
+    if not (-0.5 <= x < w - 0.5 and -0.5 <= y < h - 0.5):
+        raise HTTPException(
+            422, f"({x:g}, {y:g}) is outside the {w}x{h} image of frame {frame_id}; use 0<=x<={w - 1}, 0<=y<={h - 1}"
+        )
+    col, row = int(round(x)), int(round(y))
+    d = float(frame.disparity[row, col])
+    shifted = d + frame.doffs  # Frame.depth() at one pixel, in the same float64 steps (it maps the whole frame)
+    z = frame.camera.fx * frame.baseline_m / shifted if shifted > 0 else float("nan")
+    return {
+        "frame_id": frame_id,
+        "x": col,
+        "y": row,
+        "disparity_px": d if np.isfinite(d) else None,
+        "depth_m": z if np.isfinite(z) else None,
+    }
+
+
+@router.get("/{frame_id}/depth-scale")
+def depth_scale(state: State, frame_id: int) -> dict[str, Any]:
+    """What the colours of ``disparity.png`` mean: the disparity range (px) at the ends of the colour
+    map, the same range as depth (m), and ``fx_baseline`` and ``doffs`` to place any depth on it."""
+    frame = state.entry(frame_id).frame
+    span = disparity_range(frame.disparity)
+    fb = frame.camera.fx * frame.baseline_m
+
+    def z(d: float) -> float | None:
+        return fb / (d + frame.doffs) if d + frame.doffs > 0 else None
+
+    return {
+        "frame_id": frame_id,
+        "disparity_px": list(span) if span else None,
+        "depth_m": [z(span[1]), z(span[0])] if span else None,  # near (high disparity) first
+        "fx_baseline": fb,
+        "doffs": frame.doffs,
+        "colors": turbo_colors(),
+    }
 
 
 @router.post("/{frame_id}/freeze")

@@ -5,8 +5,10 @@ from __future__ import annotations
 import time
 from typing import Any
 
-from fastapi import APIRouter
+from fastapi import APIRouter, HTTPException
 
+from ..frames import ReplayControlError
+from ..schemas import ReplayIn
 from ..state import State
 
 router = APIRouter(prefix="/api", tags=["health"])
@@ -27,3 +29,12 @@ def health(state: State) -> dict[str, Any]:
 @router.get("/source")
 def source_status(state: State) -> dict[str, Any]:
     return {**state.capture.status(), "recording": state.recorder.status()}
+
+
+@router.post("/source/replay")
+def replay_control(state: State, body: ReplayIn) -> dict[str, Any]:
+    """Pause, play, step or seek a replay; answers the replay status (``paused``, ``index``, ``frames``)."""
+    try:
+        return state.capture.control(body.action, body.index)
+    except ReplayControlError as exc:
+        raise HTTPException(409 if "not a replay" in str(exc) else 422, str(exc)) from None

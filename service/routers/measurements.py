@@ -4,13 +4,13 @@ from __future__ import annotations
 
 from typing import Annotated, Any, Literal
 
-from fastapi import APIRouter, HTTPException, Query
-from fastapi.responses import PlainTextResponse, Response
+from fastapi import APIRouter, HTTPException, Query, Request
+from fastapi.responses import JSONResponse, PlainTextResponse, Response
 
 from measure import MeasureError, MeasureOptions, measure_distance
 
-from ..render import frame_json, make_thumb
-from ..schemas import MeasureIn
+from ..render import encode_png, frame_json, make_thumb
+from ..schemas import AnnotationIn, MeasureIn
 from ..state import ServiceState, State
 from ..store import StoreError
 
@@ -41,28 +41,46 @@ def measure(state: State, body: MeasureIn) -> dict[str, Any]:
         options=options,
         result=result.to_dict(),
         thumb=make_thumb(frame, body.p1, body.p2),
+        context={"frame_index": replay["index"]} if isinstance(replay := frame.meta.get("replay"), dict) else None,
     )
     state.store.ensure_frame(entry.uid, frame)  # after the row exists: the writer drops frames nobody refers to
     return record
 
 
-def _csv(state: ServiceState) -> PlainTextResponse:
+Units = Literal["m", "cm", "mm", "in"]
+
+
+def _csv(state: ServiceState, units: str, request: Request) -> PlainTextResponse:
     return PlainTextResponse(
-        state.store.csv(),
+        state.store.csv(units, str(request.base_url)),
         media_type="text/csv",
         headers={"Content-Disposition": 'attachment; filename="depthruler-measurements.csv"'},
     )
 
 
 @router.get("/measurements.csv")
-def measurements_csv(state: State) -> PlainTextResponse:
-    return _csv(state)
+def measurements_csv(state: State, request: Request, units: Units = "m") -> PlainTextResponse:
+    """All measurements as CSV: lengths in ``units``, rounded to what each measurement supports."""
+    return _csv(state, units, request)
+
+
+@router.get("/measurements.json")
+def measurements_json(state: State) -> JSONResponse:
+    """All measurements, oldest first, as ``{"measurements": [...]}``: every stored field, including the
+    per-sample arrays and, for a replay, ``frame_index``. ``depthruler export REC --mcap OUT
+    --measurements FILE`` takes this file as it is."""
+    return JSONResponse(
+        {"measurements": list(reversed(state.store.list(limit=1_000_000)))},
+        headers={"Content-Disposition": 'attachment; filename="depthruler-measurements.json"'},
+    )
 
 
 @router.get("/measurements", response_model=None)
-def measurements(state: State, format: Literal["json", "csv"] = "json", limit: Annotated[int, Query(ge=1)] = 1000) -> Any:
+def measurements(
+    state: State, request: Request, format: Literal["json", "csv"] = "json", limit: Annotated[int, Query(ge=1)] = 1000
+) -> Any:
     if format == "csv":
-        return _csv(state)
+        return _csv(state, "m", request)
     return state.store.list(limit)
 
 
@@ -76,6 +94,15 @@ def _record(state: ServiceState, mid: int) -> dict[str, Any]:
 @router.get("/measurements/{mid}")
 def measurement(state: State, mid: int) -> dict[str, Any]:
     return _record(state, mid)
+
+
+@router.patch("/measurements/{mid}")
+def annotate(state: State, mid: int, body: AnnotationIn) -> dict[str, Any]:
+    """Name and/or note a measurement."""
+    record = state.store.annotate(mid, body.name, body.note)
+    if record is None:
+        raise HTTPException(404, f"no measurement {mid}; GET /api/measurements lists them")
+    return record
 
 
 @router.delete("/measurements/{mid}")
@@ -92,6 +119,17 @@ def thumb(state: State, mid: int) -> Response:
     if data is None:
         raise HTTPException(404, f"measurement {mid} has no thumbnail")
     return Response(data, media_type="image/png", headers={"Cache-Control": "private, max-age=86400"})
+
+
+@router.get("/measurements/{mid}/color.png")
+def measured_color(state: State, mid: int) -> Response:
+    """The colour image of the saved frame a measurement was made on (the CSV's ``frame_url``)."""
+    record = _record(state, mid)
+    try:
+        saved = state.store.frame(record["frame_uid"])
+    except StoreError as exc:
+        raise HTTPException(404, str(exc)) from None
+    return Response(encode_png(saved.image), media_type="image/png", headers={"Cache-Control": "private, max-age=86400"})
 
 
 @router.post("/measurements/{mid}/open")

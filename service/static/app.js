@@ -1,27 +1,49 @@
-// depthruler web page: live view, freeze, click two points, measure, history. Plain JS, no build.
+// depthruler web page: live view, freeze, place two points, measure, history. Plain JS, no build.
+//
+// The one rule: the frame on screen is the frame the server holds frozen and measures. Every
+// change of what should be on screen (freeze, go live, reopen) bumps `state.gen`; an image that
+// finishes loading for an older generation is dropped, so a live image still loading when the
+// person freezes can never replace the frozen one. The page says "frozen" only once the server
+// has acknowledged the freeze, and measures only a frame in that state.
 "use strict";
 
 const UNITS = { m: [1, 3], cm: [100, 1], mm: [1000, 0], in: [1 / 0.0254, 2] }; // factor, decimals
 const METHODS = ["robust", "paper", "basic"];
-const HANDLE_PX = 16; // screen pixels within which a press grabs an end point
+const GRAB_PX = { mouse: 16, pen: 20, touch: 30 }; // screen pixels within which a press grabs an end point
+const LONG_POLL_S = 5;
+const LOUPE_ZOOM = 4; // loupe pixels per screen pixel of the view
+const UNDO_MS = 6000;
 
 const $ = (id) => document.getElementById(id);
 const canvas = $("canvas");
 const ctx = canvas.getContext("2d");
+const loupe = $("loupe");
+const lctx = loupe.getContext("2d");
 
 const state = {
   token: new URLSearchParams(location.search).get("token") || sessionStorage.getItem("depthruler-token") || "",
   frame: null,        // frame JSON of the image on screen
   img: null,          // its decoded image
-  frozen: false,
+  mode: "live",       // "live" | "freezing" | "frozen"
+  gen: 0,             // bumped whenever what must be on screen changes
+  freezing: null,     // the pending freeze (a promise of true/false)
+  looping: false,     // the live long-poll loop runs
   view: "color",
   points: [],         // [[x, y], ...] in image pixels
-  result: null,       // the last measurement record
-  drag: -1,
+  result: null,       // the measurement on screen
+  seq: 0,             // measurement requests issued; only the newest one's answer is shown
+  press: null,        // {pointerId, index, offset, type, moved} while a point is placed or dragged
   units: localStorage.getItem("depthruler-units") || "m",
   method: localStorage.getItem("depthruler-method") || "robust",
-  loading: false,
   recording: false,
+  source: null,       // the last /api/source answer
+  scale: null,        // the depth scale of the frame on screen (disparity view colour bar)
+  history: [],
+  filter: "",
+  pendingDelete: null, // {record, timer} of a deletion that can still be undone
+  depthQuery: { busy: false, next: null },
+  hoverDepth: null,   // the last depth readout (GET /api/frames/{id}/depth)
+  scaleAt: 0,         // when the colour bar's scale was last fetched (performance.now())
 };
 
 // ---- HTTP ---------------------------------------------------------------------------------------
@@ -33,11 +55,14 @@ function withToken(url) {
 async function api(path, options = {}) {
   const headers = Object.assign({}, options.headers || {});
   if (state.token) headers.Authorization = "Bearer " + state.token;
-  if (options.body && typeof options.body !== "string") {
+  const method = (options.method || "GET").toUpperCase();
+  let body = options.body;
+  if (method !== "GET" && method !== "DELETE") {
+    // every state-changing request is JSON, with an empty object when there is nothing to say
     headers["Content-Type"] = "application/json";
-    options = Object.assign({}, options, { body: JSON.stringify(options.body) });
+    body = typeof body === "string" ? body : JSON.stringify(body || {});
   }
-  const res = await fetch(path, Object.assign({}, options, { headers }));
+  const res = await fetch(path, Object.assign({}, options, { method, headers, body }));
   if (res.status === 401) {
     const t = prompt("This depthruler needs its access token:");
     if (t) {
@@ -65,6 +90,8 @@ function loadImage(url) {
   });
 }
 
+const sleep = (ms) => new Promise((r) => setTimeout(r, ms));
+
 // ---- formatting ---------------------------------------------------------------------------------
 function fmt(metres, withUnit = true) {
   if (metres === null || metres === undefined || !isFinite(metres)) return "—";
@@ -72,22 +99,55 @@ function fmt(metres, withUnit = true) {
   return (metres * k).toFixed(dec) + (withUnit ? " " + state.units : "");
 }
 
-function fmtPlusMinus(metres) {
-  // Two significant digits however small the uncertainty is, never fewer decimals than the distance.
-  const [k, dec] = UNITS[state.units];
-  const v = metres * k;
-  const digits = v > 0 ? Math.min(6, Math.max(dec, Math.ceil(-Math.log10(v)) + 1)) : dec;
-  return "± " + v.toFixed(digits) + " " + state.units;
+// A small length (an uncertainty) in the unit that reads best: mm or cm under a metre when the
+// page is in metres, else the page's unit; one significant digit, two when it starts with a 1.
+function fmtSmall(metres) {
+  let unit = state.units;
+  if (unit === "m") unit = metres < 0.01 ? "mm" : metres < 1 ? "cm" : "m";
+  const v = metres * UNITS[unit][0];
+  if (!(v > 0)) return "0 " + unit;
+  const mag = Math.floor(Math.log10(v));
+  const lead = v / 10 ** mag;
+  const digits = Math.max(0, -(mag - (lead < 2 ? 1 : 0)));
+  return v.toFixed(Math.min(6, digits)) + " " + unit;
 }
 
-function fmtUncertainty(metres) {
-  if (metres === null || metres === undefined || !isFinite(metres)) return "uncertainty unknown";
-  return fmtPlusMinus(metres) + " (1σ)";
+// The measurement's 95 % interval: the service's interval_m when it gives one, else ±1.96σ.
+function interval95(res) {
+  const iv = res.interval_m;
+  if (Array.isArray(iv) && iv.length === 2 && iv.every((v) => v !== null && isFinite(v))) return { lo: iv[0], hi: iv[1], from: "interval" };
+  if (res.uncertainty_m !== null && res.uncertainty_m !== undefined && isFinite(res.uncertainty_m) && res.distance_m !== null) {
+    const h = 1.96 * res.uncertainty_m;
+    return { lo: res.distance_m - h, hi: res.distance_m + h, from: "sigma" };
+  }
+  return null;
 }
 
-// ---- frames -------------------------------------------------------------------------------------
-async function showFrame(frame) {
-  const img = await loadImage(`api/frames/${frame.id}/${state.view}.png`);
+function fmtInterval(res) {
+  const iv = interval95(res);
+  if (!iv) return "uncertainty unknown";
+  const half = (iv.hi - iv.lo) / 2;
+  const mid = (iv.hi + iv.lo) / 2;
+  const d = res.distance_m;
+  // symmetric enough to read as ±: the centre within a tenth of the half-width of the value
+  if (d !== null && Math.abs(mid - d) <= 0.1 * half + 1e-12) return `${fmt(d)} ± ${fmtSmall(half)}`;
+  return `${fmt(d)} (${fmt(iv.lo, false)} – ${fmt(iv.hi)})`;
+}
+
+function fmtPoint3(p) {
+  if (!p || p.some((v) => v === null || !isFinite(v))) return "—";
+  return `(${p.map((v) => fmt(v, false)).join(", ")}) ${state.units}`;
+}
+
+// ---- frames: the live loop, freezing ------------------------------------------------------------
+function imageUrl(frame) {
+  return `api/frames/${frame.id}/${state.view}.png`;
+}
+
+// Put `frame` on screen unless what must be on screen changed (gen) while its image loaded.
+async function showFrame(frame, gen) {
+  const img = await loadImage(imageUrl(frame));
+  if (gen !== state.gen) return false;
   if (canvas.width !== img.naturalWidth || canvas.height !== img.naturalHeight) {
     canvas.width = img.naturalWidth;
     canvas.height = img.naturalHeight;
@@ -96,58 +156,192 @@ async function showFrame(frame) {
   state.frame = frame;
   state.img = img;
   canvas.dataset.frameId = String(frame.id);
-  $("frame-tag").textContent = `${state.frozen ? "frozen" : "live"} · frame ${frame.id} · ${frame.width}×${frame.height}`;
+  updateTag();
+  showReplayPosition();
+  // the colour bar's scale: for every frozen frame, at most once a second while live
+  if (state.view === "disparity" && (state.mode !== "live" || !(state.scaleAt > performance.now() - 1000))) {
+    state.scaleAt = performance.now();
+    loadScale(frame);
+  }
   draw();
+  return true;
 }
 
-async function pollLive() {
-  if (state.frozen || state.loading || document.hidden) return;
-  state.loading = true;
+// Follow the stream: long-poll for a frame newer than the one shown, show it, repeat. One request
+// at a time, so the view runs at the source's rate (or as fast as images load, if slower).
+async function liveLoop() {
+  if (state.looping) return;
+  state.looping = true;
   try {
-    const frame = await api("api/frames/latest");
-    if (!state.frozen && (!state.frame || frame.id !== state.frame.id)) await showFrame(frame);
-  } catch (e) {
-    /* the status pill reports source problems */
+    while (state.mode === "live") {
+      if (document.hidden) { await sleep(400); continue; }
+      const gen = state.gen;
+      let frame;
+      try {
+        frame = await api(`api/frames/latest?after=${state.frame ? state.frame.id : 0}&wait=${LONG_POLL_S}`);
+      } catch (e) {
+        await sleep(1000); // no frame yet: the status pill says why
+        continue;
+      }
+      if (gen !== state.gen || state.mode !== "live") continue;
+      if (state.frame && frame.id === state.frame.id) continue; // nothing newer within the wait
+      try { await showFrame(frame, gen); } catch (e) { await sleep(200); }
+    }
   } finally {
-    state.loading = false;
+    state.looping = false;
   }
 }
 
-async function freeze() {
-  if (state.frozen || !state.frame) return;
-  state.frozen = true;
+// Freeze the frame on screen. Resolves true once the server holds it frozen.
+function freeze() {
+  if (state.mode === "frozen") return Promise.resolve(true);
+  if (state.mode === "freezing") return state.freezing;
+  if (!state.frame) return Promise.resolve(false);
+  const shown = state.frame;
+  state.mode = "freezing";
+  const gen = ++state.gen; // from here no live image may replace the one on screen
   updateFreezeButton();
-  try {
-    const f = await api(`api/frames/${state.frame.id}/freeze`, { method: "POST" });
-    state.frame = f;
-    $("frame-tag").textContent = `frozen · frame ${f.id} · ${f.width}×${f.height}`;
-  } catch (e) {
-    showError(e.message);
-  }
+  updateTag();
+  state.freezing = api(`api/frames/${shown.id}/freeze`, { method: "POST" }).then(
+    (f) => {
+      if (gen !== state.gen) { // the person went live again meanwhile: let the frame go
+        api(`api/frames/${f.id}/freeze`, { method: "DELETE" }).catch(() => {});
+        return false;
+      }
+      state.frame = f;
+      state.mode = "frozen";
+      updateFreezeButton();
+      updateTag();
+      if (state.view === "disparity") loadScale(f);
+      return true;
+    },
+    (e) => {
+      if (gen === state.gen) {
+        state.mode = "live";
+        state.gen++;
+        state.points = [];
+        updateFreezeButton();
+        updateTag();
+        showError(`Could not freeze frame ${shown.id}: ${e.message}`);
+        draw();
+        liveLoop();
+      }
+      return false;
+    },
+  );
+  return state.freezing;
 }
 
 function goLive() {
-  if (!state.frozen) return;
-  if (state.frame) api(`api/frames/${state.frame.id}/freeze`, { method: "DELETE" }).catch(() => {});
-  state.frozen = false;
+  if (state.mode === "live") return;
+  const held = state.mode === "frozen" ? state.frame : null;
+  state.mode = "live";
+  state.gen++;
+  if (held) api(`api/frames/${held.id}/freeze`, { method: "DELETE" }).catch(() => {});
   clearPoints();
   updateFreezeButton();
-  pollLive();
+  updateTag();
+  liveLoop();
 }
 
 function updateFreezeButton() {
   const b = $("freeze");
-  b.textContent = state.frozen ? "Go live" : "Freeze";
-  b.classList.toggle("frozen", state.frozen);
+  b.textContent = state.mode === "live" ? "Freeze" : "Go live";
+  b.classList.toggle("frozen", state.mode !== "live");
+}
+
+function updateTag() {
+  const f = state.frame;
+  const tag = $("frame-tag");
+  canvas.dataset.frozen = state.mode === "frozen" ? "1" : "";
+  if (!f) { tag.textContent = ""; return; }
+  const word = state.mode === "frozen" ? "frozen" : state.mode === "freezing" ? "freezing…" : "live";
+  const replay = f.replay_index !== null && f.replay_index !== undefined ? ` · replay #${f.replay_index}` : "";
+  tag.textContent = `${word} · frame ${f.id}${replay} · ${f.width}×${f.height}`;
 }
 
 async function setView(view) {
   state.view = view;
   $("view-color").classList.toggle("active", view === "color");
   $("view-disparity").classList.toggle("active", view === "disparity");
+  $("colorbar").classList.toggle("hidden", view !== "disparity");
   if (state.frame) {
-    try { await showFrame(state.frame); } catch (e) { showError(e.message); }
+    try { await showFrame(state.frame, state.gen); } catch (e) { showError(e.message); }
   }
+}
+
+// ---- depth: the readout under the pointer, the colour bar ---------------------------------------
+// One request in flight; a newer position replaces a waiting one.
+function queryDepth(p) {
+  if (!state.frame) return;
+  const q = state.depthQuery;
+  q.next = { frame: state.frame, x: Math.round(p[0]), y: Math.round(p[1]) };
+  if (q.busy) return;
+  q.busy = true;
+  (async () => {
+    while (q.next) {
+      const job = q.next;
+      q.next = null;
+      try {
+        const r = await api(`api/frames/${job.frame.id}/depth?x=${job.x}&y=${job.y}`);
+        if (state.frame && job.frame.id === state.frame.id) showDepth(r);
+      } catch (e) { /* a live frame may have left the ring; the next position asks again */ }
+    }
+    q.busy = false;
+  })();
+}
+
+function showDepth(r) {
+  const el = $("readout");
+  el.dataset.depthM = r.depth_m === null ? "" : String(r.depth_m);
+  el.dataset.px = `${r.x},${r.y}`;
+  el.dataset.frameId = String(r.frame_id);
+  el.textContent = `depth ${r.depth_m === null ? "no data" : fmt(r.depth_m)} · px (${r.x}, ${r.y})`;
+  state.hoverDepth = r;
+  if (state.press) drawLoupe();
+}
+
+async function loadScale(frame) {
+  try {
+    const s = await api(`api/frames/${frame.id}/depth-scale`);
+    if (!state.frame || state.frame.id !== frame.id) return;
+    state.scale = s;
+    drawColorbar();
+  } catch (e) { /* a live frame may have left the ring; the next one brings its scale */ }
+}
+
+// The colour bar of the depth view, labelled in depth (the colours run linearly in disparity, so
+// equal steps in metres are not equally spaced).
+function drawColorbar() {
+  const s = state.scale;
+  const bar = $("colorbar");
+  if (!s || !s.disparity_px) { bar.classList.add("hidden"); return; }
+  bar.classList.toggle("hidden", state.view !== "disparity");
+  const [lo, hi] = s.disparity_px;
+  const [near, far] = s.depth_m;
+  $("colorbar-ramp").style.background = `linear-gradient(to right, ${s.colors.join(", ")})`;
+  const ticks = $("colorbar-ticks");
+  const pos = (z) => ((s.fx_baseline / z - s.doffs - lo) / Math.max(hi - lo, 1e-9)) * 100; // far left, near right
+  const labels = [];
+  for (const z of niceDepths(far, near)) {
+    const x = pos(z);
+    if (x < 0 || x > 100) continue;
+    labels.push(Object.assign(document.createElement("span"), { textContent: fmt(z), style: `left:${x.toFixed(1)}%` }));
+  }
+  ticks.replaceChildren(...labels);
+  bar.dataset.near = String(near);
+  bar.dataset.far = String(far);
+  bar.title = `colours span ${fmt(far)} (left) to ${fmt(near)} (right); black: no depth`;
+  $("colorbar-range").textContent = `${fmt(near)} – ${fmt(far)}`;
+}
+
+function niceDepths(far, near) {
+  if (!(far > 0 && near > 0)) return [];
+  const span = Math.abs(far - near);
+  const step = [0.01, 0.02, 0.05, 0.1, 0.2, 0.25, 0.5, 1, 2, 5, 10].find((st) => span / st <= 4) || 20;
+  const out = [];
+  for (let z = Math.ceil(Math.min(near, far) / step) * step; z <= Math.max(near, far) + 1e-9; z += step) out.push(+z.toFixed(4));
+  return out;
 }
 
 // ---- drawing ------------------------------------------------------------------------------------
@@ -155,7 +349,8 @@ function fitCanvas() {
   // The largest size with the image's aspect ratio that fits the stage's width and the window's height.
   const stage = $("stage");
   const maxW = stage.clientWidth;
-  const maxH = Math.max(200, window.innerHeight - stage.getBoundingClientRect().top - 40);
+  const phone = window.innerWidth < 700;
+  const maxH = Math.max(160, window.innerHeight * (phone ? 0.42 : 1) - (phone ? 0 : stage.getBoundingClientRect().top + 60));
   const k = Math.min(maxW / canvas.width, maxH / canvas.height);
   canvas.style.width = `${Math.floor(canvas.width * k)}px`;
   canvas.style.height = `${Math.floor(canvas.height * k)}px`;
@@ -166,22 +361,42 @@ function screenScale() {
   return r.width > 0 ? canvas.width / r.width : 1;
 }
 
+function drawSegment(c, pts, s) {
+  c.lineCap = "round";
+  c.strokeStyle = "rgba(0,0,0,.65)";
+  c.lineWidth = 5 * s;
+  c.beginPath(); c.moveTo(...pts[0]); c.lineTo(...pts[1]); c.stroke();
+  c.strokeStyle = "#ffc94d";
+  c.lineWidth = 2.2 * s;
+  c.beginPath(); c.moveTo(...pts[0]); c.lineTo(...pts[1]); c.stroke();
+}
+
+// An end point drawn as a ring and four ticks that stop short of the point: the clicked pixel
+// itself stays visible, however large the handle is on a phone.
+function drawHandle(c, x, y, s, active) {
+  const r = 10 * s, gap = 3.5 * s, out = 15 * s;
+  c.lineWidth = 3.2 * s;
+  c.strokeStyle = "rgba(0,0,0,.75)";
+  ring(); ticks();
+  c.lineWidth = 1.6 * s;
+  c.strokeStyle = active ? "#7fd1ff" : "#ffc94d";
+  ring(); ticks();
+  function ring() { c.beginPath(); c.arc(x, y, r, 0, 2 * Math.PI); c.stroke(); }
+  function ticks() {
+    c.beginPath();
+    for (const [dx, dy] of [[1, 0], [-1, 0], [0, 1], [0, -1]]) { c.moveTo(x + dx * gap, y + dy * gap); c.lineTo(x + dx * out, y + dy * out); }
+    c.stroke();
+  }
+}
+
 function draw() {
   ctx.clearRect(0, 0, canvas.width, canvas.height);
   if (state.img) ctx.drawImage(state.img, 0, 0);
   const s = screenScale();
   const res = state.result;
   const pts = state.points.map(([x, y]) => [x + 0.5, y + 0.5]);
-  if (pts.length === 2) {
-    ctx.lineCap = "round";
-    ctx.strokeStyle = "rgba(0,0,0,.65)";
-    ctx.lineWidth = 5 * s;
-    ctx.beginPath(); ctx.moveTo(...pts[0]); ctx.lineTo(...pts[1]); ctx.stroke();
-    ctx.strokeStyle = "#ffc94d";
-    ctx.lineWidth = 2.2 * s;
-    ctx.beginPath(); ctx.moveTo(...pts[0]); ctx.lineTo(...pts[1]); ctx.stroke();
-  }
-  if (res && res.samples_px && state.points.length === 2) {
+  if (pts.length === 2) drawSegment(ctx, pts, s);
+  if (res && res.samples_px && state.points.length === 2 && !state.press) {
     ctx.lineWidth = 0.8 * s;
     ctx.strokeStyle = "rgba(0,0,0,.7)";
     for (let i = 0; i < res.samples_px.length; i++) {
@@ -193,26 +408,82 @@ function draw() {
       ctx.stroke();
     }
   }
-  for (const [x, y] of pts) {
-    ctx.lineWidth = 2 * s;
-    ctx.strokeStyle = "#000";
-    ctx.fillStyle = "rgba(255,201,77,.35)";
-    ctx.beginPath(); ctx.arc(x, y, 9 * s, 0, 2 * Math.PI); ctx.fill(); ctx.stroke();
-    ctx.strokeStyle = "#ffc94d";
-    ctx.lineWidth = 1.5 * s;
-    ctx.beginPath(); ctx.moveTo(x - 13 * s, y); ctx.lineTo(x + 13 * s, y); ctx.moveTo(x, y - 13 * s); ctx.lineTo(x, y + 13 * s); ctx.stroke();
+  pts.forEach(([x, y], i) => drawHandle(ctx, x, y, s, state.press && state.press.index === i));
+  if (res && pts.length === 2 && !state.press) drawLabel(ctx, pts, s, fmt(res.distance_m), verdictColor(res.quality));
+  if (state.press) drawLoupe();
+}
+
+function verdictColor(q) {
+  return q === "good" ? "#3ddc84" : q === "check" ? "#ffb347" : q === "unreliable" ? "#ff5c5c" : "#ffc94d";
+}
+
+function drawLabel(c, pts, s, label, color, sub) {
+  const mx = (pts[0][0] + pts[1][0]) / 2, my = (pts[0][1] + pts[1][1]) / 2;
+  c.font = `600 ${Math.round(16 * s)}px system-ui, sans-serif`;
+  let w = c.measureText(label).width;
+  let subFont = `${Math.round(12 * s)}px system-ui, sans-serif`;
+  if (sub) { c.font = subFont; w = Math.max(w, c.measureText(sub).width); }
+  w += 16 * s;
+  const h = (sub ? 42 : 26) * s;
+  const top = Math.max(2 * s, my - h - 10 * s);
+  c.fillStyle = "rgba(15,18,22,.85)";
+  c.beginPath(); c.roundRect(mx - w / 2, top, w, h, 6 * s); c.fill();
+  c.textAlign = "center"; c.textBaseline = "middle";
+  c.fillStyle = color;
+  c.font = `600 ${Math.round(16 * s)}px system-ui, sans-serif`;
+  c.fillText(label, mx, top + 13 * s);
+  if (sub) { c.font = subFont; c.fillStyle = "#cfd6df"; c.fillText(sub, mx, top + 31 * s); }
+}
+
+// The loupe: a magnified view of the image around the point being placed or dragged, drawn away
+// from the finger (above it, or below when there is no room) with a crosshair on the exact pixel.
+function drawLoupe() {
+  const press = state.press;
+  if (!press || !state.img) { loupe.classList.add("hidden"); return; }
+  const p = state.points[press.index];
+  if (!p) return;
+  const dpr = window.devicePixelRatio || 1;
+  const size = 132;
+  if (loupe.width !== Math.round(size * dpr)) { loupe.width = loupe.height = Math.round(size * dpr); }
+  loupe.style.width = loupe.style.height = `${size}px`;
+  const s = screenScale();
+  const srcSize = (size / LOUPE_ZOOM) * s; // image pixels across the loupe
+  lctx.imageSmoothingEnabled = false;
+  lctx.fillStyle = "#000";
+  lctx.fillRect(0, 0, loupe.width, loupe.height);
+  lctx.drawImage(state.img, p[0] + 0.5 - srcSize / 2, p[1] + 0.5 - srcSize / 2, srcSize, srcSize, 0, 0, loupe.width, loupe.height);
+  const c = loupe.width / 2, k = loupe.width / srcSize; // loupe pixels per image pixel
+  lctx.strokeStyle = "rgba(0,0,0,.8)"; lctx.lineWidth = 3 * dpr;
+  cross(); lctx.strokeStyle = "#ffc94d"; lctx.lineWidth = 1.2 * dpr; cross();
+  lctx.strokeRect(c - k / 2, c - k / 2, k, k); // the pixel itself
+  const d = state.hoverDepth;
+  if (d && d.x === Math.round(p[0]) && d.y === Math.round(p[1])) {
+    const text = d.depth_m === null ? "no depth" : fmt(d.depth_m);
+    lctx.font = `600 ${12 * dpr}px system-ui, sans-serif`;
+    lctx.textAlign = "center"; lctx.textBaseline = "bottom";
+    lctx.fillStyle = "rgba(0,0,0,.7)"; lctx.fillRect(0, loupe.height - 18 * dpr, loupe.width, 18 * dpr);
+    lctx.fillStyle = "#fff"; lctx.fillText(text, c, loupe.height - 3 * dpr);
   }
-  if (res && pts.length === 2 && state.drag < 0) {
-    const label = fmt(res.distance_m);
-    const mx = (pts[0][0] + pts[1][0]) / 2, my = (pts[0][1] + pts[1][1]) / 2;
-    ctx.font = `600 ${Math.round(16 * s)}px system-ui, sans-serif`;
-    const w = ctx.measureText(label).width + 16 * s, h = 26 * s;
-    ctx.fillStyle = "rgba(15,18,22,.85)";
-    ctx.beginPath(); ctx.roundRect(mx - w / 2, my - h - 10 * s, w, h, 6 * s); ctx.fill();
-    ctx.fillStyle = "#ffc94d";
-    ctx.textAlign = "center"; ctx.textBaseline = "middle";
-    ctx.fillText(label, mx, my - h / 2 - 10 * s);
+  function cross() {
+    lctx.beginPath();
+    for (const [dx, dy] of [[1, 0], [-1, 0], [0, 1], [0, -1]]) { lctx.moveTo(c + dx * 6 * dpr, c + dy * 6 * dpr); lctx.lineTo(c + dx * 26 * dpr, c + dy * 26 * dpr); }
+    lctx.stroke();
   }
+  // position (viewport coordinates; it may cover the toolbar): above the point for touch, where the
+  // finger is not, beside it for a mouse; below or to the side when there is no room
+  const r = canvas.getBoundingClientRect();
+  const sx = r.left + (p[0] + 0.5) / s, sy = r.top + (p[1] + 0.5) / s;
+  const vw = document.documentElement.clientWidth, vh = window.innerHeight;
+  const touchy = press.type !== "mouse";
+  let lx = touchy ? sx - size / 2 : sx + 30;
+  let ly = touchy ? sy - size - 56 : sy - size - 30;
+  if (ly < 4) ly = touchy ? sy + 70 : sy + 30;
+  if (lx + size > vw - 4) lx = touchy ? vw - size - 4 : sx - size - 30;
+  loupe.style.left = `${Math.max(4, lx)}px`;
+  loupe.style.top = `${Math.max(4, Math.min(ly, vh - size - 4))}px`;
+  loupe.classList.remove("hidden");
+  loupe.dataset.x = String(Math.round(p[0]));
+  loupe.dataset.y = String(Math.round(p[1]));
 }
 
 // ---- pointer input (mouse, pen and touch) -------------------------------------------------------
@@ -220,11 +491,15 @@ function toImage(ev) {
   const r = canvas.getBoundingClientRect();
   const x = (ev.clientX - r.left) * (canvas.width / r.width) - 0.5;
   const y = (ev.clientY - r.top) * (canvas.height / r.height) - 0.5;
+  return [x, y];
+}
+
+function clampToImage([x, y]) {
   return [Math.min(Math.max(x, 0), canvas.width - 1), Math.min(Math.max(y, 0), canvas.height - 1)];
 }
 
-function handleAt(p) {
-  const limit = HANDLE_PX * screenScale();
+function handleAt(p, type) {
+  const limit = (GRAB_PX[type] || GRAB_PX.mouse) * screenScale();
   let best = -1, bestD = limit;
   state.points.forEach(([x, y], i) => {
     const d = Math.hypot(x - p[0], y - p[1]);
@@ -233,64 +508,105 @@ function handleAt(p) {
   return best;
 }
 
-canvas.addEventListener("pointerdown", async (ev) => {
-  if (!state.frame || ev.button > 0) return;
+canvas.addEventListener("pointerdown", (ev) => {
+  if (!state.frame || ev.button > 0 || state.press) return;
   ev.preventDefault();
   canvas.focus();
+  canvas.setPointerCapture(ev.pointerId);
   const p = toImage(ev);
-  const grab = handleAt(p);
-  if (grab >= 0 && state.points.length === 2) {
-    state.drag = grab;
-    canvas.setPointerCapture(ev.pointerId);
-    return;
+  const grab = state.points.length === 2 ? handleAt(p, ev.pointerType) : -1;
+  showError("");
+  if (grab >= 0) {
+    // grab the handle where it is: the point keeps its offset from the finger instead of jumping under it
+    const q = state.points[grab];
+    state.press = { pointerId: ev.pointerId, index: grab, offset: [q[0] - p[0], q[1] - p[1]], type: ev.pointerType, moved: false, isNew: false };
+  } else {
+    if (state.mode === "live") freeze(); // the frame on screen is frozen now; the point lands on it
+    if (state.points.length >= 2) { state.points = []; state.result = null; showResult(null); }
+    state.points.push(clampToImage(p));
+    state.press = { pointerId: ev.pointerId, index: state.points.length - 1, offset: [0, 0], type: ev.pointerType, moved: false, isNew: true };
   }
-  if (!state.frozen) await freeze();
-  if (state.points.length >= 2) { state.points = []; state.result = null; showResult(null); }
-  state.points.push(p);
+  queryDepth(state.points[state.press.index]);
   draw();
-  if (state.points.length === 2) measure(false);
-  else $("hint").textContent = "Now click the second point (Esc cancels).";
 });
 
 canvas.addEventListener("pointermove", (ev) => {
   const p = toImage(ev);
-  if (state.drag >= 0) {
-    state.points[state.drag] = p;
+  const press = state.press;
+  if (press && press.pointerId === ev.pointerId) {
+    queryDepth(movePress(press, ev));
     draw();
-  } else {
-    canvas.style.cursor = handleAt(p) >= 0 && state.points.length === 2 ? "grab" : "crosshair";
+  } else if (!press && ev.pointerType === "mouse") {
+    const inside = p[0] >= -0.5 && p[1] >= -0.5 && p[0] <= canvas.width - 0.5 && p[1] <= canvas.height - 0.5;
+    if (inside) queryDepth(clampToImage(p));
+    canvas.style.cursor = handleAt(p, "mouse") >= 0 && state.points.length === 2 ? "grab" : "crosshair";
   }
 });
 
-function endDrag(ev) {
-  if (state.drag < 0) return;
-  state.drag = -1;
-  if (canvas.hasPointerCapture(ev.pointerId)) canvas.releasePointerCapture(ev.pointerId);
-  measure(true);
+function movePress(press, ev) {
+  const p = toImage(ev);
+  const q = clampToImage([p[0] + press.offset[0], p[1] + press.offset[1]]);
+  const old = state.points[press.index];
+  if (Math.hypot(q[0] - old[0], q[1] - old[1]) > 0) press.moved = true;
+  state.points[press.index] = q;
+  return q;
 }
-canvas.addEventListener("pointerup", endDrag);
-canvas.addEventListener("pointercancel", endDrag);
+
+async function endPress(ev) {
+  const press = state.press;
+  if (!press || press.pointerId !== ev.pointerId) return;
+  if (ev.type === "pointerup") movePress(press, ev); // where the finger lifted, even if its last move was coalesced
+  state.press = null;
+  if (canvas.hasPointerCapture(ev.pointerId)) canvas.releasePointerCapture(ev.pointerId);
+  loupe.classList.add("hidden");
+  draw();
+  if (!press.isNew) {
+    if (press.moved) measure(true);
+    return;
+  }
+  if (state.points.length === 2) measure(false);
+  else $("hint").textContent = "Now place the second point (Esc cancels).";
+}
+canvas.addEventListener("pointerup", endPress);
+canvas.addEventListener("pointercancel", endPress);
+canvas.addEventListener("pointerleave", () => { if (!state.press) $("readout").classList.add("stale"); });
+canvas.addEventListener("pointerenter", () => $("readout").classList.remove("stale"));
 
 // ---- measuring ----------------------------------------------------------------------------------
 async function measure(adjusting) {
   if (state.points.length !== 2 || !state.frame) return;
+  if (state.mode !== "frozen" && !(await freeze())) return;
+  const gen = state.gen;
+  const seq = ++state.seq;
   const previous = adjusting && state.result ? state.result.id : null;
   const body = { frame_id: state.frame.id, p1: state.points[0], p2: state.points[1], options: { method: state.method } };
   $("hint").textContent = "Measuring…";
+  let res;
   try {
-    const res = await api("api/measure", { method: "POST", body });
-    state.result = res;
-    showResult(res);
-    // Adjusting a segment replaces its history entry rather than adding one per drag.
-    if (previous !== null) await api(`api/measurements/${previous}`, { method: "DELETE" }).catch(() => {});
-    await refreshHistory();
-    $("hint").textContent = "Drag a handle to adjust, click elsewhere to start again.";
+    res = await api("api/measure", { method: "POST", body });
   } catch (e) {
+    if (seq !== state.seq) return;
     state.result = null;
     showResult(null);
     showError(e.message);
-    $("hint").textContent = "Click two points to measure.";
+    $("hint").textContent = "Place two points to measure.";
+    draw();
+    return;
   }
+  if (seq !== state.seq) {
+    // a newer adjustment of the same segment is under way: this answer is out of date
+    if (gen === state.gen) api(`api/measurements/${res.id}`, { method: "DELETE" }).catch(() => {});
+    refreshHistory();
+    return;
+  }
+  if (gen === state.gen) {
+    state.result = res;
+    showResult(res);
+    $("hint").textContent = state.press ? "" : "Drag a handle to adjust; a press elsewhere starts again.";
+  }
+  // adjusting a segment replaces its history entry rather than adding one per drag
+  if (previous !== null) await api(`api/measurements/${previous}`, { method: "DELETE" }).catch(() => {});
+  await refreshHistory();
   draw();
 }
 
@@ -300,26 +616,110 @@ function showError(message) {
   el.classList.toggle("hidden", !message);
 }
 
+// What a reason of the core's verdict means for the person, and what to do about it. The core's
+// phrases: "few valid samples", "methods disagree by N %", "end point on a depth edge", "segment
+// crosses several surfaces", "gap detected", "end point extrapolated", "uncertainty above N %".
+const ADVICE = [
+  [/extrapolat|no depth/i, "Place the ends just inside the object's edges, where the depth view has colour."],
+  [/edge|mixed/i, "Move the end a few pixels off the depth edge, onto the object itself."],
+  [/few|valid|sparse|missing|hole/i, "Move closer or add light and texture so more of the segment has depth."],
+  [/surface|piece|crease/i, "Keep both ends on one flat surface, or measure each piece on its own."],
+  [/gap/i, "The segment spans a gap: check in the depth view that both ends are on the objects you mean."],
+  [/disagree|methods|model/i, "Re-place the ends carefully and compare with method “basic”."],
+  [/uncertainty|far|distance|range|resolution|quantiz/i, "Move closer: the depth error grows with the square of the distance."],
+];
+
+function adviceFor(reasons) {
+  const out = [];
+  for (const r of reasons) {
+    const hit = ADVICE.find(([re]) => re.test(r));
+    const text = hit ? hit[1] : "Look at the segment in the depth view and measure again.";
+    if (!out.includes(text)) out.push(text);
+  }
+  return out;
+}
+
+// Whether an end point's depth was measured there or extrapolated along the fitted line, as the
+// core's verdict defines it: extrapolated when the nearest inlier sample is more than 5 px and more
+// than 15 % of the segment's length away from the click.
+function endState(res, i) {
+  const explicit = res[`p${i + 1}_extrapolated`];
+  if (typeof explicit === "boolean") return explicit ? "extrapolated" : "measured";
+  const ends = res.ends && res.ends[i];
+  if (ends && typeof ends.extrapolated === "boolean") return ends.extrapolated ? "extrapolated" : "measured";
+  if (!res.samples_px || !res.support) return "unknown";
+  const p = i === 0 ? res.p1 : res.p2;
+  if (!p) return "unknown";
+  const length = Math.hypot(res.p2[0] - res.p1[0], res.p2[1] - res.p1[1]);
+  let nearest = Infinity;
+  res.samples_px.forEach(([x, y], k) => { if (res.support[k]) nearest = Math.min(nearest, Math.hypot(x - p[0], y - p[1])); });
+  return nearest > Math.max(5, 0.15 * length) ? "extrapolated" : "measured";
+}
+
 function showResult(res) {
   showError("");
   const d = $("distance");
+  const verdict = $("verdict");
+  $("save-png").disabled = !res;
   if (!res) {
     d.textContent = "—";
     d.dataset.metres = "";
     delete d.dataset.id;
-    $("uncertainty").innerHTML = "&nbsp;";
-    for (const id of ["r-method", "r-fit", "r-samples", "r-basic", "r-time"]) $(id).textContent = "—";
+    d.className = "distance";
+    const iv = $("interval");
+    iv.innerHTML = "&nbsp;";
+    iv.dataset.low = iv.dataset.high = "";
+    verdict.className = "verdict hidden";
+    $("why").classList.add("hidden");
+    $("ends").replaceChildren();
+    for (const id of ["r-method", "r-fit", "r-samples", "r-basic", "r-sigma", "r-time"]) $(id).textContent = "—";
     $("warnings").replaceChildren();
     return;
   }
   d.textContent = fmt(res.distance_m);
   d.dataset.metres = res.distance_m === null ? "" : String(res.distance_m);
   d.dataset.id = String(res.id);
-  $("uncertainty").textContent = fmtUncertainty(res.uncertainty_m);
+  const iv = interval95(res);
+  const ivEl = $("interval");
+  ivEl.textContent = fmtInterval(res) + (iv ? (iv.from === "interval" ? " · 95 % interval" : " · 95 % (±1.96σ)") : "");
+  ivEl.dataset.low = iv ? String(iv.lo) : "";
+  ivEl.dataset.high = iv ? String(iv.hi) : "";
+  const q = res.quality;
+  const reasons = (res.reasons || []).map((r) => (typeof r === "string" ? r : r.message || r.code || JSON.stringify(r)));
+  if (q) {
+    verdict.className = `verdict v-${q}`;
+    verdict.textContent = q === "good" ? "✓ good" : q === "check" ? "⚠ check" : "✕ unreliable";
+    verdict.title = reasons.join("\n");
+    d.className = `distance d-${q}`;
+  } else {
+    verdict.className = "verdict hidden"; // a service without verdicts: the warnings below still say what they can
+    d.className = "distance";
+  }
+  // not good: why, and what to do; good with notes (an edge click, an extrapolated end): the notes
+  const notGood = q && q !== "good";
+  $("why").classList.toggle("hidden", !(notGood || reasons.length));
+  $("why").classList.toggle("notes", !notGood);
+  const rs = reasons.length || !notGood ? reasons : ["the service gave no reason"];
+  $("reasons").replaceChildren(...rs.map((r) => Object.assign(document.createElement("li"), { textContent: r })));
+  $("advice").replaceChildren(...(notGood ? adviceFor(rs) : []).map((a) => Object.assign(document.createElement("li"), { textContent: a })));
+  const ends = [0, 1].map((i) => {
+    const p3 = i === 0 ? res.p1_m : res.p2_m;
+    const st = endState(res, i);
+    const row = document.createElement("div");
+    row.className = `end end-${st}`;
+    row.dataset.state = st;
+    row.innerHTML = `<b>P${i + 1}</b> <span class="end-depth"></span> <span class="end-state"></span><div class="end-xyz muted"></div>`;
+    row.querySelector(".end-depth").textContent = `depth ${p3 && p3[2] !== null ? fmt(p3[2]) : "—"}`;
+    row.querySelector(".end-state").textContent = st;
+    row.querySelector(".end-xyz").textContent = `XYZ ${fmtPoint3(p3)}`;
+    return row;
+  });
+  $("ends").replaceChildren(...ends);
   $("r-method").textContent = res.method;
   $("r-fit").textContent = res.fit;
   $("r-samples").textContent = `${res.n_support} / ${res.n_valid} (of ${res.n_samples})`;
   $("r-basic").textContent = fmt(res.basic_distance_m);
+  $("r-sigma").textContent = res.uncertainty_m === null ? "—" : fmtSmall(res.uncertainty_m);
   $("r-time").textContent = `${res.elapsed_ms.toFixed(1)} ms`;
   const warnings = [...res.warnings];
   if (res.gap_detected && !warnings.some((w) => /gap/i.test(w))) warnings.unshift("gap detected between the end points");
@@ -329,19 +729,82 @@ function showResult(res) {
 function clearPoints() {
   state.points = [];
   state.result = null;
-  state.drag = -1;
+  state.press = null;
+  state.seq++;
+  loupe.classList.add("hidden");
   showResult(null);
-  $("hint").textContent = "Click two points to measure. Drag a handle to adjust.";
+  $("hint").textContent = "Place two points to measure. Drag a handle to adjust.";
   draw();
+}
+
+// ---- the annotated PNG ---------------------------------------------------------------------------
+// The measured frame's colour image at its own resolution (the exact PNG, also when the view shows
+// depth) with the segment, the value, the interval and the verdict drawn on it, built in the page.
+function annotatedCanvas(img) {
+  const res = state.result;
+  const out = document.createElement("canvas");
+  out.width = img.naturalWidth;
+  out.height = img.naturalHeight;
+  const c = out.getContext("2d");
+  c.drawImage(img, 0, 0);
+  const s = Math.max(1, out.width / 900);
+  const pts = [res.p1, res.p2].map(([x, y]) => [x + 0.5, y + 0.5]);
+  drawSegment(c, pts, s);
+  pts.forEach(([x, y]) => drawHandle(c, x, y, s, false));
+  const iv = interval95(res);
+  const sub = [iv ? `95 %: ${fmt(iv.lo, false)} – ${fmt(iv.hi)}` : "uncertainty unknown", res.quality || ""].filter(Boolean).join(" · ");
+  drawLabel(c, pts, s, fmtInterval(res), verdictColor(res.quality), sub);
+  c.font = `${Math.round(12 * s)}px system-ui, sans-serif`;
+  c.textAlign = "left"; c.textBaseline = "bottom";
+  const footer = `depthruler · measurement ${res.id} · ${res.source || ""} · frame ${res.frame_id} · ${new Date(res.created * 1000).toISOString()}`;
+  c.fillStyle = "rgba(0,0,0,.6)"; c.fillRect(0, out.height - 20 * s, out.width, 20 * s);
+  c.fillStyle = "#e6e9ee"; c.fillText(footer, 6 * s, out.height - 4 * s);
+  return out;
+}
+
+async function savePng() {
+  if (!state.result || !state.frame || state.mode !== "frozen") return;
+  const res = state.result;
+  let img;
+  try {
+    img = await loadImage(`api/frames/${state.frame.id}/color.png`); // exact pixels, whatever the view shows
+  } catch (e) {
+    showError(e.message);
+    return;
+  }
+  annotatedCanvas(img).toBlob((blob) => {
+    const a = document.createElement("a");
+    a.href = URL.createObjectURL(blob);
+    a.download = `depthruler-${res.id}${res.name ? "-" + res.name.replace(/[^\w.-]+/g, "_") : ""}.png`;
+    document.body.append(a);
+    a.click();
+    a.remove();
+    setTimeout(() => URL.revokeObjectURL(a.href), 10000);
+  }, "image/png");
 }
 
 // ---- history ------------------------------------------------------------------------------------
 async function refreshHistory() {
   let items = [];
   try { items = await api("api/measurements?limit=100"); } catch (e) { return; }
-  const list = $("history");
-  list.replaceChildren(...items.map(historyItem));
-  $("history-empty").classList.toggle("hidden", items.length > 0);
+  state.history = items;
+  renderHistory();
+}
+
+function renderHistory() {
+  const pending = state.pendingDelete ? state.pendingDelete.record.id : null;
+  const items = state.history.filter((m) => m.id !== pending);
+  const sources = [...new Set(items.map((m) => m.source))].sort();
+  const sel = $("history-filter");
+  const keep = state.filter;
+  sel.replaceChildren(new Option("all", ""), ...sources.map((s) => new Option(s.length > 40 ? s.slice(0, 38) + "…" : s, s)));
+  sel.value = sources.includes(keep) ? keep : "";
+  state.filter = sel.value;
+  const shown = items.filter((m) => !state.filter || m.source === state.filter);
+  $("history").replaceChildren(...shown.map(historyItem));
+  $("history-empty").classList.toggle("hidden", shown.length > 0);
+  $("csv").href = withToken(`api/measurements.csv?units=${state.units}`);
+  $("json").href = withToken("api/measurements.json");
 }
 
 function historyItem(m) {
@@ -349,71 +812,205 @@ function historyItem(m) {
   li.dataset.id = m.id;
   const img = Object.assign(document.createElement("img"), { src: withToken(`api/measurements/${m.id}/thumb.png`), alt: "" });
   const text = document.createElement("div");
+  text.className = "h-text";
   const when = new Date(m.created * 1000).toLocaleTimeString();
-  const unc = m.uncertainty_m === null ? "" : fmtPlusMinus(m.uncertainty_m) + " · ";
-  text.innerHTML = `<div class="h-dist"></div><div class="h-meta"></div>`;
-  text.firstChild.textContent = fmt(m.distance_m);
-  text.lastChild.textContent = `${unc}${m.method} · ${m.fit} · ${when}${m.warnings.length ? " · ⚠ " + m.warnings.length : ""}`;
-  text.lastChild.title = m.warnings.join("\n");
-  const del = Object.assign(document.createElement("button"), { className: "h-del", title: "Delete", textContent: "×" });
-  del.addEventListener("click", async (ev) => {
-    ev.stopPropagation();
-    await api(`api/measurements/${m.id}`, { method: "DELETE" }).catch((e) => showError(e.message));
-    if (state.result && state.result.id === m.id) clearPoints();
-    refreshHistory();
-  });
+  text.innerHTML = `<div class="h-name"></div><div class="h-dist"></div><div class="h-meta"></div><div class="h-note"></div>`;
+  text.querySelector(".h-name").textContent = m.name || "";
+  text.querySelector(".h-dist").textContent = m.distance_m === null ? "—" : fmtInterval(m);
+  if (m.quality) {
+    const dot = Object.assign(document.createElement("span"), { className: `qdot v-${m.quality}`, title: m.quality });
+    text.querySelector(".h-dist").prepend(dot);
+  }
+  text.querySelector(".h-meta").textContent = `${m.source} · ${m.method} · ${when}${m.warnings.length ? " · ⚠ " + m.warnings.length : ""}`;
+  text.querySelector(".h-meta").title = [...(m.reasons || []), ...m.warnings].join("\n");
+  text.querySelector(".h-note").textContent = m.note || "";
+  const edit = Object.assign(document.createElement("button"), { className: "h-btn h-edit", title: "Name and note", textContent: "✎" });
+  edit.addEventListener("click", (ev) => { ev.stopPropagation(); editItem(li, m); });
+  const del = Object.assign(document.createElement("button"), { className: "h-btn h-del", title: "Delete", textContent: "×" });
+  del.addEventListener("click", (ev) => { ev.stopPropagation(); deleteWithUndo(m); });
+  const buttons = document.createElement("div");
+  buttons.className = "h-buttons";
+  buttons.append(edit, del);
   li.addEventListener("click", () => reopen(m.id));
-  li.append(img, text, del);
+  li.append(img, text, buttons);
   return li;
 }
 
-async function reopen(id) {
-  try {
-    const { frame, measurement } = await api(`api/measurements/${id}/open`, { method: "POST" });
-    state.frozen = true;
-    updateFreezeButton();
-    state.points = [measurement.p1, measurement.p2];
-    state.result = measurement;
-    await showFrame(frame);
-    showResult(measurement);
-    draw();
-  } catch (e) {
-    showError(e.message);
-  }
+function editItem(li, m) {
+  const form = document.createElement("form");
+  form.className = "h-form";
+  form.innerHTML = `<input name="name" maxlength="200" placeholder="Name (e.g. kitchen door width)"><textarea name="note" maxlength="4000" rows="2" placeholder="Note"></textarea><div><button class="btn small primary" type="submit">Save</button> <button class="btn small" type="button">Cancel</button></div>`;
+  form.name.value = m.name || "";
+  form.note.value = m.note || "";
+  form.addEventListener("click", (ev) => ev.stopPropagation());
+  form.querySelector("button[type=button]").addEventListener("click", () => renderHistory());
+  form.addEventListener("submit", async (ev) => {
+    ev.preventDefault();
+    try {
+      const rec = await api(`api/measurements/${m.id}`, { method: "PATCH", body: { name: form.name.value.trim(), note: form.note.value.trim() } });
+      if (state.result && state.result.id === m.id) { state.result.name = rec.name; state.result.note = rec.note; }
+      await refreshHistory();
+    } catch (e) { showError(e.message); }
+  });
+  li.replaceChildren(form);
+  form.name.focus();
 }
 
-// ---- source status and recording ----------------------------------------------------------------
+// Deleting hides the entry at once and deletes it on the server only when the undo time has passed
+// (or another deletion starts), so Undo needs no server-side trash.
+function deleteWithUndo(m) {
+  commitPendingDelete();
+  const timer = setTimeout(commitPendingDelete, UNDO_MS);
+  state.pendingDelete = { record: m, timer };
+  $("undo-text").textContent = `Deleted ${m.name ? "“" + m.name + "”" : fmt(m.distance_m)}.`;
+  $("undo").classList.remove("hidden");
+  if (state.result && state.result.id === m.id) clearPoints();
+  renderHistory();
+}
+
+function commitPendingDelete() {
+  const p = state.pendingDelete;
+  if (!p) return;
+  clearTimeout(p.timer);
+  state.pendingDelete = null;
+  $("undo").classList.add("hidden");
+  // keepalive: the deletion still goes out when it is committed because the page is being left
+  api(`api/measurements/${p.record.id}`, { method: "DELETE", keepalive: true }).catch((e) => showError(e.message)).then(refreshHistory);
+}
+
+function undoDelete() {
+  const p = state.pendingDelete;
+  if (!p) return;
+  clearTimeout(p.timer);
+  state.pendingDelete = null;
+  $("undo").classList.add("hidden");
+  renderHistory();
+}
+
+// Reopen a measurement on its saved frame; until that frame is on screen the page is "freezing",
+// so a click meanwhile waits for it instead of landing on the frame being replaced.
+function reopen(id) {
+  const previous = state.mode === "frozen" ? state.frame : null;
+  const gen = ++state.gen;
+  state.mode = "freezing";
+  updateFreezeButton();
+  updateTag();
+  state.freezing = (async () => {
+    try {
+      const { frame } = await api(`api/measurements/${id}/open`, { method: "POST" });
+      const measurement = await api(`api/measurements/${id}`); // the per-sample arrays live here
+      if (gen !== state.gen) return false;
+      if (previous && previous.id !== frame.id) api(`api/frames/${previous.id}/freeze`, { method: "DELETE" }).catch(() => {});
+      if (!(await showFrame(frame, gen))) return false;
+      state.mode = "frozen";
+      state.points = [measurement.p1, measurement.p2];
+      state.result = measurement;
+      state.seq++;
+      updateFreezeButton();
+      updateTag();
+      showResult(measurement);
+      draw();
+      return true;
+    } catch (e) {
+      if (gen === state.gen) { showError(e.message); state.mode = "live"; state.gen++; updateFreezeButton(); updateTag(); liveLoop(); }
+      return false;
+    }
+  })();
+  return state.freezing;
+}
+
+// ---- source: badge, status, replay controls, recording ------------------------------------------
+function sourceBadge(s) {
+  const kind = s.kind || (s.spec || "").split(":")[0];
+  if (kind === "replay") return ["replay", `REPLAY ${(s.replay && s.replay.recording) || s.name || ""}`];
+  if (kind === "sim") return ["sim", "SIMULATOR"];
+  if (!kind) return ["", "source"];
+  const fps = s.fps ? ` · ${(+s.fps).toFixed(0)} fps` : "";
+  return ["camera", `${kind.toUpperCase()} ${s.name || ""}${s.serial ? " " + s.serial : ""}${fps}`.trim()];
+}
+
 async function pollSource() {
   const pill = $("source-status");
   const msg = $("stage-msg");
   try {
     const s = await api("api/source");
-    const name = s.name || s.spec || "source";
+    state.source = s;
+    const [cls0, badge] = sourceBadge(s);
+    const b = $("source-badge");
+    b.className = `badge badge-${cls0}`;
+    b.textContent = badge;
+    b.title = s.replay ? `recording ${s.replay.recording} of ${s.replay.recorded_source} (${s.replay.frames} frames)` : `${s.name || ""} ${s.spec || ""}`.trim();
+    b.dataset.kind = cls0;
     const size = s.width ? ` · ${s.width}×${s.height}` : "";
     const fps = s.measured_fps ? ` · ${s.measured_fps.toFixed(1)} fps` : s.fps ? ` · ${s.fps} fps` : "";
-    let cls = "pill-ok", text = `${name}${size}${fps}`;
+    let cls = "pill-ok", text = `${s.state}${size}${fps}`;
     if (s.state === "disconnected" || s.state === "reconnecting") {
       cls = "pill-bad";
       const retry = s.retry_in_s > 0.5 ? ` — retrying in ${Math.ceil(s.retry_in_s)} s` : " — reconnecting…";
-      text = `${name}: ${s.state}${retry}`;
+      text = `${s.state}${retry}`;
       msg.textContent = `Source ${s.state}: ${s.message || "no frames"}${retry}`;
     } else if (s.state === "ended") {
       cls = "pill-wait";
-      text = `${name}: ended · last frame kept`;
+      text = "ended · last frame kept";
     } else if (s.state !== "streaming") {
       cls = "pill-wait";
-      text = `${name}: ${s.state}…`;
+      text = `${s.state}…`;
+    } else if (s.replay && s.replay.paused) {
+      cls = "pill-wait";
+      text = `paused${size}`;
     }
-    msg.classList.toggle("hidden", cls !== "pill-bad" || state.frozen);
+    msg.classList.toggle("hidden", cls !== "pill-bad" || state.mode !== "live");
     pill.className = "pill " + cls;
     pill.textContent = text;
     pill.title = s.message || s.spec;
     setRecording(s.recording);
+    showReplay(s.replay);
   } catch (e) {
     pill.className = "pill pill-bad";
     pill.textContent = "service unreachable";
     pill.title = e.message;
   }
+}
+
+function showReplay(r) {
+  const bar = $("replay-bar");
+  bar.classList.toggle("hidden", !r);
+  if (!r) return;
+  $("replay-play").textContent = r.paused ? "Play" : "Pause";
+  bar.dataset.paused = r.paused ? "1" : "";
+  $("replay-scrub").max = String(Math.max(0, r.frames - 1));
+  $("replay-pos").dataset.frames = String(r.frames);
+  showReplayPosition();
+}
+
+// The replay position is that of the frame on screen (the stream may be ahead of it).
+function showReplayPosition() {
+  const pos = $("replay-pos");
+  const f = state.frame;
+  const r = state.source && state.source.replay;
+  const index = f && f.replay_index !== null && f.replay_index !== undefined ? f.replay_index : r ? r.index : null;
+  const scrub = $("replay-scrub");
+  if (document.activeElement !== scrub && index !== null) scrub.value = String(index);
+  pos.textContent = `frame ${index === null ? "—" : index} / ${pos.dataset.frames || "—"}`;
+  pos.dataset.index = index === null ? "" : String(index);
+}
+
+async function replay(action, index) {
+  if (!state.source || !state.source.replay) return;
+  if (state.mode !== "live") goLive(); // the replay drives the live view
+  try {
+    showReplay(await api("api/source/replay", { method: "POST", body: index === undefined ? { action } : { action, index } }));
+  } catch (e) {
+    showError(e.message);
+  }
+}
+
+function replayStep(delta) {
+  const r = state.source && state.source.replay;
+  if (!r) return;
+  if (delta > 0) return replay("step");
+  const now = state.frame && state.frame.replay_index !== null && state.frame.replay_index !== undefined ? state.frame.replay_index : r.index;
+  return replay("seek", now > 0 ? now - 1 : Math.max(0, r.frames - 1)); // from the first frame back to the last
 }
 
 function setRecording(rec) {
@@ -438,7 +1035,9 @@ function setUnits(u) {
   localStorage.setItem("depthruler-units", u);
   $("units").value = u;
   showResult(state.result);
-  refreshHistory();
+  renderHistory();
+  drawColorbar();
+  if (state.hoverDepth) showDepth(state.hoverDepth);
   draw();
 }
 
@@ -451,25 +1050,38 @@ function setMethod(m) {
 
 $("units").addEventListener("change", (e) => setUnits(e.target.value));
 $("method").addEventListener("change", (e) => setMethod(e.target.value));
-$("freeze").addEventListener("click", () => (state.frozen ? goLive() : freeze()));
+$("freeze").addEventListener("click", () => (state.mode === "live" ? freeze() : goLive()));
 $("view-color").addEventListener("click", () => setView("color"));
 $("view-disparity").addEventListener("click", () => setView("disparity"));
 $("clear").addEventListener("click", clearPoints);
 $("record").addEventListener("click", toggleRecording);
-$("csv").addEventListener("click", (e) => { e.preventDefault(); location.href = withToken("api/measurements.csv"); });
+$("save-png").addEventListener("click", savePng);
+$("undo-btn").addEventListener("click", undoDelete);
+$("history-filter").addEventListener("change", (e) => { state.filter = e.target.value; renderHistory(); });
+$("replay-play").addEventListener("click", () => replay(state.source && state.source.replay && state.source.replay.paused ? "play" : "pause"));
+$("replay-step").addEventListener("click", () => replayStep(1));
+$("replay-back").addEventListener("click", () => replayStep(-1));
+$("replay-scrub").addEventListener("change", (e) => replay("seek", Number(e.target.value)));
+window.addEventListener("pagehide", commitPendingDelete);
 
 document.addEventListener("keydown", (e) => {
-  if (e.target.tagName === "SELECT" || e.target.tagName === "INPUT" || e.ctrlKey || e.metaKey || e.altKey) return;
+  if (["SELECT", "INPUT", "TEXTAREA"].includes(e.target.tagName) || e.ctrlKey || e.metaKey || e.altKey) return;
   const keys = Object.keys(UNITS);
   switch (e.key) {
     case "Escape":
-      if (state.drag >= 0 || state.points.length) clearPoints(); else goLive();
+      if (state.press || state.points.length) clearPoints(); else goLive();
       break;
-    case "f": state.frozen ? goLive() : freeze(); break;
+    case "f": state.mode === "live" ? freeze() : goLive(); break;
     case "d": setView(state.view === "color" ? "disparity" : "color"); break;
     case "u": setUnits(keys[(keys.indexOf(state.units) + 1) % keys.length]); break;
     case "m": setMethod(METHODS[(METHODS.indexOf(state.method) + 1) % METHODS.length]); break;
     case "r": toggleRecording(); break;
+    case ".": replayStep(1); break;
+    case ",": replayStep(-1); break;
+    case " ": // a focused button takes space itself
+      if (!state.source || !state.source.replay || e.target.tagName === "BUTTON") return;
+      $("replay-play").click();
+      break;
     default: return;
   }
   e.preventDefault();
@@ -480,7 +1092,6 @@ $("units").value = state.units in UNITS ? state.units : (state.units = "m");
 $("method").value = METHODS.includes(state.method) ? state.method : (state.method = "robust");
 fitCanvas();
 pollSource();
-pollLive();
+liveLoop();
 refreshHistory();
-setInterval(pollLive, 250);
 setInterval(pollSource, 1000);

@@ -1,0 +1,110 @@
+"""What the browser tests share: a real ``depthruler serve`` subprocess, Debian's chromium, and a
+page that records console errors and failed API responses."""
+
+from __future__ import annotations
+
+import os
+import socket
+import subprocess
+import sys
+import time
+from collections.abc import Iterator
+from contextlib import contextmanager
+from pathlib import Path
+
+import httpx
+import pytest
+
+ROOT = Path(__file__).resolve().parents[1]
+CHROMIUM_ARGS = [
+    "--no-sandbox",
+    "--disable-gpu",
+    "--disable-background-networking",
+    "--disable-component-update",
+    "--disable-sync",
+    "--no-first-run",
+]
+
+
+def free_port() -> int:
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+@contextmanager
+def serve(folder: Path, source: str, *args: str, config: str = "") -> Iterator[str]:
+    """Run ``depthruler serve --source SOURCE ARGS`` with its history in ``folder``; yields the base URL
+    once the first frame is there. ``config``: TOML text passed as ``--config`` (server options that
+    have no flag, e.g. ``capture_fps``)."""
+    port = free_port()
+    cmd = [sys.executable, "-m", "service.cli", "serve", "--source", source, "--port", str(port)]
+    cmd += ["--db", str(folder / "h.db"), *args]
+    if config:
+        (folder / "serve.toml").write_text(config)
+        cmd += ["--config", str(folder / "serve.toml")]
+    log = open(folder / "serve.log", "wb")
+    proc = subprocess.Popen(cmd, cwd=ROOT, stdout=log, stderr=subprocess.STDOUT, env={**os.environ, "PYTHONUNBUFFERED": "1"})
+    base = f"http://127.0.0.1:{port}"
+    try:
+        deadline = time.monotonic() + 60
+        while True:
+            if proc.poll() is not None:
+                pytest.fail(f"depthruler serve exited: {(folder / 'serve.log').read_text(errors='replace')}")
+            try:
+                if httpx.get(f"{base}/api/frames/latest", params={"wait": 2}, timeout=5).status_code == 200:
+                    break
+            except httpx.TransportError:
+                pass
+            if time.monotonic() > deadline:
+                pytest.fail(f"no frame from {source} within 60 s: {httpx.get(base + '/api/source').text}")
+            time.sleep(0.3)
+        yield base
+    finally:
+        proc.terminate()
+        try:
+            proc.wait(10)
+        except subprocess.TimeoutExpired:
+            proc.kill()
+        log.close()
+
+
+@contextmanager
+def chromium() -> Iterator[object]:
+    from playwright.sync_api import sync_playwright
+
+    with sync_playwright() as pw:
+        b = pw.chromium.launch(executable_path="/usr/bin/chromium", args=CHROMIUM_ARGS)
+        try:
+            yield b
+        finally:
+            b.close()
+
+
+def watch(page) -> list[str]:
+    """Collect what must not happen on a page: script errors, console errors, API answers >= 400,
+    state changes that are not JSON."""
+    problems: list[str] = []
+    page.on("pageerror", lambda e: problems.append(f"page error: {e}"))
+    page.on("console", lambda m: problems.append(f"console {m.type}: {m.text}") if m.type == "error" else None)
+    page.on(
+        "response",
+        lambda r: problems.append(f"{r.status} {r.request.method} {r.url}") if "/api/" in r.url and r.status >= 400 else None,
+    )
+    # the server refuses a state change without a JSON content type (cross-site forms cannot send one)
+    page.on(
+        "request",
+        lambda r: problems.append(f"{r.method} {r.url} without Content-Type: application/json")
+        if r.method in ("POST", "PUT", "PATCH") and "/api/" in r.url
+        and not (r.headers.get("content-type") or "").startswith("application/json")
+        else None,
+    )
+    page.problems = problems  # type: ignore[attr-defined]
+    return problems
+
+
+def image_point(page, frame: dict, px) -> tuple[float, float]:
+    """Viewport coordinates of image pixel ``px`` (pixel-centre convention) on the scaled canvas."""
+    box = page.locator("#canvas").bounding_box()
+    sx, sy = box["width"] / frame["width"], box["height"] / frame["height"]
+    return box["x"] + (px[0] + 0.5) * sx, box["y"] + (px[1] + 0.5) * sy
