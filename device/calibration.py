@@ -279,7 +279,8 @@ def calibration_from_json(data: dict, source: str = "calibration") -> StereoCali
         raise CalibrationError(f"{source}: R is not a rotation matrix (orthonormal with determinant +1)")
     T = arr("T", None, (3,)).reshape(3)
     if np.abs(T).max() > 5:  # before the norm: its squares could overflow
-        raise CalibrationError(f"{source}: T = {T.tolist()} is implausible; T must be in metres, not mm")
+        raise CalibrationError(f"{source}: T = {T.tolist()} is implausible; T must be in metres "
+                               "(a file with T in mm: add calib_units=mm to the source spec)")
     if np.linalg.norm(T) <= 0:
         raise CalibrationError(f"{source}: T is zero; the two cameras must be apart (T in metres)")
     if np.linalg.norm(T) > 5:
