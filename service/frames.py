@@ -8,6 +8,7 @@ source and reopens it with exponential backoff.
 
 from __future__ import annotations
 
+import asyncio
 import itertools
 import threading
 import time
@@ -27,6 +28,10 @@ class FrameGone(KeyError):
 
 class FrameUnknown(KeyError):
     """The frame id was never issued (HTTP 404)."""
+
+
+class TooManyWaiters(RuntimeError):
+    """More long-polls are waiting than the ring allows (HTTP 429)."""
 
 
 @dataclass
@@ -56,11 +61,15 @@ class FrameRing:
     frames are frozen, freezing one more releases the oldest frozen one back to the live pool.
     """
 
-    def __init__(self, capacity: int = 32, max_frozen: int = 16) -> None:
-        if capacity < 1 or max_frozen < 1:
-            raise ValueError(f"ring capacity ({capacity}) and max_frozen ({max_frozen}) must be at least 1")
+    def __init__(self, capacity: int = 32, max_frozen: int = 16, max_waiters: int = 64) -> None:
+        if capacity < 1 or max_frozen < 1 or max_waiters < 1:
+            raise ValueError(
+                f"ring capacity ({capacity}), max_frozen ({max_frozen}) and max_waiters ({max_waiters}) must be at least 1"
+            )
         self.capacity = capacity
         self.max_frozen = max_frozen
+        self.max_waiters = max_waiters
+        self._wakers: set[Callable[[], None]] = set()
         self._frames: OrderedDict[int, RingFrame] = OrderedDict()
         self._ids = itertools.count(1)
         self._next = 1
@@ -78,6 +87,8 @@ class FrameRing:
                 self._limit_frozen(keep=fid)
             self._evict()
             self._cond.notify_all()
+            for wake in list(self._wakers):
+                wake()
             return entry
 
     def _evict(self) -> None:
@@ -118,6 +129,47 @@ class FrameRing:
                 if left <= 0:
                     return None
                 self._cond.wait(left)
+
+    @property
+    def waiters(self) -> int:
+        """Long-polls waiting in :meth:`wait_latest_async` now."""
+        with self._cond:
+            return len(self._wakers)
+
+    async def wait_latest_async(self, after: int = 0, timeout_s: float = 5.0) -> RingFrame | None:
+        """:meth:`wait_latest` on the event loop: a waiting client holds no worker thread, so any
+        number of long-polls (up to ``max_waiters``, then :class:`TooManyWaiters`) cannot starve
+        the other routes."""
+        loop = asyncio.get_running_loop()
+        event = asyncio.Event()
+
+        def wake() -> None:
+            try:
+                loop.call_soon_threadsafe(event.set)
+            except RuntimeError:  # the loop closed while a frame arrived: nobody is waiting any more
+                pass
+
+        with self._cond:
+            if len(self._wakers) >= self.max_waiters:
+                raise TooManyWaiters(f"{len(self._wakers)} clients are already waiting for a frame; retry in a second")
+            self._wakers.add(wake)
+        deadline = loop.time() + timeout_s
+        try:
+            while True:
+                event.clear()  # before looking, so a frame pushed after the look still wakes us
+                entry = self.latest()
+                if entry is not None and entry.id > after:
+                    return entry
+                left = deadline - loop.time()
+                if left <= 0:
+                    return None
+                try:
+                    await asyncio.wait_for(event.wait(), left)
+                except asyncio.TimeoutError:
+                    pass
+        finally:
+            with self._cond:
+                self._wakers.discard(wake)
 
     def freeze(self, fid: int, frozen: bool = True) -> RingFrame:
         with self._cond:

@@ -4,17 +4,18 @@ from __future__ import annotations
 
 from typing import Annotated, Any, Literal
 
-from fastapi import APIRouter, HTTPException, Query
+from fastapi import APIRouter, HTTPException, Path, Query
 from fastapi.responses import PlainTextResponse, Response
 
 from measure import MeasureError, MeasureOptions, measure_distance
 
 from ..render import frame_json, make_thumb
-from ..schemas import MeasureIn
+from ..schemas import MAX_ID, MeasureIn
 from ..state import ServiceState, State
 from ..store import StoreError
 
 router = APIRouter(prefix="/api", tags=["measurements"])
+MeasurementId = Annotated[int, Path(ge=0, le=MAX_ID)]
 
 
 @router.post("/measure")
@@ -60,7 +61,7 @@ def measurements_csv(state: State) -> PlainTextResponse:
 
 
 @router.get("/measurements", response_model=None)
-def measurements(state: State, format: Literal["json", "csv"] = "json", limit: Annotated[int, Query(ge=1)] = 1000) -> Any:
+def measurements(state: State, format: Literal["json", "csv"] = "json", limit: Annotated[int, Query(ge=1, le=100_000)] = 1000) -> Any:
     if format == "csv":
         return _csv(state)
     return state.store.list(limit)
@@ -74,19 +75,19 @@ def _record(state: ServiceState, mid: int) -> dict[str, Any]:
 
 
 @router.get("/measurements/{mid}")
-def measurement(state: State, mid: int) -> dict[str, Any]:
+def measurement(state: State, mid: MeasurementId) -> dict[str, Any]:
     return _record(state, mid)
 
 
 @router.delete("/measurements/{mid}")
-def delete_measurement(state: State, mid: int) -> dict[str, Any]:
+def delete_measurement(state: State, mid: MeasurementId) -> dict[str, Any]:
     if not state.store.delete(mid):
         raise HTTPException(404, f"no measurement {mid}; GET /api/measurements lists them")
     return {"deleted": mid}
 
 
 @router.get("/measurements/{mid}/thumb.png")
-def thumb(state: State, mid: int) -> Response:
+def thumb(state: State, mid: MeasurementId) -> Response:
     _record(state, mid)
     data = state.store.thumb(mid)
     if data is None:
@@ -95,7 +96,7 @@ def thumb(state: State, mid: int) -> Response:
 
 
 @router.post("/measurements/{mid}/open")
-def reopen(state: State, mid: int) -> dict[str, Any]:
+def reopen(state: State, mid: MeasurementId) -> dict[str, Any]:
     """Put the saved frame of a measurement back into the ring (frozen) to view or re-measure it."""
     record = _record(state, mid)
     try:

@@ -33,6 +33,8 @@ function withToken(url) {
 async function api(path, options = {}) {
   const headers = Object.assign({}, options.headers || {});
   if (state.token) headers.Authorization = "Bearer " + state.token;
+  // The server refuses state changes without a JSON content type (a cross-site form cannot send one).
+  if ((options.method || "GET") !== "GET") headers["Content-Type"] = "application/json";
   if (options.body && typeof options.body !== "string") {
     headers["Content-Type"] = "application/json";
     options = Object.assign({}, options, { body: JSON.stringify(options.body) });
