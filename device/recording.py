@@ -793,6 +793,7 @@ class ReplaySource(SourceBase):
         self._pos = 0
         self._offsets = np.zeros(0)
         self._cycle_start: float | None = None
+        self.warnings: list[str] = []  # frames skipped because they could not be read
 
     def open(self) -> None:
         rec = open_recording(self.config.path)
@@ -843,7 +844,14 @@ class ReplaySource(SourceBase):
             if wait > 0:
                 time.sleep(wait)
         self._pos += 1
-        frame = rec.frame(i)
+        try:
+            frame = rec.frame(i)
+        except RecordingError as exc:
+            # one damaged frame must not end (or, reopened, restart) the replay: skip it, say so
+            self.warnings.append(f"{exc}; frame {i} skipped")
+            if len(self.warnings) >= len(rec) and self.config.loop:
+                raise RecordingError(f"no frame of {rec.path} can be read ({exc})") from exc
+            return self.read(timeout_s)
         meta = dict(frame.meta)
         meta["replay"] = {"path": str(rec.path), "index": i}
         return dataclasses.replace(frame, meta=meta)

@@ -68,19 +68,21 @@ def create_app(
     allowed_hosts: tuple[str, ...] | list[str] = LOOPBACK_HOSTS,
     max_body_bytes: int = MAX_BODY_BYTES,
     max_waiters: int = 64,
+    history_max_bytes: int | None = None,
 ) -> FastAPI:
     """The service app on ``source`` (a spec string or a factory of unopened sources).
 
     ``recordings_dir`` (default: ``recordings/`` next to the database) is the only folder the API
     records into; ``allowed_hosts`` the ``Host`` names it answers (``("*",)``: any);
-    ``max_waiters`` bounds concurrent long-polls (429 beyond)."""
+    ``max_waiters`` bounds concurrent long-polls (429 beyond); ``history_max_bytes`` caps the saved
+    frames (oldest unpinned deleted first)."""
     spec = source if isinstance(source, str) else getattr(source, "__name__", "custom")
     factory: Callable[[], Source] = (lambda: make_source(source)) if isinstance(source, str) else source  # type: ignore[arg-type]
     ring = FrameRing(ring_size, max_frozen, max_waiters)
     capture = Capture(
         factory, ring, spec=spec, fps=capture_fps, backoff_initial_s=reconnect_initial_s, backoff_max_s=reconnect_max_s
     )
-    store = Store(db_path)
+    store = Store(db_path, max_bytes=history_max_bytes)
     recorder = Recorder(capture, Path(recordings_dir) if recordings_dir else Path(db_path).resolve().parent / "recordings")
     state = ServiceState(ring=ring, capture=capture, store=store, recorder=recorder)
 

@@ -18,7 +18,7 @@ from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import Any
 
-from device import Source, SourceEnded, SourceInfo
+from device import Source, SourceEnded, SourceInfo, SourceTimeout
 from measure import Frame
 
 
@@ -201,9 +201,12 @@ class Capture:
     States: "connecting" (first open), "streaming", "disconnected" (after an error, waiting to
     retry), "reconnecting" (reopening), "ended" (a finite source such as a replay without loop
     delivered its last frame: not reopened, which would start it over; the last frame stays
-    measurable), "stopped". Any other exception from the source is caught, its message kept for
+    measurable), "stopped". A read that times out (:class:`SourceTimeout`) is counted and retried
+    on the open source: for an OAK a reopen is a device reboot. Any other exception from the source
+    (a :class:`SourceDisconnected`, or anything unexpected) is caught, its message kept for
     ``status()``, and the source reopened after a backoff that doubles from
-    ``backoff_initial_s`` up to ``backoff_max_s``; it resets after a successful frame.
+    ``backoff_initial_s`` up to ``backoff_max_s``; it resets after a successful frame. A source's
+    ``warnings`` list (a replay's skipped frames) shows in ``status()``.
     """
 
     def __init__(
@@ -235,6 +238,8 @@ class Capture:
         self._retries = 0
         self._next_retry: float | None = None
         self._times: list[float] = []
+        self._timeouts = 0
+        self._warnings: list[str] = []
 
     def start(self) -> None:
         self._thread = threading.Thread(target=self._run, name="depthruler-capture", daemon=True)
@@ -271,6 +276,8 @@ class Capture:
                 "frames": self._frames,
                 "retries": self._retries,
                 "retry_in_s": retry_in,
+                "timeouts": self._timeouts,
+                "warnings": list(self._warnings)[-10:],
             }
 
     @property
@@ -287,10 +294,16 @@ class Capture:
                 self._set(state="connecting" if first else "reconnecting", next_retry=None)
                 src = self.factory()
                 src.open()
-                self._set(info=src.info)
+                self._set(info=src.info, warnings=getattr(src, "warnings", []))
                 while not self._stop.is_set():
                     t0 = time.monotonic()
-                    frame = src.read(self.read_timeout_s)
+                    try:
+                        frame = src.read(self.read_timeout_s)
+                    except SourceTimeout as exc:
+                        with self._lock:
+                            self._timeouts += 1
+                            self._message = f"SourceTimeout: {exc} (retrying)"
+                        continue
                     self._deliver(frame, src.info)
                     backoff = self.backoff_initial_s
                     self._stop.wait(max(0.0, self.period_s - (time.monotonic() - t0)))

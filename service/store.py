@@ -1,31 +1,42 @@
-"""Measurement history in SQLite (WAL), with each measured frame saved alongside as ``.npz``.
+"""Measurement history in SQLite (WAL), with each measured frame saved alongside as one compact file.
 
 The database holds every :class:`measure.Measurement` field, the frame id and clicked points,
-the options and a small thumbnail. The frame itself (image, disparity, confidence, camera,
-baseline) goes to ``<db stem>-frames/<uid>.npz`` once, however many measurements use it, so
-history survives a restart and a measurement can be re-opened on exactly its frame. Frames are
-written by a background thread (bounded queue) so a measurement answers without waiting for the
-disk; ``close()`` drains the queue, so a clean shutdown loses nothing.
+the options and a small thumbnail. The frame itself goes to ``<db stem>-frames/<uid>.frame``
+(:mod:`service.frame_file`: PNG16 disparity, JPEG colour, camera) once, however many
+measurements use it, so history survives a restart and a measurement can be re-opened and
+re-measured on its frame.
+
+Durability: :meth:`Store.add` writes and fsyncs the frame file *before* it commits the row
+(synchronous=FULL), so a measurement that was answered is on disk with its frame, whatever
+happens next (SIGKILL, power). A crash between the two leaves an unreferenced file, deleted at
+the next start with any stale temporary file. A full disk raises :class:`StoreFull` (HTTP 507)
+and marks the store degraded until a probe write succeeds again.
+
+Size: with ``max_bytes`` the frame files are capped; beyond it the oldest frames that no pinned
+measurement uses are deleted (their measurements stay, without a frame to reopen).
 """
 
 from __future__ import annotations
 
 import csv
+import errno
 import io
 import json
 import math
 import os
-import queue
 import sqlite3
 import threading
 import time
-import zipfile
+from collections.abc import Iterator
+from contextlib import contextmanager
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
 from measure import Frame, PinholeCamera
+
+from .frame_file import SUFFIX, TMP_SUFFIX, decode_frame, encode_frame, write_durably
 
 _SCHEMA = """
 CREATE TABLE IF NOT EXISTS frames (
@@ -63,6 +74,18 @@ CREATE TABLE IF NOT EXISTS measurements (
     thumb BLOB
 );
 """
+_MIGRATIONS = (  # columns added since the first schema: (table, column, declaration)
+    ("frames", "bytes", "INTEGER NOT NULL DEFAULT 0"),
+    ("measurements", "pinned", "INTEGER NOT NULL DEFAULT 0"),
+    ("measurements", "extra", "TEXT NOT NULL DEFAULT '{}'"),
+)
+_FIXED_RESULT_KEYS = frozenset(
+    ("distance_m", "method", "fit", "p1_m", "p2_m", "basic_distance_m", "uncertainty_m", "n_samples", "n_valid",
+     "n_support", "samples_px", "support", "gap_detected", "warnings", "elapsed_ms")
+)  # fmt: skip
+_OPTIONAL_CSV = ("quality", "reasons")  # result keys newer Measurement.to_dict() has; columns when present
+_FULL_ERRNOS = (errno.ENOSPC, errno.EDQUOT)
+_PROBE_INTERVAL_S = 0.5
 
 CSV_COLUMNS = (
     "id", "created", "frame_id", "source", "p1_x", "p1_y", "p2_x", "p2_y", "distance_m", "uncertainty_m",
@@ -75,152 +98,187 @@ class StoreError(RuntimeError):
     """The history database or a saved frame cannot be read or written; names the file."""
 
 
-def _json_meta(meta: Any) -> dict[str, Any]:
-    """The JSON-serialisable scalar part of a frame's meta (e.g. not the simulator's Truth object)."""
-    out: dict[str, Any] = {}
-    for k, v in dict(meta or {}).items():
-        if isinstance(v, (str, int, float, bool)) or v is None:
-            out[str(k)] = v
-    return out
+class StoreFull(StoreError):
+    """The disk holding the history is full (HTTP 507)."""
 
 
-def save_frame(frame: Frame, path: Path) -> None:
-    """Write a frame to ``path`` (.npz) atomically: a crash leaves either the old file or the new one."""
-    cam = frame.camera
-    arrays: dict[str, Any] = {
-        "image": frame.image,
-        "disparity": frame.disparity,
-        "camera": np.array([cam.fx, cam.fy, cam.cx, cam.cy, cam.width, cam.height], dtype=np.float64),
-        "numbers": np.array([frame.baseline_m, frame.doffs, frame.timestamp], dtype=np.float64),
-        "meta": np.array(json.dumps(_json_meta(frame.meta))),
-    }
-    if frame.confidence is not None:
-        arrays["confidence"] = frame.confidence
-    tmp = path.with_suffix(".tmp.npz")
-    with open(tmp, "wb") as fh:
-        # np.savez_compressed's zlib level 6 costs ~4x level 1 for a few % of size; frames are noisy anyway.
-        with zipfile.ZipFile(fh, "w", zipfile.ZIP_DEFLATED, compresslevel=1) as zf:
-            for name, value in arrays.items():
-                with zf.open(name + ".npy", "w", force_zip64=True) as member:
-                    np.lib.format.write_array(member, np.asanyarray(value), allow_pickle=False)
-        fh.flush()
-        os.fsync(fh.fileno())
-    os.replace(tmp, path)
+class FrameDropped(StoreError):
+    """The measurement's frame was deleted by the history cap (HTTP 410)."""
 
 
 def load_frame(path: Path) -> Frame:
-    """Read a frame written by :func:`save_frame`."""
+    """Read a saved frame: a ``.frame`` file, or an ``.npz`` of earlier versions."""
     try:
-        with np.load(path, allow_pickle=False) as z:
-            fx, fy, cx, cy, w, h = z["camera"].tolist()
-            baseline, doffs, ts = z["numbers"].tolist()
-            return Frame(
-                image=z["image"],
-                disparity=z["disparity"],
-                camera=PinholeCamera(fx=fx, fy=fy, cx=cx, cy=cy, width=int(w), height=int(h)),
-                baseline_m=baseline,
-                doffs=doffs,
-                confidence=z["confidence"] if "confidence" in z.files else None,
-                timestamp=ts,
-                meta=json.loads(str(z["meta"])),
-            )
-    except (OSError, KeyError, ValueError) as exc:
+        if path.suffix == ".npz":
+            return _load_npz(path)
+        return decode_frame(path.read_bytes())
+    except (OSError, KeyError, ValueError, TypeError) as exc:
         raise StoreError(f"cannot read saved frame {path}: {exc}; the history entry needs this file") from exc
+    except Exception as exc:  # zipfile.BadZipFile and friends: a damaged file, never a crash
+        raise StoreError(f"cannot read saved frame {path}: {exc}; the file is damaged") from exc
+
+
+def _load_npz(path: Path) -> Frame:
+    with np.load(path, allow_pickle=False) as z:
+        fx, fy, cx, cy, w, h = z["camera"].tolist()
+        baseline, doffs, ts = z["numbers"].tolist()
+        return Frame(
+            image=z["image"],
+            disparity=z["disparity"],
+            camera=PinholeCamera(fx=fx, fy=fy, cx=cx, cy=cy, width=int(w), height=int(h)),
+            baseline_m=baseline,
+            doffs=doffs,
+            confidence=z["confidence"] if "confidence" in z.files else None,
+            timestamp=ts,
+            meta=json.loads(str(z["meta"])),
+        )
 
 
 def _num(x: Any) -> float | None:
     return None if x is None or not math.isfinite(float(x)) else float(x)
 
 
+def _is_full(exc: BaseException) -> bool:
+    if isinstance(exc, OSError):
+        return exc.errno in _FULL_ERRNOS
+    return isinstance(exc, sqlite3.Error) and (
+        getattr(exc, "sqlite_errorcode", None) == 13 or "full" in str(exc).lower()  # SQLITE_FULL
+    )
+
+
 class Store:
     """Thread-safe measurement history; ``Store(path)`` creates the database and frames folder."""
 
-    def __init__(self, path: str | Path) -> None:
+    def __init__(self, path: str | Path, *, max_bytes: int | None = None) -> None:
         self.path = Path(path)
         self.frames_dir = self.path.with_name(self.path.stem + "-frames")
+        self.max_bytes = max_bytes
         try:
             self.path.parent.mkdir(parents=True, exist_ok=True)
             self.frames_dir.mkdir(exist_ok=True)
             self._db = sqlite3.connect(self.path, check_same_thread=False, isolation_level=None)
             self._db.execute("PRAGMA journal_mode=WAL")
-            self._db.execute("PRAGMA synchronous=NORMAL")
+            self._db.execute("PRAGMA synchronous=FULL")  # a committed row survives power loss, not only a crash
             self._db.executescript(_SCHEMA)
+            for table, column, decl in _MIGRATIONS:
+                if column not in {r[1] for r in self._db.execute(f"PRAGMA table_info({table})")}:
+                    self._db.execute(f"ALTER TABLE {table} ADD COLUMN {column} {decl}")
         except (OSError, sqlite3.Error) as exc:
             raise StoreError(f"cannot open the history database {self.path}: {exc}; pass --db with a writable path") from exc
         self._db.row_factory = sqlite3.Row
         self._lock = threading.Lock()
-        self._pending: dict[str, Frame] = {}
-        self._queue: queue.Queue[str | None] = queue.Queue(maxsize=16)  # backpressure: bounded memory
-        self._writer = threading.Thread(target=self._write_frames, name="depthruler-store", daemon=True)
-        self._writer.start()
-        self.write_errors: list[str] = []
+        self._saving: dict[str, threading.Lock] = {}  # one writer per frame uid; other frames go side by side
+        self._degraded = ""
+        self._next_probe = 0.0
+        self._clean_leftovers()
 
     def close(self) -> None:
-        """Write the frames still queued, then close the database."""
-        self._queue.put(None)
-        self._writer.join()
         with self._lock:
             self._db.close()
 
-    def flush(self) -> None:
-        """Block until every queued frame is on disk."""
-        self._queue.join()
-
-    def ensure_frame(self, uid: str, frame: Frame) -> None:
-        """Queue ``frame`` for saving under ``uid`` unless it is saved or queued already."""
+    def _clean_leftovers(self) -> None:
+        """Delete what a crash can leave: temporary files, and frame files whose row was never committed."""
         with self._lock:
-            if uid in self._pending or self._db.execute("SELECT 1 FROM frames WHERE uid=?", (uid,)).fetchone():
-                return
-            self._pending[uid] = frame
-        self._queue.put(uid)
+            known = {r["file"] for r in self._db.execute("SELECT file FROM frames")}
+        for p in self.frames_dir.iterdir():
+            stale = p.name.endswith((TMP_SUFFIX, ".tmp.npz"))
+            orphan = p.suffix in (SUFFIX, ".npz") and p.name not in known
+            if (stale or orphan) and p.is_file():
+                p.unlink(missing_ok=True)
 
-    def _write_frames(self) -> None:
-        while (uid := self._queue.get()) is not None:
+    # -- health ----------------------------------------------------------------------------------
+
+    def _full(self, exc: BaseException, what: str) -> StoreFull:
+        self._degraded = f"the disk holding {self.frames_dir} is full ({exc}); free space there or lower --history-max-gb"
+        self._next_probe = 0.0
+        return StoreFull(f"{what} not stored: {self._degraded}")
+
+    def status(self) -> dict[str, Any]:
+        """``{"degraded": reason or "", ...}``; while degraded, a probe write (at most twice a
+        second) checks whether space came back, and clears the state when it did."""
+        if self._degraded and time.monotonic() >= self._next_probe:
+            self._next_probe = time.monotonic() + _PROBE_INTERVAL_S
+            probe = self.frames_dir / f".probe{TMP_SUFFIX}"
             try:
-                self._write_frame(uid)
-            except Exception as exc:  # noqa: BLE001 — a full disk must not kill the writer; report it
-                self.write_errors.append(f"saving frame {uid} failed: {exc}")
-            finally:
+                write_durably(probe, b"\0" * 65536)
+                probe.unlink()
                 with self._lock:
-                    self._pending.pop(uid, None)
-                self._queue.task_done()
-        self._queue.task_done()
+                    self._db.execute("PRAGMA wal_checkpoint(PASSIVE)")
+                self._degraded = ""
+            except (OSError, sqlite3.Error):
+                probe.unlink(missing_ok=True)
+        return {"degraded": self._degraded}
 
-    def _write_frame(self, uid: str) -> None:
+    # -- frames ----------------------------------------------------------------------------------
+
+    @contextmanager
+    def _frame_lock(self, uid: str) -> Iterator[None]:
         with self._lock:
-            frame = self._pending.get(uid)
-        if frame is None:
-            return
-        name = f"{uid}.npz"
-        save_frame(frame, self.frames_dir / name)
-        h, w = frame.disparity.shape
+            lock = self._saving.setdefault(uid, threading.Lock())
+        with lock:
+            yield
         with self._lock:
-            if not self._db.execute("SELECT 1 FROM measurements WHERE frame_uid=? LIMIT 1", (uid,)).fetchone():
-                orphan = True  # its measurements were deleted while it was queued
-            else:
-                orphan = False
-                self._db.execute(
-                    "INSERT OR IGNORE INTO frames(uid, file, width, height, timestamp, source, created) VALUES (?,?,?,?,?,?,?)",
-                    (uid, name, w, h, float(frame.timestamp), str(frame.meta.get("source", "")), time.time()),
-                )
-        if orphan:
-            (self.frames_dir / name).unlink(missing_ok=True)
+            if self._saving.get(uid) is lock and not lock.locked():
+                del self._saving[uid]
+
+    def _save_frame(self, uid: str, frame: Frame) -> int:
+        """Write ``frame`` as ``<uid>.frame`` durably unless it is there already (the caller holds
+        the uid's lock); returns its size. Raises StoreFull on a full disk, StoreError otherwise."""
+        path = self.frames_dir / f"{uid}{SUFFIX}"
+        if path.exists():  # the rename is atomic: a file under this name is complete
+            return path.stat().st_size
+        data = encode_frame(frame)
+        try:
+            write_durably(path, data)
+        except OSError as exc:
+            if _is_full(exc):
+                raise self._full(exc, f"frame {uid}") from None
+            raise StoreError(f"cannot save frame {uid} to {path}: {exc}") from exc
+        return len(data)
 
     def frame(self, uid: str) -> Frame:
         with self._lock:
-            pending = self._pending.get(uid)
             row = self._db.execute("SELECT file FROM frames WHERE uid=?", (uid,)).fetchone()
-        if pending is not None:
-            return pending
         if row is None:
-            raise StoreError(f"the frame {uid} of this measurement was not saved in {self.frames_dir} (lost in a crash?)")
+            raise StoreError(f"the frame {uid} of this measurement was not saved in {self.frames_dir}")
+        if not row["file"]:
+            raise FrameDropped(
+                f"the frame {uid} of this measurement was deleted to keep the history under --history-max-gb; "
+                "its numbers are kept (pin a measurement to keep its frame)"
+            )
         return load_frame(self.frames_dir / row["file"])
+
+    def _enforce_cap(self) -> None:
+        """Delete the oldest frames no pinned measurement uses until the files fit ``max_bytes``
+        (the newest frame always stays)."""
+        if self.max_bytes is None:
+            return
+        with self._lock:
+            total = self._db.execute("SELECT COALESCE(SUM(bytes), 0) FROM frames WHERE file != ''").fetchone()[0]
+            if total <= self.max_bytes:
+                return
+            rows = self._db.execute(
+                "SELECT uid, file, bytes FROM frames WHERE file != '' AND uid NOT IN "
+                "(SELECT frame_uid FROM measurements WHERE pinned=1) ORDER BY created, rowid"
+            ).fetchall()[:-1]
+            victims = []
+            for r in rows:
+                if total <= self.max_bytes:
+                    break
+                victims.append(r)
+                total -= r["bytes"]
+            self._db.executemany("UPDATE frames SET file='' WHERE uid=?", [(r["uid"],) for r in victims])
+        for r in victims:
+            (self.frames_dir / r["file"]).unlink(missing_ok=True)
+
+    # -- measurements ----------------------------------------------------------------------------
 
     def add(
         self,
         *,
         frame_id: int,
         frame_uid: str,
+        frame: Frame,
         source: str,
         p1: tuple[float, float],
         p2: tuple[float, float],
@@ -228,31 +286,66 @@ class Store:
         result: dict[str, Any],
         thumb: bytes | None,
     ) -> dict[str, Any]:
-        """Insert one measurement (``result`` is ``Measurement.to_dict()``) and return its stored record."""
+        """Save the frame (once per uid), then insert one measurement (``result`` is
+        ``Measurement.to_dict()``; keys beyond the known columns are kept as JSON) and return its
+        stored record. When this returns, both are durable."""
+        with self._frame_lock(frame_uid):  # a delete of the frame's last measurement waits for this
+            mid = self._add(frame_uid, frame, frame_id, source, p1, p2, options, result, thumb)
+        self._enforce_cap()
+        record = self.get(mid)
+        assert record is not None
+        return record
+
+    def _add(
+        self, frame_uid: str, frame: Frame, frame_id: int, source: str, p1: tuple[float, float], p2: tuple[float, float],
+        options: dict[str, Any], result: dict[str, Any], thumb: bytes | None,
+    ) -> int:  # fmt: skip
+        size = self._save_frame(frame_uid, frame)
+        h, w = frame.disparity.shape
         created = time.time()
+        extra = {k: v for k, v in result.items() if k not in _FIXED_RESULT_KEYS}
         values = (
             created, frame_id, frame_uid, source, float(p1[0]), float(p1[1]), float(p2[0]), float(p2[1]),
             json.dumps(options), result["distance_m"], result["method"], result["fit"], json.dumps(result["p1_m"]),
             json.dumps(result["p2_m"]), result["basic_distance_m"], result["uncertainty_m"], result["n_samples"],
             result["n_valid"], result["n_support"], json.dumps(result["samples_px"]), json.dumps(result["support"]),
-            int(result["gap_detected"]), json.dumps(result["warnings"]), result["elapsed_ms"], thumb,
+            int(result["gap_detected"]), json.dumps(result["warnings"]), result["elapsed_ms"], thumb, json.dumps(extra),
         )  # fmt: skip
         with self._lock:
-            cur = self._db.execute(
-                "INSERT INTO measurements(created, frame_id, frame_uid, source, p1_x, p1_y, p2_x, p2_y, options, "
-                "distance_m, method, fit, p1_m, p2_m, basic_distance_m, uncertainty_m, n_samples, n_valid, "
-                "n_support, samples_px, support, gap_detected, warnings, elapsed_ms, thumb) "
-                "VALUES (?,?,?,?,?,?,?,?,?,?,?,?,?,?,?,?,?,?,?,?,?,?,?,?,?)",
-                values,
-            )
-            mid = cur.lastrowid
-        record = self.get(mid)
-        assert record is not None
-        return record
+            try:
+                self._db.execute("BEGIN IMMEDIATE")
+                self._db.execute(
+                    "INSERT OR IGNORE INTO frames(uid, file, width, height, timestamp, source, created, bytes) "
+                    "VALUES (?,?,?,?,?,?,?,?)",
+                    (frame_uid, f"{frame_uid}{SUFFIX}", w, h, float(frame.timestamp), str(frame.meta.get("source", "")), created, size),
+                )
+                cur = self._db.execute(
+                    "INSERT INTO measurements(created, frame_id, frame_uid, source, p1_x, p1_y, p2_x, p2_y, options, "
+                    "distance_m, method, fit, p1_m, p2_m, basic_distance_m, uncertainty_m, n_samples, n_valid, "
+                    "n_support, samples_px, support, gap_detected, warnings, elapsed_ms, thumb, extra) "
+                    "VALUES (?,?,?,?,?,?,?,?,?,?,?,?,?,?,?,?,?,?,?,?,?,?,?,?,?,?)",
+                    values,
+                )
+                self._db.execute("COMMIT")
+            except sqlite3.Error as exc:
+                if self._db.in_transaction:
+                    self._db.execute("ROLLBACK")
+                if _is_full(exc):
+                    raise self._full(exc, "measurement") from None
+                raise StoreError(f"cannot store the measurement in {self.path}: {exc}") from exc
+            self._degraded = ""  # a write went through: space is back
+            return int(cur.lastrowid)
+
+    def pin(self, mid: int, pinned: bool = True) -> dict[str, Any] | None:
+        """Pin (or unpin) a measurement: the history cap never deletes the frame of a pinned one."""
+        with self._lock:
+            self._db.execute("UPDATE measurements SET pinned=? WHERE id=?", (int(pinned), mid))
+        return self.get(mid)
 
     @staticmethod
     def _record(row: sqlite3.Row) -> dict[str, Any]:
         return {
+            **json.loads(row["extra"] or "{}"),  # newer Measurement fields (quality, reasons, ...); never shadow ours
             "id": row["id"],
             "created": row["created"],
             "frame_id": row["frame_id"],
@@ -276,6 +369,7 @@ class Store:
             "gap_detected": bool(row["gap_detected"]),
             "warnings": json.loads(row["warnings"]),
             "elapsed_ms": row["elapsed_ms"],
+            "pinned": bool(row["pinned"]),
         }
 
     def get(self, mid: int) -> dict[str, Any] | None:
@@ -298,10 +392,15 @@ class Store:
         """Delete a measurement; its saved frame goes too once no measurement refers to it."""
         with self._lock:
             row = self._db.execute("SELECT frame_uid FROM measurements WHERE id=?", (mid,)).fetchone()
-            if row is None:
+        if row is None:
+            return False
+        with self._frame_lock(row["frame_uid"]):
+            return self._delete(mid, row["frame_uid"])
+
+    def _delete(self, mid: int, uid: str) -> bool:
+        with self._lock:
+            if not self._db.execute("DELETE FROM measurements WHERE id=?", (mid,)).rowcount:
                 return False
-            uid = row["frame_uid"]
-            self._db.execute("DELETE FROM measurements WHERE id=?", (mid,))
             orphan = not self._db.execute("SELECT 1 FROM measurements WHERE frame_uid=? LIMIT 1", (uid,)).fetchone()
             file = None
             if orphan:
@@ -316,12 +415,23 @@ class Store:
         """All measurements as CSV (oldest first), one column per field in :data:`CSV_COLUMNS`."""
         buf = io.StringIO()
         writer = csv.writer(buf, lineterminator="\n")
-        writer.writerow(CSV_COLUMNS)
-        for r in reversed(self.list(limit=1_000_000)):
+        records = list(reversed(self.list(limit=1_000_000)))
+        optional = [k for k in _OPTIONAL_CSV if any(k in r for r in records)]
+        writer.writerow((*CSV_COLUMNS, *optional))
+        for r in records:
             created = time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime(r["created"]))
+            more = [_csv_cell(r.get(k)) for k in optional]
             writer.writerow(
                 [r["id"], created, r["frame_id"], r["source"], *r["p1"], *r["p2"], r["distance_m"], r["uncertainty_m"],
                  r["method"], r["fit"], r["basic_distance_m"], r["n_samples"], r["n_valid"], r["n_support"],
-                 int(r["gap_detected"]), "; ".join(r["warnings"]), *r["p1_m"], *r["p2_m"]]
+                 int(r["gap_detected"]), "; ".join(r["warnings"]), *r["p1_m"], *r["p2_m"], *more]
             )  # fmt: skip
         return buf.getvalue()
+
+
+def _csv_cell(value: Any) -> Any:
+    if value is None:
+        return ""
+    if isinstance(value, (list, tuple)):
+        return "; ".join(str(v) for v in value)
+    return value

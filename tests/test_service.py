@@ -217,7 +217,7 @@ def test_restart_keeps_history_and_reopens_frame(tmp_path):
         assert float(rows[0]["distance_m"]) == pytest.approx(first["distance_m"])
         assert c.get("/api/measurements", params={"format": "csv"}).text == c.get("/api/measurements.csv").text
     # the deleted measurement's frame is shared with kept ones, so it stays; one file per frame
-    assert len(list((tmp_path / "h-frames").glob("*.npz"))) == 1
+    assert len(list((tmp_path / "h-frames").glob("*.frame"))) == 1
 
 
 def test_disconnecting_source_is_reported_and_retried(tmp_path):

@@ -14,13 +14,16 @@ router = APIRouter(prefix="/api", tags=["health"])
 
 @router.get("/health")
 def health(state: State) -> dict[str, Any]:
+    """``status`` is "ok", or "degraded" with a ``reason`` (the history's disk is full: measurements
+    answer 507 until space comes back, checked on every call)."""
     status = state.capture.status()
+    degraded = state.store.status()["degraded"]
     return {
-        "status": "ok",
+        "status": "degraded" if degraded else "ok",
+        "reason": degraded,
         "source_state": status["state"],
         "frames": len(state.ring),
         "uptime_s": time.time() - state.started,
-        "store_errors": state.store.write_errors[-5:],
     }
 
 

@@ -12,7 +12,7 @@ from measure import MeasureError, MeasureOptions, measure_distance
 from ..render import frame_json, make_thumb
 from ..schemas import MAX_ID, MeasureIn
 from ..state import ServiceState, State
-from ..store import StoreError
+from ..store import FrameDropped, StoreError, StoreFull
 
 router = APIRouter(prefix="/api", tags=["measurements"])
 MeasurementId = Annotated[int, Path(ge=0, le=MAX_ID)]
@@ -33,18 +33,22 @@ def measure(state: State, body: MeasureIn) -> dict[str, Any]:
         result = measure_distance(frame, body.p1, body.p2, MeasureOptions(**options))
     except MeasureError as exc:
         raise HTTPException(422, str(exc)) from None
-    record = state.store.add(
-        frame_id=entry.id,
-        frame_uid=entry.uid,
-        source=str(frame.meta.get("source", "")) or state.capture.spec,
-        p1=body.p1,
-        p2=body.p2,
-        options=options,
-        result=result.to_dict(),
-        thumb=make_thumb(frame, body.p1, body.p2),
-    )
-    state.store.ensure_frame(entry.uid, frame)  # after the row exists: the writer drops frames nobody refers to
-    return record
+    try:
+        return state.store.add(
+            frame_id=entry.id,
+            frame_uid=entry.uid,
+            frame=frame,
+            source=str(frame.meta.get("source", "")) or state.capture.spec,
+            p1=body.p1,
+            p2=body.p2,
+            options=options,
+            result=result.to_dict(),
+            thumb=make_thumb(frame, body.p1, body.p2),
+        )  # returns once the measurement and its frame are on disk
+    except StoreFull as exc:
+        raise HTTPException(507, str(exc)) from None
+    except StoreError as exc:
+        raise HTTPException(500, str(exc)) from None
 
 
 def _csv(state: ServiceState) -> PlainTextResponse:
@@ -101,7 +105,22 @@ def reopen(state: State, mid: MeasurementId) -> dict[str, Any]:
     record = _record(state, mid)
     try:
         saved = state.store.frame(record["frame_uid"])
+    except FrameDropped as exc:
+        raise HTTPException(410, str(exc)) from None
     except StoreError as exc:
         raise HTTPException(404, str(exc)) from None
     entry = state.ring.push(saved, frozen=True, uid=record["frame_uid"])
     return {"frame": frame_json(entry), "measurement": record}
+
+
+@router.post("/measurements/{mid}/pin")
+def pin(state: State, mid: MeasurementId) -> dict[str, Any]:
+    """Keep this measurement's frame whatever the history cap (``--history-max-gb``)."""
+    _record(state, mid)
+    return state.store.pin(mid, True) or _record(state, mid)
+
+
+@router.delete("/measurements/{mid}/pin")
+def unpin(state: State, mid: MeasurementId) -> dict[str, Any]:
+    _record(state, mid)
+    return state.store.pin(mid, False) or _record(state, mid)
