@@ -495,6 +495,106 @@ class RecordingWriter:
 # reader
 
 
+_REQUIRED: Any = object()
+
+
+class _Fields:
+    """Typed access to one JSON object of a recording: a missing or type-wrong value is a
+    RecordingError naming the file, the line (for frames.jsonl) and the field, never a TypeError."""
+
+    def __init__(self, obj: Any, file: Path, line: int | None = None, prefix: str = "") -> None:
+        self.file, self.line, self.prefix = file, line, prefix
+        if not isinstance(obj, dict):
+            raise self.error(prefix.rstrip(".") or "(the whole entry)", "must be a JSON object", obj)
+        self.obj: dict[str, Any] = obj
+
+    def error(self, name: str, what: str, value: Any = _REQUIRED) -> RecordingError:
+        where = f"{self.file} line {self.line}" if self.line is not None else str(self.file)
+        got = "" if value is _REQUIRED else f" (got {json.dumps(value)[:60] if _dumpable(value) else type(value).__name__})"
+        return RecordingError(f"{where}: field {self.prefix}{name} {what}{got}; the file is damaged")
+
+    def _get(self, key: str, default: Any) -> Any:
+        if key not in self.obj:
+            if default is _REQUIRED:
+                raise self.error(key, "is missing")
+            return default
+        return self.obj[key]
+
+    def number(self, key: str, default: Any = _REQUIRED, *, nullable: bool = False) -> Any:
+        v = self._get(key, default)
+        if (v is None and nullable) or (v is default and key not in self.obj):
+            return v
+        if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v):
+            raise self.error(key, "must be a finite number", v)
+        return float(v)
+
+    def integer(self, key: str, default: Any = _REQUIRED, *, minimum: int | None = None, nullable: bool = False) -> Any:
+        v = self._get(key, default)
+        if (v is None and nullable) or (v is default and key not in self.obj):
+            return v
+        if isinstance(v, bool) or not isinstance(v, int) or (minimum is not None and v < minimum):
+            raise self.error(key, "must be an integer" + (f" >= {minimum}" if minimum is not None else ""), v)
+        return v
+
+    def string(self, key: str, default: Any = _REQUIRED) -> Any:
+        v = self._get(key, default)
+        if v is default and key not in self.obj:
+            return v
+        if not isinstance(v, str):
+            raise self.error(key, "must be a string", v)
+        return v
+
+    def fields(self, key: str, default: Any = _REQUIRED) -> _Fields | None:
+        v = self._get(key, default)
+        if v is None and key not in self.obj:
+            return None
+        return _Fields(v, self.file, self.line, f"{self.prefix}{key}.")
+
+    def camera(self, key: str) -> PinholeCamera:
+        c = self.fields(key)
+        assert c is not None
+        values = {k: c.number(k) for k in ("fx", "fy", "cx", "cy")}
+        size = {k: c.integer(k, minimum=1) for k in ("width", "height")}
+        try:
+            return PinholeCamera(**values, **size)
+        except (TypeError, ValueError) as exc:
+            raise self.error(key, f"is not a valid camera ({exc})") from None
+
+    def rel_path(self, key: str, rel: Any) -> str:
+        """A file named by the recording: relative, inside it, written with '/' (as the writer does)."""
+        parts = rel.split("/") if isinstance(rel, str) else []
+        if (
+            not isinstance(rel, str)
+            or not rel
+            or rel.startswith("/")
+            or "\\" in rel
+            or "\0" in rel
+            or any(p in ("", ".", "..") for p in parts)
+        ):
+            raise self.error(key, "must be a relative path inside the recording (like color/000000.png)", rel)
+        return rel
+
+
+def _dumpable(value: Any) -> bool:
+    try:
+        json.dumps(value)
+        return True
+    except (TypeError, ValueError):
+        return False
+
+
+def _inside(root: Path, rel: str, what: str) -> Path:
+    """``root / rel``, refused when it leads out of the recording (a symlink placed inside it)."""
+    p = root / rel
+    try:
+        real = p.resolve()
+    except (OSError, RuntimeError) as exc:
+        raise RecordingError(f"{p} ({what}) cannot be resolved ({exc})") from exc
+    if not real.is_relative_to(root.resolve()):
+        raise RecordingError(f"{p} ({what}) leads to {real}, outside the recording; this frame cannot be replayed")
+    return p
+
+
 @dataclass(frozen=True)
 class FrameEntry:
     """One complete line of frames.jsonl."""
@@ -535,6 +635,67 @@ def _read_manifest(path: Path) -> dict[str, Any]:
     return manifest
 
 
+@dataclass(frozen=True)
+class _ManifestFacts:
+    camera: PinholeCamera | None
+    baseline_m: float | None
+    doffs: float
+    source: SourceInfo
+
+
+def _manifest_facts(manifest: dict[str, Any], mpath: Path) -> _ManifestFacts:
+    """The typed facts of a manifest; any type-wrong value is a RecordingError naming the field."""
+    m = _Fields(manifest, mpath)
+    camera = m.camera("camera") if manifest.get("camera") is not None else None
+    baseline = m.number("baseline_m", None, nullable=True)
+    doffs = m.number("doffs", None, nullable=True)
+    src = m.fields("source", None) or _Fields({}, mpath, prefix="source.")
+    extra = src.fields("extra", None)
+    info = SourceInfo(
+        kind=src.string("kind", ""),
+        name=src.string("name", ""),
+        serial=src.string("serial", ""),
+        width=src.integer("width", 0, minimum=0, nullable=True) or 0,
+        height=src.integer("height", 0, minimum=0, nullable=True) or 0,
+        fps=src.number("fps", 0.0, nullable=True) or 0.0,
+        state=src.string("state", ""),
+        extra=dict(extra.obj) if extra else {},
+    )
+    return _ManifestFacts(camera=camera, baseline_m=baseline, doffs=doffs or 0.0, source=info)
+
+
+def _entry(obj: Any, fpath: Path, n: int) -> FrameEntry:
+    """One frames.jsonl line, every field type-checked (RecordingError naming file, line, field)."""
+    f = _Fields(obj, fpath, n)
+    files_f = f.fields("files")
+    assert files_f is not None
+    files = {str(kind): files_f.rel_path(str(kind), rel) for kind, rel in files_f.obj.items()}
+    for need in ("color", "disparity"):
+        if need not in files:
+            raise files_f.error(need, "is missing")
+    calib = None
+    if obj.get("calib") is not None:
+        c = f.fields("calib")
+        assert c is not None
+        camera = c.camera("camera")
+        calib = {"camera": {k: getattr(camera, k) for k in ("fx", "fy", "cx", "cy", "width", "height")},
+                 "baseline_m": c.number("baseline_m"), "doffs": c.number("doffs")}  # fmt: skip
+    meta = f.fields("meta", {})
+    dropped = obj.get("meta_dropped", [])
+    if not isinstance(dropped, list) or not all(isinstance(k, str) for k in dropped):
+        raise f.error("meta_dropped", "must be a list of strings", dropped)
+    return FrameEntry(
+        index=f.integer("index", minimum=0),
+        timestamp=f.number("timestamp"),
+        files=files,
+        meta=dict(meta.obj) if meta else {},
+        line=n,
+        calib=calib,
+        disparity_dropped=f.integer("disparity_dropped", 0, minimum=0),
+        meta_dropped=tuple(dropped),
+    )
+
+
 def _read_index(path: Path) -> tuple[list[FrameEntry], list[str]]:
     fpath = path / FRAMES
     if not fpath.is_file():
@@ -549,23 +710,13 @@ def _read_index(path: Path) -> tuple[list[FrameEntry], list[str]]:
             continue
         try:
             obj = json.loads(raw)
-            entries.append(
-                FrameEntry(
-                    index=int(obj["index"]),
-                    timestamp=float(obj["timestamp"]),
-                    files=dict(obj["files"]),
-                    meta=dict(obj.get("meta", {})),
-                    line=n,
-                    calib=obj.get("calib"),
-                    disparity_dropped=int(obj.get("disparity_dropped", 0)),
-                    meta_dropped=tuple(obj.get("meta_dropped", ())),
-                )
-            )
-            if "color" not in obj["files"] or "disparity" not in obj["files"]:
-                entries.pop()
-                raise KeyError("files.color/files.disparity")
-        except (ValueError, KeyError, TypeError) as exc:
-            problems.append(f"{fpath} line {n} is corrupt ({exc.__class__.__name__}: {exc}); that frame was skipped")
+        except ValueError as exc:
+            problems.append(f"{fpath} line {n} is corrupt (not JSON: {exc}); that frame was skipped")
+            continue
+        try:
+            entries.append(_entry(obj, fpath, n))
+        except RecordingError as exc:
+            problems.append(f"{exc}; that frame was skipped")
     if tail.strip():
         problems.append(
             f"{fpath} line {len(lines) + 1} is incomplete (the recording stopped mid-frame); it was skipped, "
@@ -577,7 +728,7 @@ def _read_index(path: Path) -> tuple[list[FrameEntry], list[str]]:
 def _read_image(root: Path, rel: str, what: str, shape: tuple[int, ...], dtype: type) -> np.ndarray:
     import cv2
 
-    p = root / rel
+    p = _inside(root, rel, what)
     if not p.is_file():
         raise RecordingError(f"{p} ({what}) is missing; this frame cannot be replayed, the others can (skip it or record again)")
     img = cv2.imread(str(p), cv2.IMREAD_UNCHANGED)
@@ -634,7 +785,7 @@ class Recording:
         meta = dict(e.meta)
         for kind, rel in e.files.items():
             if kind.startswith("meta:"):
-                p = self.path / rel
+                p = _inside(self.path, rel, f"meta array {kind[5:]!r}")
                 try:
                     meta[kind[5:]] = np.load(p, allow_pickle=False)
                 except (OSError, ValueError) as exc:
@@ -661,7 +812,7 @@ class Recording:
     def _raw_image(self, rel: str, what: str) -> np.ndarray:
         import cv2
 
-        p = self.path / rel
+        p = _inside(self.path, rel, what)
         img = cv2.imread(str(p), cv2.IMREAD_UNCHANGED) if p.is_file() else None
         if img is None:
             raise RecordingError(f"{p} ({what}) is missing or corrupt; this frame's raw pair cannot be replayed, the others can")
@@ -690,31 +841,16 @@ def open_recording(path: str | Path, *, strict: bool = False) -> Recording:
     entries, problems = _read_index(path)
     if strict and problems:
         raise RecordingError("; ".join(problems) + "; open without strict to use the complete frames")
-    try:
-        camera = PinholeCamera(**manifest["camera"]) if manifest.get("camera") else None
-    except (TypeError, ValueError) as exc:
-        raise RecordingError(f"{path / MANIFEST} has an unreadable camera ({exc}); the manifest is damaged") from exc
-    if entries and camera is None:
+    facts = _manifest_facts(manifest, path / MANIFEST)
+    if entries and facts.camera is None:
         raise RecordingError(f"{path / MANIFEST} has no camera although frames.jsonl lists frames; the manifest is damaged")
-    src = manifest.get("source") or {}
-    info = SourceInfo(
-        kind=str(src.get("kind", "")),
-        name=str(src.get("name", "")),
-        serial=str(src.get("serial", "")),
-        width=int(src.get("width") or 0),
-        height=int(src.get("height") or 0),
-        fps=float(src.get("fps") or 0.0),
-        state=str(src.get("state", "")),
-        extra=dict(src.get("extra") or {}),
-    )
-    baseline = manifest.get("baseline_m")
     return Recording(
         path=path,
         manifest=manifest,
-        camera=camera,
-        baseline_m=float(baseline) if baseline is not None else None,
-        doffs=float(manifest.get("doffs") or 0.0),
-        source=info,
+        camera=facts.camera,
+        baseline_m=facts.baseline_m,
+        doffs=facts.doffs,
+        source=facts.source,
         entries=tuple(entries),
         problems=tuple(problems),
     )

@@ -61,6 +61,7 @@ def serve(
     token: Optional[str] = typer.Option(None, envvar="DEPTHRULER_TOKEN", help="Require this token on /api (Bearer header or ?token=)."),
     db: Optional[Path] = typer.Option(None, help="SQLite history file (default depthruler.db); frames go to <db>-frames/."),
     recordings: Optional[Path] = typer.Option(None, help="The only folder recordings started from the API go into (default ./recordings)."),
+    history_max_gb: Optional[float] = typer.Option(None, "--history-max-gb", help="Keep the saved frames under this many GB: the oldest unpinned frames are deleted first (their measurements stay). Default: no cap."),
     insecure_no_token: bool = typer.Option(False, "--insecure-no-token", help="Serve on a non-loopback --host without a token: anyone who reaches the port can use the API."),
     allowed_host: Optional[list[str]] = typer.Option(None, "--allowed-host", help="Another Host name to answer (a DNS name of this machine); repeatable."),
     ring_size: Optional[int] = typer.Option(None, help="Frames kept in the ring buffer (default 64)."),
@@ -81,6 +82,8 @@ def serve(
             overrides["recordings"] = str(recordings)
         if insecure_no_token:
             overrides["insecure_no_token"] = True
+        if history_max_gb is not None:
+            overrides["history_max_gb"] = history_max_gb
         if allowed_host:
             overrides["allowed_hosts"] = tuple(allowed_host)
         server = ServerConfig.model_validate({**cfg.server.model_dump(), **overrides})
@@ -112,6 +115,7 @@ def serve(
             reconnect_initial_s=server.reconnect_initial_s,
             reconnect_max_s=server.reconnect_max_s,
             recordings_dir=Path(server.recordings),
+            history_max_bytes=int(server.history_max_gb * 1e9) if server.history_max_gb else None,
             allowed_hosts=allowed_hosts_for(server.host, server.allowed_hosts),
         )
     except Exception as exc:  # noqa: BLE001 — StoreError etc.: say what, don't dump a trace

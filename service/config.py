@@ -28,6 +28,7 @@ class ServerConfig(_Model):
     port: int = Field(8000, ge=1, le=65535)
     db: str = "depthruler.db"
     recordings: str = "recordings"  # the only folder the API records into
+    history_max_gb: float | None = Field(None, gt=0, le=1e6)  # cap on saved frames; oldest unpinned deleted first
     token: str = ""
     insecure_no_token: bool = False  # serve on a non-loopback host without a token (anyone there can use it)
     allowed_hosts: tuple[str, ...] = ()  # extra Host names to answer (a DNS name of this machine)

@@ -198,10 +198,12 @@ def test_recordings_flag_sets_the_root(tmp_path, monkeypatch):
 
     calls = {}
     monkeypatch.setattr(uvicorn, "run", lambda app, **kw: calls.update(app=app, **kw))
-    args = ["serve", "--source", "sim", "--port", "9202", "--db", str(tmp_path / "o.db"), "--recordings", str(tmp_path / "r")]
+    args = ["serve", "--source", "sim", "--port", "9202", "--db", str(tmp_path / "o.db"), "--recordings", str(tmp_path / "r"),
+            "--history-max-gb", "0.5"]  # fmt: skip
     result = CliRunner().invoke(app, args)
     assert result.exit_code == 0, result.output
     assert calls["app"].state.recorder.root == (tmp_path / "r").resolve()
+    assert calls["app"].state.store.max_bytes == 500_000_000
 
 
 def test_default_client_sees_localhost_only(tmp_path):
