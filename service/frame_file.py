@@ -7,7 +7,7 @@ A ``.frame`` file is an uncompressed zip of
 - ``color.jpg``: JPEG quality 92 (the colour image is only looked at; measuring uses disparity);
 - ``confidence.png``: optional, 8-bit;
 - ``frame.json``: camera, baseline, doffs, timestamp and the frame's JSON-able meta.
-At 1280x720 this is ~0.4 MB and ~15 ms to encode against 3.1 MB for the earlier ``.npz``.
+At 1280x720 (the simulator's noisy disparity) this is ~0.9 MB against 3.1 MB for the earlier ``.npz``.
 :func:`write_durably` makes it crash-safe: temp file, fsync, rename, fsync of the folder.
 """
 
@@ -23,8 +23,7 @@ from typing import Any
 import cv2
 import numpy as np
 
-from device.errors import RecordingError
-from device.recording import decode_confidence, decode_disparity, encode_confidence, encode_disparity
+from device.recording import DISPARITY_SCALE, MAX_DISPARITY_CODE, decode_confidence, decode_disparity, encode_confidence
 from measure import Frame, PinholeCamera
 
 SUFFIX = ".frame"
@@ -37,21 +36,41 @@ def _json_meta(meta: Any) -> dict[str, Any]:
     return {str(k): v for k, v in dict(meta or {}).items() if isinstance(v, (str, int, float, bool)) or v is None}
 
 
+# Row filter "up" and zlib's run-length strategy: ~2x faster than OpenCV's defaults on disparity
+# and confidence maps (smooth, with runs of invalid pixels) for ~15 % more bytes; still lossless.
+_PNG_FAST = [cv2.IMWRITE_PNG_COMPRESSION, 1, cv2.IMWRITE_PNG_STRATEGY, cv2.IMWRITE_PNG_STRATEGY_RLE]
+if hasattr(cv2, "IMWRITE_PNG_FILTER"):  # OpenCV >= 4.10
+    _PNG_FAST += [cv2.IMWRITE_PNG_FILTER, cv2.IMWRITE_PNG_FILTER_UP]
+
+
 def _png(image: np.ndarray) -> bytes:
-    ok, buf = cv2.imencode(".png", image, [cv2.IMWRITE_PNG_COMPRESSION, 1])
+    ok, buf = cv2.imencode(".png", image, _PNG_FAST)
     if not ok:
         raise ValueError(f"PNG encoding of a {image.shape} {image.dtype} image failed")
     return buf.tobytes()
+
+
+def disparity_code(disparity: np.ndarray) -> np.ndarray | None:
+    """``device.recording``'s 16-bit code of a disparity map (round(d * 64), 0 = invalid: NaN,
+    negative or below 1/128 px), in float32 (~4x faster than its float64 encoder); None when a
+    disparity of 1024 px or more does not fit."""
+    scaled = np.asarray(disparity, np.float32) * np.float32(DISPARITY_SCALE)
+    np.rint(scaled, out=scaled)
+    np.nan_to_num(scaled, copy=False, nan=0.0, posinf=0.0, neginf=0.0)
+    if scaled.max(initial=0.0) > MAX_DISPARITY_CODE:
+        return None
+    np.maximum(scaled, 0.0, out=scaled)
+    return scaled.astype(np.uint16)
 
 
 def encode_frame(frame: Frame) -> bytes:
     """The ``.frame`` bytes of ``frame`` (see the module docstring)."""
     cam = frame.camera
     members: dict[str, bytes] = {}
-    try:
-        code, _ = encode_disparity(frame.disparity)
+    code = disparity_code(frame.disparity)
+    if code is not None:
         members["disparity.png"] = _png(code)
-    except RecordingError:
+    else:
         buf = io.BytesIO()
         np.save(buf, np.asarray(frame.disparity, np.float32), allow_pickle=False)
         members["disparity.npy"] = buf.getvalue()

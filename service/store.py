@@ -12,6 +12,12 @@ happens next (SIGKILL, power). A crash between the two leaves an unreferenced fi
 the next start with any stale temporary file. A full disk raises :class:`StoreFull` (HTTP 507)
 and marks the store degraded until a probe write succeeds again.
 
+Speed: :meth:`Store.presave` (called when a frame is frozen, before anyone clicks on it) writes
+the frame on a background thread, so the measurement that follows usually finds it on disk and
+only commits its row; a presave that would have to queue is skipped instead (the measurement
+then writes the frame itself), so saving never makes a request wait behind other frames.
+Thumbnails are drawn on first request, not on the measuring path.
+
 Size: with ``max_bytes`` the frame files are capped; beyond it the oldest frames that no pinned
 measurement uses are deleted (their measurements stay, without a frame to reopen).
 """
@@ -28,10 +34,12 @@ import sqlite3
 import threading
 import time
 from collections.abc import Iterator
+from concurrent.futures import ThreadPoolExecutor
 from contextlib import contextmanager
 from pathlib import Path
 from typing import Any
 
+import cv2
 import numpy as np
 
 from measure import Frame, PinholeCamera
@@ -86,6 +94,11 @@ _FIXED_RESULT_KEYS = frozenset(
 _OPTIONAL_CSV = ("quality", "reasons")  # result keys newer Measurement.to_dict() has; columns when present
 _FULL_ERRNOS = (errno.ENOSPC, errno.EDQUOT)
 _PROBE_INTERVAL_S = 0.5
+_PRESAVE_KEEP_S = 600.0  # a presaved frame nobody measured within this is deleted
+_SLIM_COLUMNS = (
+    "id, created, frame_id, frame_uid, source, p1_x, p1_y, p2_x, p2_y, options, distance_m, method, fit, p1_m, p2_m, "
+    "basic_distance_m, uncertainty_m, n_samples, n_valid, n_support, gap_detected, warnings, elapsed_ms, pinned, extra"
+)  # every column but the per-sample arrays and the thumbnail
 
 CSV_COLUMNS = (
     "id", "created", "frame_id", "source", "p1_x", "p1_y", "p2_x", "p2_y", "distance_m", "uncertainty_m",
@@ -170,9 +183,13 @@ class Store:
         self._saving: dict[str, threading.Lock] = {}  # one writer per frame uid; other frames go side by side
         self._degraded = ""
         self._next_probe = 0.0
+        self._presaver = ThreadPoolExecutor(max_workers=1, thread_name_prefix="depthruler-presave")
+        self._presaving = 0
+        self._presaved: dict[str, float] = {}  # uid -> when, for frames saved before any measurement
         self._clean_leftovers()
 
     def close(self) -> None:
+        self._presaver.shutdown(wait=True)
         with self._lock:
             self._db.close()
 
@@ -192,6 +209,10 @@ class Store:
         self._degraded = f"the disk holding {self.frames_dir} is full ({exc}); free space there or lower --history-max-gb"
         self._next_probe = 0.0
         return StoreFull(f"{what} not stored: {self._degraded}")
+
+    @property
+    def degraded(self) -> str:
+        return self._degraded
 
     def status(self) -> dict[str, Any]:
         """``{"degraded": reason or "", ...}``; while degraded, a probe write (at most twice a
@@ -221,6 +242,44 @@ class Store:
             if self._saving.get(uid) is lock and not lock.locked():
                 del self._saving[uid]
 
+    def presave(self, uid: str, frame: Frame) -> bool:
+        """Start writing ``frame`` in the background (a frozen frame, about to be measured); returns
+        False, doing nothing, while another presave is still running or queued."""
+        with self._lock:
+            if self._presaving >= 1 or self._degraded:
+                return False
+            self._presaving += 1
+        self._presaver.submit(self._presave, uid, frame)
+        return True
+
+    def _presave(self, uid: str, frame: Frame) -> None:
+        try:
+            with self._frame_lock(uid):
+                with self._lock:
+                    known = self._db.execute("SELECT 1 FROM frames WHERE uid=?", (uid,)).fetchone()
+                if not known and not (self.frames_dir / f"{uid}{SUFFIX}").exists():
+                    self._save_frame(uid, frame)
+                    with self._lock:
+                        self._presaved[uid] = time.monotonic()
+        except StoreError:
+            pass  # the measurement, if one comes, writes the frame itself and reports the error
+        finally:
+            with self._lock:
+                self._presaving -= 1
+
+    def _sweep_presaved(self) -> None:
+        """Delete presaved frames that no measurement used within ``_PRESAVE_KEEP_S``."""
+        now = time.monotonic()
+        with self._lock:
+            old = [u for u, t in self._presaved.items() if now - t > _PRESAVE_KEEP_S]
+        for uid in old:
+            with self._frame_lock(uid):
+                with self._lock:
+                    self._presaved.pop(uid, None)
+                    used = self._db.execute("SELECT 1 FROM frames WHERE uid=?", (uid,)).fetchone()
+                if not used:
+                    (self.frames_dir / f"{uid}{SUFFIX}").unlink(missing_ok=True)
+
     def _save_frame(self, uid: str, frame: Frame) -> int:
         """Write ``frame`` as ``<uid>.frame`` durably unless it is there already (the caller holds
         the uid's lock); returns its size. Raises StoreFull on a full disk, StoreError otherwise."""
@@ -247,6 +306,28 @@ class Store:
                 "its numbers are kept (pin a measurement to keep its frame)"
             )
         return load_frame(self.frames_dir / row["file"])
+
+    def preview(self, uid: str) -> tuple[np.ndarray, int]:
+        """The saved colour image of frame ``uid`` decoded at 1/4 size (fast, for a thumbnail), and
+        the frame's full width."""
+        with self._lock:
+            row = self._db.execute("SELECT file, width FROM frames WHERE uid=?", (uid,)).fetchone()
+        if row is None or not row["file"]:
+            raise StoreError(f"the frame {uid} is not saved (any more)")
+        path = self.frames_dir / row["file"]
+        if path.suffix == ".npz":
+            return load_frame(path).image, row["width"]
+        try:
+            import zipfile
+
+            with zipfile.ZipFile(path) as zf:
+                data = zf.read("color.jpg")
+        except Exception as exc:  # noqa: BLE001 — a damaged file is a missing thumbnail, not a crash
+            raise StoreError(f"cannot read saved frame {path}: {exc}") from exc
+        image = cv2.imdecode(np.frombuffer(data, np.uint8), cv2.IMREAD_REDUCED_COLOR_4)
+        if image is None:
+            raise StoreError(f"the colour image in {path} cannot be decoded")
+        return image, row["width"]
 
     def _enforce_cap(self) -> None:
         """Delete the oldest frames no pinned measurement uses until the files fit ``max_bytes``
@@ -284,7 +365,7 @@ class Store:
         p2: tuple[float, float],
         options: dict[str, Any],
         result: dict[str, Any],
-        thumb: bytes | None,
+        thumb: bytes | None = None,
     ) -> dict[str, Any]:
         """Save the frame (once per uid), then insert one measurement (``result`` is
         ``Measurement.to_dict()``; keys beyond the known columns are kept as JSON) and return its
@@ -292,6 +373,7 @@ class Store:
         with self._frame_lock(frame_uid):  # a delete of the frame's last measurement waits for this
             mid = self._add(frame_uid, frame, frame_id, source, p1, p2, options, result, thumb)
         self._enforce_cap()
+        self._sweep_presaved()
         record = self.get(mid)
         assert record is not None
         return record
@@ -334,6 +416,7 @@ class Store:
                     raise self._full(exc, "measurement") from None
                 raise StoreError(f"cannot store the measurement in {self.path}: {exc}") from exc
             self._degraded = ""  # a write went through: space is back
+            self._presaved.pop(frame_uid, None)
             return int(cur.lastrowid)
 
     def pin(self, mid: int, pinned: bool = True) -> dict[str, Any] | None:
@@ -344,6 +427,7 @@ class Store:
 
     @staticmethod
     def _record(row: sqlite3.Row) -> dict[str, Any]:
+        keys = row.keys()
         return {
             **json.loads(row["extra"] or "{}"),  # newer Measurement fields (quality, reasons, ...); never shadow ours
             "id": row["id"],
@@ -364,8 +448,7 @@ class Store:
             "n_samples": row["n_samples"],
             "n_valid": row["n_valid"],
             "n_support": row["n_support"],
-            "samples_px": json.loads(row["samples_px"]),
-            "support": json.loads(row["support"]),
+            **({"samples_px": json.loads(row["samples_px"]), "support": json.loads(row["support"])} if "support" in keys else {}),
             "gap_detected": bool(row["gap_detected"]),
             "warnings": json.loads(row["warnings"]),
             "elapsed_ms": row["elapsed_ms"],
@@ -378,10 +461,22 @@ class Store:
         return self._record(row) if row else None
 
     def list(self, limit: int = 1000) -> list[dict[str, Any]]:
-        """Newest first."""
+        """Full records, newest first."""
         with self._lock:
             rows = self._db.execute("SELECT * FROM measurements ORDER BY id DESC LIMIT ?", (limit,)).fetchall()
         return [self._record(r) for r in rows]
+
+    def list_slim(self, limit: int = 100, before: int | None = None) -> list[dict[str, Any]]:
+        """Records without ``samples_px`` and ``support`` (the bulk of a record), newest first,
+        ``limit`` of them with an id below ``before`` (the last id of the previous page)."""
+        where, args = ("WHERE id < ?", (before, limit)) if before is not None else ("", (limit,))
+        with self._lock:
+            rows = self._db.execute(f"SELECT {_SLIM_COLUMNS} FROM measurements {where} ORDER BY id DESC LIMIT ?", args).fetchall()
+        return [self._record(r) for r in rows]
+
+    def set_thumb(self, mid: int, thumb: bytes) -> None:
+        with self._lock:
+            self._db.execute("UPDATE measurements SET thumb=? WHERE id=?", (thumb, mid))
 
     def thumb(self, mid: int) -> bytes | None:
         with self._lock:

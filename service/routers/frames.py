@@ -8,7 +8,7 @@ from fastapi import APIRouter, HTTPException, Path, Query
 from fastapi.responses import Response
 
 from ..frames import TooManyWaiters
-from ..render import colorize_disparity, encode_png, frame_json
+from ..render import colorize_disparity, encode_jpeg, encode_png, frame_json
 from ..schemas import MAX_ID
 from ..state import State
 
@@ -45,6 +45,13 @@ def color_png(state: State, frame_id: FrameId) -> Response:
     return Response(data, media_type="image/png", headers={"Cache-Control": "private, max-age=3600"})
 
 
+@router.get("/{frame_id}/color.jpg")
+def color_jpg(state: State, frame_id: FrameId) -> Response:
+    """The colour image for the live view: JPEG quality 85 (color.png has the exact pixels)."""
+    data = state.entry(frame_id).encoded("color.jpg", lambda f: encode_jpeg(f.image))
+    return Response(data, media_type="image/jpeg", headers={"Cache-Control": "private, max-age=3600"})
+
+
 @router.get("/{frame_id}/disparity.png")
 def disparity_png(state: State, frame_id: FrameId) -> Response:
     data = state.entry(frame_id).encoded("disparity.png", lambda f: encode_png(colorize_disparity(f.disparity)))
@@ -53,7 +60,8 @@ def disparity_png(state: State, frame_id: FrameId) -> Response:
 
 @router.post("/{frame_id}/freeze")
 def freeze(state: State, frame_id: FrameId) -> dict[str, Any]:
-    state.entry(frame_id)
+    entry = state.entry(frame_id)
+    state.store.presave(entry.uid, entry.frame)  # a frozen frame is about to be measured: save it meanwhile
     return frame_json(state.ring.freeze(frame_id, True))
 
 

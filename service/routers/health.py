@@ -6,6 +6,7 @@ import time
 from typing import Any
 
 from fastapi import APIRouter
+from starlette.concurrency import run_in_threadpool
 
 from ..state import State
 
@@ -13,11 +14,11 @@ router = APIRouter(prefix="/api", tags=["health"])
 
 
 @router.get("/health")
-def health(state: State) -> dict[str, Any]:
+async def health(state: State) -> dict[str, Any]:
     """``status`` is "ok", or "degraded" with a ``reason`` (the history's disk is full: measurements
     answer 507 until space comes back, checked on every call)."""
     status = state.capture.status()
-    degraded = state.store.status()["degraded"]
+    degraded = (await run_in_threadpool(state.store.status))["degraded"] if state.store.degraded else ""
     return {
         "status": "degraded" if degraded else "ok",
         "reason": degraded,

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import json
 from typing import Annotated, Any, Literal
 
 from fastapi import APIRouter, HTTPException, Path, Query
@@ -9,7 +10,7 @@ from fastapi.responses import PlainTextResponse, Response
 
 from measure import MeasureError, MeasureOptions, measure_distance
 
-from ..render import frame_json, make_thumb
+from ..render import frame_json, make_thumb, png_from_jpeg
 from ..schemas import MAX_ID, MeasureIn
 from ..state import ServiceState, State
 from ..store import FrameDropped, StoreError, StoreFull
@@ -43,8 +44,7 @@ def measure(state: State, body: MeasureIn) -> dict[str, Any]:
             p2=body.p2,
             options=options,
             result=result.to_dict(),
-            thumb=make_thumb(frame, body.p1, body.p2),
-        )  # returns once the measurement and its frame are on disk
+        )  # returns once the measurement and its frame are on disk; the thumbnail is drawn on request
     except StoreFull as exc:
         raise HTTPException(507, str(exc)) from None
     except StoreError as exc:
@@ -65,10 +65,20 @@ def measurements_csv(state: State) -> PlainTextResponse:
 
 
 @router.get("/measurements", response_model=None)
-def measurements(state: State, format: Literal["json", "csv"] = "json", limit: Annotated[int, Query(ge=1, le=100_000)] = 1000) -> Any:
+def measurements(
+    state: State,
+    format: Literal["json", "csv"] = "json",
+    limit: Annotated[int, Query(ge=1, le=10_000)] = 1000,
+    before: Annotated[int | None, Query(ge=1, le=MAX_ID)] = None,
+) -> Response:
+    """The history, newest first, slim: every field but the per-sample arrays (``samples_px``,
+    ``support``: ``GET /api/measurements/{id}`` has them). Pages: ``limit`` records with an id
+    below ``before`` (pass the last id of the previous page). Encoded here, on a worker thread,
+    not on the event loop."""
     if format == "csv":
         return _csv(state)
-    return state.store.list(limit)
+    body = json.dumps(state.store.list_slim(limit, before), separators=(",", ":")).encode()
+    return Response(body, media_type="application/json")
 
 
 def _record(state: ServiceState, mid: int) -> dict[str, Any]:
@@ -90,13 +100,32 @@ def delete_measurement(state: State, mid: MeasurementId) -> dict[str, Any]:
     return {"deleted": mid}
 
 
-@router.get("/measurements/{mid}/thumb.png")
-def thumb(state: State, mid: MeasurementId) -> Response:
-    _record(state, mid)
+def _thumb(state: ServiceState, mid: int) -> bytes:
+    """The measurement's thumbnail, drawn on first request from its saved frame and kept."""
+    record = _record(state, mid)
     data = state.store.thumb(mid)
     if data is None:
-        raise HTTPException(404, f"measurement {mid} has no thumbnail")
-    return Response(data, media_type="image/png", headers={"Cache-Control": "private, max-age=86400"})
+        try:
+            image, width = state.store.preview(record["frame_uid"])
+        except StoreError as exc:
+            raise HTTPException(404, f"measurement {mid} has no thumbnail: {exc}") from None
+        data = make_thumb(image, width, record["p1"], record["p2"])
+        state.store.set_thumb(mid, data)
+    return data
+
+
+@router.get("/measurements/{mid}/thumb.jpg")
+def thumb_jpg(state: State, mid: MeasurementId) -> Response:
+    data = _thumb(state, mid)
+    media = "image/png" if data.startswith(b"\x89PNG") else "image/jpeg"  # histories from before kept PNG
+    return Response(data, media_type=media, headers={"Cache-Control": "private, max-age=86400"})
+
+
+@router.get("/measurements/{mid}/thumb.png")
+def thumb(state: State, mid: MeasurementId) -> Response:
+    data = _thumb(state, mid)
+    png = data if data.startswith(b"\x89PNG") else png_from_jpeg(data)
+    return Response(png, media_type="image/png", headers={"Cache-Control": "private, max-age=86400"})
 
 
 @router.post("/measurements/{mid}/open")
