@@ -179,7 +179,10 @@ class Store:
         except (OSError, sqlite3.Error) as exc:
             raise StoreError(f"cannot open the history database {self.path}: {exc}; pass --db with a writable path") from exc
         self._db.row_factory = sqlite3.Row
-        self._lock = threading.Lock()
+        self._lock = threading.Lock()  # the one writing connection, self._db
+        self._books = threading.Lock()  # bookkeeping (uid locks, presaves, readers): never held across I/O
+        self._local = threading.local()  # a reading connection per thread: reads never wait for a commit (WAL)
+        self._readers: list[sqlite3.Connection] = []
         self._saving: dict[str, threading.Lock] = {}  # one writer per frame uid; other frames go side by side
         self._degraded = ""
         self._next_probe = 0.0
@@ -190,8 +193,27 @@ class Store:
 
     def close(self) -> None:
         self._presaver.shutdown(wait=True)
-        with self._lock:
+        with self._lock, self._books:
+            for conn in self._readers:
+                conn.close()
             self._db.close()
+
+    def _reader(self) -> sqlite3.Connection:
+        conn = getattr(self._local, "db", None)
+        if conn is None:
+            conn = sqlite3.connect(self.path, check_same_thread=False, isolation_level=None)
+            conn.row_factory = sqlite3.Row
+            conn.execute("PRAGMA query_only=1")
+            self._local.db = conn
+            with self._books:
+                self._readers.append(conn)
+        return conn
+
+    def _one(self, sql: str, args: tuple[Any, ...] = ()) -> sqlite3.Row | None:
+        return self._reader().execute(sql, args).fetchone()
+
+    def _all(self, sql: str, args: tuple[Any, ...] = ()) -> list[sqlite3.Row]:
+        return self._reader().execute(sql, args).fetchall()
 
     def _clean_leftovers(self) -> None:
         """Delete what a crash can leave: temporary files, and frame files whose row was never committed."""
@@ -234,18 +256,18 @@ class Store:
 
     @contextmanager
     def _frame_lock(self, uid: str) -> Iterator[None]:
-        with self._lock:
+        with self._books:
             lock = self._saving.setdefault(uid, threading.Lock())
         with lock:
             yield
-        with self._lock:
+        with self._books:
             if self._saving.get(uid) is lock and not lock.locked():
                 del self._saving[uid]
 
     def presave(self, uid: str, frame: Frame) -> bool:
         """Start writing ``frame`` in the background (a frozen frame, about to be measured); returns
         False, doing nothing, while another presave is still running or queued."""
-        with self._lock:
+        with self._books:
             if self._presaving >= 1 or self._degraded:
                 return False
             self._presaving += 1
@@ -255,28 +277,27 @@ class Store:
     def _presave(self, uid: str, frame: Frame) -> None:
         try:
             with self._frame_lock(uid):
-                with self._lock:
-                    known = self._db.execute("SELECT 1 FROM frames WHERE uid=?", (uid,)).fetchone()
+                known = self._one("SELECT 1 FROM frames WHERE uid=?", (uid,))
                 if not known and not (self.frames_dir / f"{uid}{SUFFIX}").exists():
                     self._save_frame(uid, frame)
-                    with self._lock:
+                    with self._books:
                         self._presaved[uid] = time.monotonic()
         except StoreError:
             pass  # the measurement, if one comes, writes the frame itself and reports the error
         finally:
-            with self._lock:
+            with self._books:
                 self._presaving -= 1
 
     def _sweep_presaved(self) -> None:
         """Delete presaved frames that no measurement used within ``_PRESAVE_KEEP_S``."""
         now = time.monotonic()
-        with self._lock:
+        with self._books:
             old = [u for u, t in self._presaved.items() if now - t > _PRESAVE_KEEP_S]
         for uid in old:
             with self._frame_lock(uid):
-                with self._lock:
+                with self._books:
                     self._presaved.pop(uid, None)
-                    used = self._db.execute("SELECT 1 FROM frames WHERE uid=?", (uid,)).fetchone()
+                used = self._one("SELECT 1 FROM frames WHERE uid=?", (uid,))
                 if not used:
                     (self.frames_dir / f"{uid}{SUFFIX}").unlink(missing_ok=True)
 
@@ -296,8 +317,7 @@ class Store:
         return len(data)
 
     def frame(self, uid: str) -> Frame:
-        with self._lock:
-            row = self._db.execute("SELECT file FROM frames WHERE uid=?", (uid,)).fetchone()
+        row = self._one("SELECT file FROM frames WHERE uid=?", (uid,))
         if row is None:
             raise StoreError(f"the frame {uid} of this measurement was not saved in {self.frames_dir}")
         if not row["file"]:
@@ -310,8 +330,7 @@ class Store:
     def preview(self, uid: str) -> tuple[np.ndarray, int]:
         """The saved colour image of frame ``uid`` decoded at 1/4 size (fast, for a thumbnail), and
         the frame's full width."""
-        with self._lock:
-            row = self._db.execute("SELECT file, width FROM frames WHERE uid=?", (uid,)).fetchone()
+        row = self._one("SELECT file, width FROM frames WHERE uid=?", (uid,))
         if row is None or not row["file"]:
             raise StoreError(f"the frame {uid} is not saved (any more)")
         path = self.frames_dir / row["file"]
@@ -416,8 +435,9 @@ class Store:
                     raise self._full(exc, "measurement") from None
                 raise StoreError(f"cannot store the measurement in {self.path}: {exc}") from exc
             self._degraded = ""  # a write went through: space is back
+        with self._books:
             self._presaved.pop(frame_uid, None)
-            return int(cur.lastrowid)
+        return int(cur.lastrowid)
 
     def pin(self, mid: int, pinned: bool = True) -> dict[str, Any] | None:
         """Pin (or unpin) a measurement: the history cap never deletes the frame of a pinned one."""
@@ -456,22 +476,19 @@ class Store:
         }
 
     def get(self, mid: int) -> dict[str, Any] | None:
-        with self._lock:
-            row = self._db.execute("SELECT * FROM measurements WHERE id=?", (mid,)).fetchone()
+        row = self._one("SELECT * FROM measurements WHERE id=?", (mid,))
         return self._record(row) if row else None
 
     def list(self, limit: int = 1000) -> list[dict[str, Any]]:
         """Full records, newest first."""
-        with self._lock:
-            rows = self._db.execute("SELECT * FROM measurements ORDER BY id DESC LIMIT ?", (limit,)).fetchall()
+        rows = self._all("SELECT * FROM measurements ORDER BY id DESC LIMIT ?", (limit,))
         return [self._record(r) for r in rows]
 
     def list_slim(self, limit: int = 100, before: int | None = None) -> list[dict[str, Any]]:
         """Records without ``samples_px`` and ``support`` (the bulk of a record), newest first,
         ``limit`` of them with an id below ``before`` (the last id of the previous page)."""
         where, args = ("WHERE id < ?", (before, limit)) if before is not None else ("", (limit,))
-        with self._lock:
-            rows = self._db.execute(f"SELECT {_SLIM_COLUMNS} FROM measurements {where} ORDER BY id DESC LIMIT ?", args).fetchall()
+        rows = self._all(f"SELECT {_SLIM_COLUMNS} FROM measurements {where} ORDER BY id DESC LIMIT ?", args)
         return [self._record(r) for r in rows]
 
     def set_thumb(self, mid: int, thumb: bytes) -> None:
@@ -479,14 +496,12 @@ class Store:
             self._db.execute("UPDATE measurements SET thumb=? WHERE id=?", (thumb, mid))
 
     def thumb(self, mid: int) -> bytes | None:
-        with self._lock:
-            row = self._db.execute("SELECT thumb FROM measurements WHERE id=?", (mid,)).fetchone()
+        row = self._one("SELECT thumb FROM measurements WHERE id=?", (mid,))
         return bytes(row["thumb"]) if row and row["thumb"] is not None else None
 
     def delete(self, mid: int) -> bool:
         """Delete a measurement; its saved frame goes too once no measurement refers to it."""
-        with self._lock:
-            row = self._db.execute("SELECT frame_uid FROM measurements WHERE id=?", (mid,)).fetchone()
+        row = self._one("SELECT frame_uid FROM measurements WHERE id=?", (mid,))
         if row is None:
             return False
         with self._frame_lock(row["frame_uid"]):

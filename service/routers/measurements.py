@@ -19,8 +19,14 @@ router = APIRouter(prefix="/api", tags=["measurements"])
 MeasurementId = Annotated[int, Path(ge=0, le=MAX_ID)]
 
 
-@router.post("/measure")
-def measure(state: State, body: MeasureIn) -> dict[str, Any]:
+def _json(obj: Any) -> Response:
+    """JSON encoded here, on the worker thread: FastAPI would encode a returned dict on the event
+    loop, where a record with its samples stalls every other request for a millisecond or more."""
+    return Response(json.dumps(obj, separators=(",", ":"), allow_nan=False).encode(), media_type="application/json")
+
+
+@router.post("/measure", response_model=None)
+def measure(state: State, body: MeasureIn) -> Response:
     entry = state.entry(body.frame_id)
     frame = entry.frame
     h, w = frame.disparity.shape
@@ -35,7 +41,7 @@ def measure(state: State, body: MeasureIn) -> dict[str, Any]:
     except MeasureError as exc:
         raise HTTPException(422, str(exc)) from None
     try:
-        return state.store.add(
+        record = state.store.add(
             frame_id=entry.id,
             frame_uid=entry.uid,
             frame=frame,
@@ -49,6 +55,7 @@ def measure(state: State, body: MeasureIn) -> dict[str, Any]:
         raise HTTPException(507, str(exc)) from None
     except StoreError as exc:
         raise HTTPException(500, str(exc)) from None
+    return _json(record)
 
 
 def _csv(state: ServiceState) -> PlainTextResponse:
@@ -77,8 +84,7 @@ def measurements(
     not on the event loop."""
     if format == "csv":
         return _csv(state)
-    body = json.dumps(state.store.list_slim(limit, before), separators=(",", ":")).encode()
-    return Response(body, media_type="application/json")
+    return _json(state.store.list_slim(limit, before))
 
 
 def _record(state: ServiceState, mid: int) -> dict[str, Any]:
@@ -88,9 +94,10 @@ def _record(state: ServiceState, mid: int) -> dict[str, Any]:
     return record
 
 
-@router.get("/measurements/{mid}")
-def measurement(state: State, mid: MeasurementId) -> dict[str, Any]:
-    return _record(state, mid)
+@router.get("/measurements/{mid}", response_model=None)
+def measurement(state: State, mid: MeasurementId) -> Response:
+    """The full record, with the per-sample arrays."""
+    return _json(_record(state, mid))
 
 
 @router.delete("/measurements/{mid}")
