@@ -10,7 +10,6 @@ from typing import Any
 import cv2
 import numpy as np
 
-from measure import Frame
 
 from .frames import RingFrame
 

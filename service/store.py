@@ -29,7 +29,6 @@ import errno
 import io
 import json
 import math
-import os
 import sqlite3
 import threading
 import time

@@ -361,7 +361,7 @@ def test_missing_or_damaged_manifest(tmp_path: Path) -> None:
 
 
 def _fail_on(monkeypatch: pytest.MonkeyPatch, target: str, when: str, partial: bool = False) -> None:
-    import device.recording as r
+    import device.recording.writer as r  # where the writer looks these up
 
     real = getattr(r, target)
 
