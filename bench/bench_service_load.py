@@ -83,11 +83,13 @@ def cpu_s(pid: int) -> float:
     return (int(fields[11]) + int(fields[12])) / os.sysconf("SC_CLK_TCK")
 
 
-def idle_cpu_rate(pid: int, seconds: float = 3.0) -> float:
-    """CPU seconds per second the server spends with no client (the live stream alone)."""
-    c0, t0 = cpu_s(pid), time.perf_counter()
+def stream_cpu_per_frame(base: str, pid: int, seconds: float = 3.0) -> float:
+    """CPU seconds the server spends per live frame with no measuring client (capturing it and
+    serving it to the viewer), to take out of the load's CPU: the stream slows down under load."""
+    frames0, c0 = httpx.get(f"{base}/api/source").json()["frames"], cpu_s(pid)
     time.sleep(seconds)
-    return (cpu_s(pid) - c0) / (time.perf_counter() - t0)
+    frames = httpx.get(f"{base}/api/source").json()["frames"] - frames0
+    return (cpu_s(pid) - c0) / max(frames, 1)
 
 
 def segment_points(frame: dict, rng: np.random.Generator) -> tuple[list[float], list[float]]:
@@ -168,7 +170,7 @@ def run_load(
 
     viewer = Viewer(base)
     viewer.start()
-    idle = idle_cpu_rate(pid)  # the stream and the live view, no measuring client
+    per_frame_cpu = stream_cpu_per_frame(base, pid)
     source_before = httpx.get(f"{base}/api/source").json()
     shown0 = viewer.shown
     cpu0 = cpu_s(pid)
@@ -180,6 +182,7 @@ def run_load(
     viewer.stop.set()
     viewer.join(10)
     source_after = httpx.get(f"{base}/api/source").json()
+    stream_frames = source_after["frames"] - source_before["frames"]
     ms = np.array(measure_ms)
 
     def pct(a: list[float] | np.ndarray, q: float) -> float:
@@ -198,10 +201,10 @@ def run_load(
         "thumb_p95_ms": pct(thumb_ms, 95),
         "throughput": len(ms) / wall,
         # the server's CPU for one page cycle (measure + list + thumbnail) beyond what the stream and
-        # the live view cost: an idle core's latency floor, whatever the other jobs on the host do
-        "cpu_ms_per_measurement": (cpu - idle * wall) / max(len(ms), 1) * 1e3,
+        # the live view cost per frame: the work a request needs, whatever the other jobs on the host do
+        "cpu_ms_per_measurement": (cpu - per_frame_cpu * stream_frames) / max(len(ms), 1) * 1e3,
         "view_fps": (viewer.shown - shown0) / wall,
-        "source_fps": (source_after["frames"] - source_before["frames"]) / wall,
+        "source_fps": stream_frames / wall,
     }
 
 
@@ -257,9 +260,10 @@ def record(results: dict[str, list[dict]], args: argparse.Namespace, loads: list
         f"does; {args.per_client} measurements per client; after `per frame` measurements it takes a new frame (1: every "
         "measurement saves a frame; 5: a click and four adjustments). One viewer follows the live stream meanwhile "
         "(long-poll + JPEG, PNG on the baseline). Latency (ms) is `POST /api/measure` alone; the list and thumbnail "
-        "columns are their p95. Server CPU is the server process's CPU time during the load, less what it spends "
-        "streaming to the viewer with no measuring client (measured for 3 s before each row), per measurement: one page cycle's cost, "
-        "which does not depend on how busy the host is. The baseline revision runs from `git archive` in the "
+        "columns are their p95. Server CPU is the server process's CPU time during the load, less the CPU of "
+        "the live frames it captured and served meanwhile (their cost per frame measured for 3 s with no measuring "
+        "client before each row), per measurement: what one page cycle costs the server, an estimate that depends "
+        "far less on how busy the host is than the latencies. The baseline revision runs from `git archive` in the "
         "same run, one server at a time, both under `nice -n 10` as every job on this shared host. "
         "Target (issue 13): 8 clients, p95 <= 40 ms and p50 <= 15 ms.\n\n"
         "| code | per frame | clients | ok | errors | p50 | p95 | p99 | list p95 | thumb p95 | server CPU ms / measurement | live view / source fps |\n"
