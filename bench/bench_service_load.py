@@ -77,21 +77,6 @@ def stop_server(proc: subprocess.Popen) -> None:
         proc.kill()
 
 
-def cpu_s(pid: int) -> float:
-    """User + system CPU seconds of process ``pid`` so far (all its threads)."""
-    fields = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()
-    return (int(fields[11]) + int(fields[12])) / os.sysconf("SC_CLK_TCK")
-
-
-def stream_cpu_per_frame(base: str, pid: int, seconds: float = 3.0) -> float:
-    """CPU seconds the server spends per live frame with no measuring client (capturing it and
-    serving it to the viewer), to take out of the load's CPU: the stream slows down under load."""
-    frames0, c0 = httpx.get(f"{base}/api/source").json()["frames"], cpu_s(pid)
-    time.sleep(seconds)
-    frames = httpx.get(f"{base}/api/source").json()["frames"] - frames0
-    return (cpu_s(pid) - c0) / max(frames, 1)
-
-
 def segment_points(frame: dict, rng: np.random.Generator) -> tuple[list[float], list[float]]:
     """Two points on the target when the frame has ground truth, else across the image centre."""
     truth = frame.get("truth")
@@ -125,9 +110,7 @@ class Viewer(threading.Thread):
                 self.shown += img.status_code == 200
 
 
-def run_load(
-    base: str, pid: int, clients: int, per_client: int, per_frame: int, think_s: tuple[float, float], method: str
-) -> dict:
+def run_load(base: str, clients: int, per_client: int, per_frame: int, think_s: tuple[float, float], method: str) -> dict:
     measure_ms: list[float] = []
     list_ms: list[float] = []
     thumb_ms: list[float] = []
@@ -170,15 +153,13 @@ def run_load(
 
     viewer = Viewer(base)
     viewer.start()
-    per_frame_cpu = stream_cpu_per_frame(base, pid)
+    time.sleep(1.0)  # the viewer has caught up with the stream
     source_before = httpx.get(f"{base}/api/source").json()
     shown0 = viewer.shown
-    cpu0 = cpu_s(pid)
     t0 = time.perf_counter()
     with ThreadPoolExecutor(clients) as pool:
         list(pool.map(client, range(clients)))
     wall = time.perf_counter() - t0
-    cpu = cpu_s(pid) - cpu0
     viewer.stop.set()
     viewer.join(10)
     source_after = httpx.get(f"{base}/api/source").json()
@@ -200,9 +181,6 @@ def run_load(
         "list_p95_ms": pct(list_ms, 95),
         "thumb_p95_ms": pct(thumb_ms, 95),
         "throughput": len(ms) / wall,
-        # the server's CPU for one page cycle (measure + list + thumbnail) beyond what the stream and
-        # the live view cost per frame: the work a request needs, whatever the other jobs on the host do
-        "cpu_ms_per_measurement": (cpu - per_frame_cpu * stream_frames) / max(len(ms), 1) * 1e3,
         "view_fps": (viewer.shown - shown0) / wall,
         "source_fps": stream_frames / wall,
     }
@@ -223,12 +201,12 @@ def run_version(code: Path, spec: str, shapes: list[int], clients: list[int], ar
             rows = []
             for per_frame in shapes:
                 for c in clients:
-                    r = run_load(base, proc.pid, c, args.per_client, per_frame, (args.think_min, args.think_max), args.method)
+                    r = run_load(base, c, args.per_client, per_frame, (args.think_min, args.think_max), args.method)
                     print(
                         f"  {c} clients, {per_frame}/frame: {r['ok']}/{r['requests']} ok, {len(r['errors'])} errors; "
                         f"measure p50 {r['p50_ms']:.1f} / p95 {r['p95_ms']:.1f} / p99 {r['p99_ms']:.1f} ms; list p95 "
                         f"{r['list_p95_ms']:.1f} ms, thumb p95 {r['thumb_p95_ms']:.1f} ms; live view {r['view_fps']:.1f} fps "
-                        f"of the source's {r['source_fps']:.1f}; server CPU {r['cpu_ms_per_measurement']:.1f} ms a measurement",
+                        f"of the source's {r['source_fps']:.1f}",
                         flush=True,
                     )
                     for e in r["errors"][:3]:
@@ -242,7 +220,7 @@ def run_version(code: Path, spec: str, shapes: list[int], clients: list[int], ar
 def _row(name: str, r: dict) -> str:
     return (
         f"| {name} | {r['per_frame']} | {r['clients']} | {r['ok']}/{r['requests']} | {len(r['errors'])} | {r['p50_ms']:.1f} | {r['p95_ms']:.1f} | "
-        f"{r['p99_ms']:.1f} | {r['list_p95_ms']:.1f} | {r['thumb_p95_ms']:.1f} | {r['cpu_ms_per_measurement']:.1f} | {r['view_fps']:.1f} / {r['source_fps']:.1f} |\n"
+        f"{r['p99_ms']:.1f} | {r['list_p95_ms']:.1f} | {r['thumb_p95_ms']:.1f} | {r['view_fps']:.1f} / {r['source_fps']:.1f} |\n"
     )
 
 
@@ -260,14 +238,11 @@ def record(results: dict[str, list[dict]], args: argparse.Namespace, loads: list
         f"does; {args.per_client} measurements per client; after `per frame` measurements it takes a new frame (1: every "
         "measurement saves a frame; 5: a click and four adjustments). One viewer follows the live stream meanwhile "
         "(long-poll + JPEG, PNG on the baseline). Latency (ms) is `POST /api/measure` alone; the list and thumbnail "
-        "columns are their p95. Server CPU is the server process's CPU time during the load, less the CPU of "
-        "the live frames it captured and served meanwhile (their cost per frame measured for 3 s with no measuring "
-        "client before each row), per measurement: what one page cycle costs the server, an estimate that depends "
-        "far less on how busy the host is than the latencies. The baseline revision runs from `git archive` in the "
+        "columns are their p95. The baseline revision runs from `git archive` in the "
         "same run, one server at a time, both under `nice -n 10` as every job on this shared host. "
         "Target (issue 13): 8 clients, p95 <= 40 ms and p50 <= 15 ms.\n\n"
-        "| code | per frame | clients | ok | errors | p50 | p95 | p99 | list p95 | thumb p95 | server CPU ms / measurement | live view / source fps |\n"
-        "| --- | --- | --- | --- | --- | --- | --- | --- | --- | --- | --- | --- |\n"
+        "| code | per frame | clients | ok | errors | p50 | p95 | p99 | list p95 | thumb p95 | live view / source fps |\n"
+        "| --- | --- | --- | --- | --- | --- | --- | --- | --- | --- | --- |\n"
         + "".join(rows)
         + f"\nMachine: {machine()}; {date}. The machine was shared with other engineers' jobs during the run: "
         f"1-minute load average {loads[0]:.1f} before, {loads[1]:.1f} after the baseline, {loads[-1]:.1f} at the end.\n"
