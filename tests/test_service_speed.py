@@ -63,17 +63,23 @@ def test_thumbnail_is_drawn_on_request_not_when_measuring(tmp_path):
         assert png.content[:8] == b"\x89PNG\r\n\x1a\n"
 
 
+def _freeze_and_wait_for_presave(c, tmp_path, fid: int):
+    """Freeze frame ``fid``; returns its saved file once the background presave wrote it."""
+    uid = c.post(f"/api/frames/{fid}/freeze", headers=JSON).json()["uid"]
+    path = tmp_path / "h-frames" / f"{uid}.frame"
+    deadline = time.monotonic() + 10
+    while not path.exists() and time.monotonic() < deadline:
+        time.sleep(0.01)
+    assert path.exists()
+    return path
+
+
 def test_frozen_frame_is_saved_before_the_measurement(tmp_path, monkeypatch):
     from service import store as store_module
 
     with make_client(tmp_path) as c:
         f = latest(c)
-        uid = c.post(f"/api/frames/{f['id']}/freeze", headers=JSON).json()["uid"]
-        path = tmp_path / "h-frames" / f"{uid}.frame"
-        deadline = time.monotonic() + 10
-        while not path.exists() and time.monotonic() < deadline:
-            time.sleep(0.01)
-        assert path.exists()
+        _freeze_and_wait_for_presave(c, tmp_path, f["id"])
 
         def no_writes(*_a, **_k):
             raise AssertionError("the measurement wrote the frame again")
@@ -86,13 +92,7 @@ def test_frozen_frame_is_saved_before_the_measurement(tmp_path, monkeypatch):
 
 def test_presaved_frame_never_measured_is_removed_at_restart(tmp_path):
     with make_client(tmp_path) as c:
-        f = latest(c)
-        uid = c.post(f"/api/frames/{f['id']}/freeze", headers=JSON).json()["uid"]
-        path = tmp_path / "h-frames" / f"{uid}.frame"
-        deadline = time.monotonic() + 10
-        while not path.exists() and time.monotonic() < deadline:
-            time.sleep(0.01)
-        assert path.exists()
+        path = _freeze_and_wait_for_presave(c, tmp_path, latest(c)["id"])
     with make_client(tmp_path):
         assert not path.exists()
 
