@@ -25,6 +25,7 @@ from device import Source, make_source
 from measure import Frame, MeasureOptions, PinholeCamera, measure_distance
 
 from .frames import Capture, FrameRing
+from .guard import LOOPBACK_HOSTS, MAX_BODY_BYTES, RequestGuard
 from .recorder import Recorder
 from .routers import frames, health, measurements, recordings
 from .state import ServiceState
@@ -64,16 +65,26 @@ def create_app(
     capture_fps: float = 15.0,
     reconnect_initial_s: float = 0.5,
     reconnect_max_s: float = 10.0,
+    recordings_dir: str | Path | None = None,
+    allowed_hosts: tuple[str, ...] | list[str] = LOOPBACK_HOSTS,
+    max_body_bytes: int = MAX_BODY_BYTES,
+    max_waiters: int = 64,
+    history_max_bytes: int | None = None,
 ) -> FastAPI:
-    """The service app on ``source`` (a spec string or a factory of unopened sources)."""
+    """The service app on ``source`` (a spec string or a factory of unopened sources).
+
+    ``recordings_dir`` (default: ``recordings/`` next to the database) is the only folder the API
+    records into; ``allowed_hosts`` the ``Host`` names it answers (``("*",)``: any);
+    ``max_waiters`` bounds concurrent long-polls (429 beyond); ``history_max_bytes`` caps the saved
+    frames (oldest unpinned deleted first)."""
     spec = source if isinstance(source, str) else getattr(source, "__name__", "custom")
     factory: Callable[[], Source] = (lambda: make_source(source)) if isinstance(source, str) else source  # type: ignore[arg-type]
-    ring = FrameRing(ring_size, max_frozen, keep_viewed)
+    ring = FrameRing(ring_size, max_frozen, keep_viewed, max_waiters)
     capture = Capture(
         factory, ring, spec=spec, fps=capture_fps, backoff_initial_s=reconnect_initial_s, backoff_max_s=reconnect_max_s
     )
-    store = Store(db_path)
-    recorder = Recorder(capture, Path(db_path).resolve().parent / "recordings")
+    store = Store(db_path, max_bytes=history_max_bytes)
+    recorder = Recorder(capture, Path(recordings_dir) if recordings_dir else Path(db_path).resolve().parent / "recordings")
     state = ServiceState(ring=ring, capture=capture, store=store, recorder=recorder)
 
     @asynccontextmanager
@@ -116,4 +127,5 @@ def create_app(
     for module in (health, frames, measurements, recordings):
         app.include_router(module.router)
     app.mount("/", StaticFiles(directory=STATIC_DIR, html=True), name="static")
+    app.add_middleware(RequestGuard, allowed_hosts=allowed_hosts, max_body_bytes=max_body_bytes)  # outermost
     return app

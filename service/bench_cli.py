@@ -50,11 +50,15 @@ def bench(
     for key, path in found.items():
         if name not in ("all", key):
             continue
-        module = load(key, path)
-        if not hasattr(module, "main"):
-            raise typer.BadParameter(f"{path} has no main(); every bench script needs one")
         typer.echo(f"## {key} ({path.name})")
-        module.main(list(ctx.args))
+        try:
+            module = load(key, path)
+            if not hasattr(module, "main"):
+                raise typer.BadParameter(f"{path} has no main(); every bench script needs one")
+            module.main(list(ctx.args))
+        except ModuleNotFoundError as exc:  # the benches' own dependencies are an extra
+            typer.echo(f"depthruler: bench {key} needs {exc.name!r}: pip install 'depthruler[bench]'", err=True)
+            raise typer.Exit(2) from None
 
 
 # Options after NAME belong to the script, not to this command.

@@ -29,7 +29,11 @@ class ServerConfig(_Model):
     host: str = "127.0.0.1"
     port: int = Field(8000, ge=1, le=65535)
     db: str = "depthruler.db"
+    recordings: str = "recordings"  # the only folder the API records into
+    history_max_gb: float | None = Field(None, gt=0, le=1e6)  # cap on saved frames; oldest unpinned deleted first
     token: str = ""
+    insecure_no_token: bool = False  # serve on a non-loopback host without a token (anyone there can use it)
+    allowed_hosts: tuple[str, ...] = ()  # extra Host names to answer (a DNS name of this machine)
     ring_size: int = Field(32, ge=2, le=4096)  # ~10 MB a 1280x720 frame
     max_frozen: int = Field(16, ge=1, le=1024)
     capture_fps: float = Field(15.0, gt=0, le=1000)

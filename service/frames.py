@@ -8,6 +8,7 @@ source and reopens it with exponential backoff.
 
 from __future__ import annotations
 
+import asyncio
 import itertools
 import threading
 import time
@@ -17,7 +18,7 @@ from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import Any
 
-from device import Source, SourceEnded, SourceInfo
+from device import Source, SourceEnded, SourceInfo, SourceTimeout
 from measure import Frame
 
 
@@ -31,6 +32,8 @@ class FrameUnknown(KeyError):
 
 class ReplayControlError(ValueError):
     """Pause, step or seek asked of a source that is no replay, or past its end (HTTP 409 / 422)."""
+class TooManyWaiters(RuntimeError):
+    """More long-polls are waiting than the ring allows (HTTP 429)."""
 
 
 @dataclass
@@ -64,11 +67,15 @@ class FrameRing:
     keep_viewed`` unfrozen frames are held.
     """
 
-    def __init__(self, capacity: int = 32, max_frozen: int = 16, keep_viewed: int = 8) -> None:
-        if capacity < 1 or max_frozen < 1:
-            raise ValueError(f"ring capacity ({capacity}) and max_frozen ({max_frozen}) must be at least 1")
+    def __init__(self, capacity: int = 32, max_frozen: int = 16, keep_viewed: int = 8, max_waiters: int = 64) -> None:
+        if capacity < 1 or max_frozen < 1 or max_waiters < 1:
+            raise ValueError(
+                f"ring capacity ({capacity}), max_frozen ({max_frozen}) and max_waiters ({max_waiters}) must be at least 1"
+            )
         self.capacity = capacity
         self.max_frozen = max_frozen
+        self.max_waiters = max_waiters
+        self._wakers: set[Callable[[], None]] = set()
         self._frames: OrderedDict[int, RingFrame] = OrderedDict()
         self._ids = itertools.count(1)
         self._next = 1
@@ -87,6 +94,8 @@ class FrameRing:
                 self._limit_frozen(keep=fid)
             self._evict()
             self._cond.notify_all()
+            for wake in list(self._wakers):
+                wake()
             return entry
 
     def _evict(self) -> None:
@@ -136,6 +145,46 @@ class FrameRing:
             if fid in self._frames and fid not in self._viewed:
                 self._viewed.append(fid)
                 self._evict()
+    @property
+    def waiters(self) -> int:
+        """Long-polls waiting in :meth:`wait_latest_async` now."""
+        with self._cond:
+            return len(self._wakers)
+
+    async def wait_latest_async(self, after: int = 0, timeout_s: float = 5.0) -> RingFrame | None:
+        """:meth:`wait_latest` on the event loop: a waiting client holds no worker thread, so any
+        number of long-polls (up to ``max_waiters``, then :class:`TooManyWaiters`) cannot starve
+        the other routes."""
+        loop = asyncio.get_running_loop()
+        event = asyncio.Event()
+
+        def wake() -> None:
+            try:
+                loop.call_soon_threadsafe(event.set)
+            except RuntimeError:  # the loop closed while a frame arrived: nobody is waiting any more
+                pass
+
+        with self._cond:
+            if len(self._wakers) >= self.max_waiters:
+                raise TooManyWaiters(f"{len(self._wakers)} clients are already waiting for a frame; retry in a second")
+            self._wakers.add(wake)
+        deadline = loop.time() + timeout_s
+        try:
+            while True:
+                event.clear()  # before looking, so a frame pushed after the look still wakes us
+                entry = self.latest()
+                if entry is not None and entry.id > after:
+                    return entry
+                left = deadline - loop.time()
+                if left <= 0:
+                    return None
+                try:
+                    await asyncio.wait_for(event.wait(), left)
+                except asyncio.TimeoutError:
+                    pass
+        finally:
+            with self._cond:
+                self._wakers.discard(wake)
 
     def freeze(self, fid: int, frozen: bool = True) -> RingFrame:
         with self._cond:
@@ -167,9 +216,12 @@ class Capture:
     States: "connecting" (first open), "streaming", "disconnected" (after an error, waiting to
     retry), "reconnecting" (reopening), "ended" (a finite source such as a replay without loop
     delivered its last frame: not reopened, which would start it over; the last frame stays
-    measurable), "stopped". Any other exception from the source is caught, its message kept for
+    measurable), "stopped". A read that times out (:class:`SourceTimeout`) is counted and retried
+    on the open source: for an OAK a reopen is a device reboot. Any other exception from the source
+    (a :class:`SourceDisconnected`, or anything unexpected) is caught, its message kept for
     ``status()``, and the source reopened after a backoff that doubles from
-    ``backoff_initial_s`` up to ``backoff_max_s``; it resets after a successful frame.
+    ``backoff_initial_s`` up to ``backoff_max_s``; it resets after a successful frame. A source's
+    ``warnings`` list (a replay's skipped frames) shows in ``status()``.
     """
 
     def __init__(
@@ -207,6 +259,8 @@ class Capture:
         self._seek: int | None = None
         self._replay_index: int | None = None
         self._wake = threading.Event()
+        self._timeouts = 0
+        self._warnings: list[str] = []
 
     def start(self) -> None:
         self._thread = threading.Thread(target=self._run, name="depthruler-capture", daemon=True)
@@ -244,6 +298,8 @@ class Capture:
                 "retries": self._retries,
                 "retry_in_s": retry_in,
                 "replay": self._replay_status(info) if info and info.kind == "replay" else None,
+                "timeouts": self._timeouts,
+                "warnings": list(self._warnings)[-10:],
             }
 
     def _replay_status(self, info: SourceInfo) -> dict[str, Any]:
@@ -313,11 +369,17 @@ class Capture:
                 self._set(state="connecting" if first else "reconnecting", next_retry=None)
                 src = self.factory()
                 src.open()
-                self._set(info=src.info)
+                self._set(info=src.info, warnings=getattr(src, "warnings", []))
                 while not self._stop.is_set():
                     self._await_turn(src)
                     t0 = time.monotonic()
-                    frame = src.read(self.read_timeout_s)
+                    try:
+                        frame = src.read(self.read_timeout_s)
+                    except SourceTimeout as exc:
+                        with self._lock:
+                            self._timeouts += 1
+                            self._message = f"SourceTimeout: {exc} (retrying)"
+                        continue
                     self._deliver(frame, src.info)
                     backoff = self.backoff_initial_s
                     self._stop.wait(max(0.0, self.period_s - (time.monotonic() - t0)))

@@ -1,4 +1,8 @@
-"""Recording the live stream from the API: one writer at a time, fed by the capture thread."""
+"""Recording the live stream from the API: one writer at a time, fed by the capture thread.
+
+Every recording goes into one folder, the server's recordings root (``--recordings``); a client
+names at most a plain folder inside it (checked by :class:`service.schemas.RecordingIn`, and again
+here), never a path."""
 
 from __future__ import annotations
 
@@ -12,14 +16,15 @@ from fastapi import HTTPException
 from measure import Frame
 
 from .frames import Capture
+from .schemas import PLAIN_NAME
 
 
 class Recorder:
     """Writes the live frames to a recording (device.recording.RecordingWriter) while started."""
 
-    def __init__(self, capture: Capture, default_dir: Path) -> None:
+    def __init__(self, capture: Capture, root: Path) -> None:
         self.capture = capture
-        self.default_dir = default_dir
+        self.root = Path(root).resolve()
         self._lock = threading.Lock()
         self._writer: Any = None
         self._path: Path | None = None
@@ -43,11 +48,14 @@ class Recorder:
         info = self.capture.info
         if info is None:
             raise HTTPException(409, "the source has not delivered a frame yet; start recording once it streams")
-        path = Path(out) if out else self.default_dir / time.strftime("%Y%m%d-%H%M%S")
+        path = self.root / (out or time.strftime("%Y%m%d-%H%M%S"))
+        if path.parent != self.root or not PLAIN_NAME.match(path.name):
+            raise HTTPException(422, f"out must be a plain folder name inside {self.root} (got {out!r})")
         with self._lock:
             if self._writer is not None:
                 raise HTTPException(409, f"already recording to {self._path}; stop it first")
             try:
+                self.root.mkdir(parents=True, exist_ok=True)
                 self._writer = RecordingWriter(path, info)
             except Exception as exc:  # noqa: BLE001 — RecordingError or OSError: report, don't crash
                 raise HTTPException(400, f"cannot record to {path}: {exc}") from exc

@@ -1,5 +1,6 @@
-"""Images the service sends: PNG encoding, the colour-mapped disparity view, thumbnails, and the
-JSON view of a ring frame."""
+"""Images the service sends: PNG (exact pixels) and JPEG (the live view: ~30x cheaper to encode and
+~20x smaller at 720p) encoding, the colour-mapped disparity view, thumbnails, and the JSON view
+of a ring frame."""
 
 from __future__ import annotations
 
@@ -9,11 +10,12 @@ from typing import Any
 import cv2
 import numpy as np
 
-from measure import Frame
 
 from .frames import RingFrame
 
 THUMB_WIDTH = 240
+LIVE_JPEG_QUALITY = 85
+THUMB_JPEG_QUALITY = 80
 
 
 def encode_png(image: np.ndarray) -> bytes:
@@ -36,6 +38,16 @@ def turbo_colors(n: int = 16) -> list[str]:
     """``n`` evenly spaced colours of the turbo map as ``#rrggbb``, low disparity (far) first."""
     ramp = cv2.applyColorMap(np.linspace(0, 255, n).astype(np.uint8).reshape(-1, 1), cv2.COLORMAP_TURBO)
     return [f"#{r:02x}{g:02x}{b:02x}" for b, g, r in ramp.reshape(-1, 3).tolist()]
+def encode_jpeg(image: np.ndarray, quality: int = LIVE_JPEG_QUALITY) -> bytes:
+    ok, buf = cv2.imencode(".jpg", image, [cv2.IMWRITE_JPEG_QUALITY, quality])
+    if not ok:
+        raise RuntimeError("JPEG encoding failed")
+    return buf.tobytes()
+
+
+def png_from_jpeg(data: bytes) -> bytes:
+    """A small JPEG (a thumbnail) as PNG, for the URLs that promise PNG."""
+    return encode_png(cv2.imdecode(np.frombuffer(data, np.uint8), cv2.IMREAD_COLOR))
 
 
 def colorize_disparity(disparity: np.ndarray) -> np.ndarray:
@@ -53,18 +65,20 @@ def colorize_disparity(disparity: np.ndarray) -> np.ndarray:
     return out
 
 
-def make_thumb(frame: Frame, p1: tuple[float, float], p2: tuple[float, float]) -> bytes:
-    """A small PNG of the frame with the measured segment drawn on it."""
-    h, w = frame.disparity.shape
-    s = THUMB_WIDTH / w
-    small = cv2.resize(frame.image, (THUMB_WIDTH, max(1, round(h * s))), interpolation=cv2.INTER_AREA)
+def make_thumb(image: np.ndarray, full_width: int, p1: tuple[float, float], p2: tuple[float, float]) -> bytes:
+    """A small JPEG of a frame's colour ``image`` (full size, or a reduced decode of a frame
+    ``full_width`` pixels wide) with the measured segment (full-size pixels) drawn on it; bilinear
+    resize + JPEG, ~0.3 ms."""
+    h, w = image.shape[:2]
+    s = THUMB_WIDTH / full_width
+    small = cv2.resize(image, (THUMB_WIDTH, max(1, round(h * THUMB_WIDTH / w))), interpolation=cv2.INTER_LINEAR)
     a = (round((p1[0] + 0.5) * s * 16), round((p1[1] + 0.5) * s * 16))
     b = (round((p2[0] + 0.5) * s * 16), round((p2[1] + 0.5) * s * 16))
     cv2.line(small, a, b, (0, 0, 0), 4, cv2.LINE_AA, shift=4)
     cv2.line(small, a, b, (40, 220, 255), 2, cv2.LINE_AA, shift=4)
     for p in (a, b):
         cv2.circle(small, p, 4 * 16, (40, 220, 255), -1, cv2.LINE_AA, shift=4)
-    return encode_png(small)
+    return encode_jpeg(small, THUMB_JPEG_QUALITY)
 
 
 def truth_json(truth: Any) -> dict[str, Any] | None:

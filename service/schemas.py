@@ -4,9 +4,14 @@ from __future__ import annotations
 
 from typing import Annotated, Literal
 
-from pydantic import BaseModel, ConfigDict, Field, Strict
+import re
+
+from pydantic import BaseModel, ConfigDict, Field, Strict, field_validator
 
 FiniteNumber = Annotated[float, Strict(), Field(allow_inf_nan=False)]
+MAX_ID = 2**53 - 1  # the largest integer a JavaScript number holds exactly; far below SQLite's 2^63
+Id = Annotated[int, Strict(), Field(ge=0, le=MAX_ID)]
+PLAIN_NAME = re.compile(r"^[A-Za-z0-9][A-Za-z0-9._-]{0,63}$")
 
 
 class OptionsIn(BaseModel):
@@ -18,23 +23,35 @@ class OptionsIn(BaseModel):
     window: Annotated[int, Strict(), Field(ge=1, le=51)] = 5
     extension_px: Annotated[int, Strict(), Field(ge=3, le=500)] = 25
     gap_detection: Annotated[bool, Strict()] = True
-    seed: Annotated[int, Strict(), Field(ge=0)] = 0
+    seed: Annotated[int, Strict(), Field(ge=0, le=2**32 - 1)] = 0
 
 
 class MeasureIn(BaseModel):
     """``POST /api/measure`` body: the frame id and two points in pixels of its colour image."""
 
     model_config = ConfigDict(extra="forbid")
-    frame_id: Annotated[int, Strict()]
+    frame_id: Id
     p1: tuple[FiniteNumber, FiniteNumber]
     p2: tuple[FiniteNumber, FiniteNumber]
     options: OptionsIn = OptionsIn()
 
 
 class RecordingIn(BaseModel):
+    """``POST /api/recordings``: start or stop; ``out`` names a folder inside the server's recordings root."""
+
     model_config = ConfigDict(extra="forbid")
     action: Literal["start", "stop"]
-    out: str | None = None
+    out: Annotated[str, Strict()] | None = None
+
+    @field_validator("out")
+    @classmethod
+    def _plain_name(cls, v: str | None) -> str | None:
+        if v is not None and (not PLAIN_NAME.match(v) or v.strip(".") == ""):
+            raise ValueError(
+                "out must be a plain folder name (letters, digits, '.', '_', '-'; at most 64; no '/' or '..'): "
+                "recordings go inside the server's --recordings folder"
+            )
+        return v
 
 
 class ReplayIn(BaseModel):

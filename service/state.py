@@ -35,7 +35,8 @@ class ServiceState:
             raise HTTPException(404, exc.args[0]) from None
 
 
-def get_state(request: Request) -> ServiceState:
+async def get_state(request: Request) -> ServiceState:
+    """Async, so resolving it never waits for a worker thread."""
     return request.app.state.service
 
 

@@ -1,31 +1,49 @@
-"""Measurement history in SQLite (WAL), with each measured frame saved alongside as ``.npz``.
+"""Measurement history in SQLite (WAL), with each measured frame saved alongside as one compact file.
 
 The database holds every :class:`measure.Measurement` field, the frame id and clicked points,
-the options and a small thumbnail. The frame itself (image, disparity, confidence, camera,
-baseline) goes to ``<db stem>-frames/<uid>.npz`` once, however many measurements use it, so
-history survives a restart and a measurement can be re-opened on exactly its frame. Frames are
-written by a background thread (bounded queue) so a measurement answers without waiting for the
-disk; ``close()`` drains the queue, so a clean shutdown loses nothing.
+the options and a small thumbnail. The frame itself goes to ``<db stem>-frames/<uid>.frame``
+(:mod:`service.frame_file`: PNG16 disparity, JPEG colour, camera) once, however many
+measurements use it, so history survives a restart and a measurement can be re-opened and
+re-measured on its frame.
+
+Durability: :meth:`Store.add` writes and fsyncs the frame file *before* it commits the row
+(synchronous=FULL), so a measurement that was answered is on disk with its frame, whatever
+happens next (SIGKILL, power). A crash between the two leaves an unreferenced file, deleted at
+the next start with any stale temporary file. A full disk raises :class:`StoreFull` (HTTP 507)
+and marks the store degraded until a probe write succeeds again.
+
+Speed: :meth:`Store.presave` (called when a frame is frozen, before anyone clicks on it) writes
+the frame on a background thread, so the measurement that follows usually finds it on disk and
+only commits its row; a presave that would have to queue is skipped instead (the measurement
+then writes the frame itself), so saving never makes a request wait behind other frames.
+Thumbnails are drawn on first request, not on the measuring path.
+
+Size: with ``max_bytes`` the frame files are capped; beyond it the oldest frames that no pinned
+measurement uses are deleted (their measurements stay, without a frame to reopen).
 """
 
 from __future__ import annotations
 
 import csv
+import errno
 import io
 import json
 import math
-import os
-import queue
 import sqlite3
 import threading
 import time
-import zipfile
+from collections.abc import Iterator
+from concurrent.futures import ThreadPoolExecutor
+from contextlib import contextmanager
 from pathlib import Path
 from typing import Any
 
+import cv2
 import numpy as np
 
 from measure import Frame, PinholeCamera
+
+from .frame_file import SUFFIX, TMP_SUFFIX, decode_frame, encode_frame, write_durably
 
 _SCHEMA = """
 CREATE TABLE IF NOT EXISTS frames (
@@ -64,9 +82,21 @@ CREATE TABLE IF NOT EXISTS measurements (
 );
 """
 _MIGRATIONS = (  # columns added since the first schema: (table, column, declaration)
-    # JSON: result fields without a column (quality, reasons, interval_m, ...), frame_index, name, note
+    ("frames", "bytes", "INTEGER NOT NULL DEFAULT 0"),
+    ("measurements", "pinned", "INTEGER NOT NULL DEFAULT 0"),
     ("measurements", "extra", "TEXT NOT NULL DEFAULT '{}'"),
 )
+_FIXED_RESULT_KEYS = frozenset(
+    ("distance_m", "method", "fit", "p1_m", "p2_m", "basic_distance_m", "uncertainty_m", "n_samples", "n_valid",
+     "n_support", "samples_px", "support", "gap_detected", "warnings", "elapsed_ms")
+)  # fmt: skip
+_FULL_ERRNOS = (errno.ENOSPC, errno.EDQUOT)
+_PROBE_INTERVAL_S = 0.5
+_PRESAVE_KEEP_S = 600.0  # a presaved frame nobody measured within this is deleted
+_SLIM_COLUMNS = (
+    "id, created, frame_id, frame_uid, source, p1_x, p1_y, p2_x, p2_y, options, distance_m, method, fit, p1_m, p2_m, "
+    "basic_distance_m, uncertainty_m, n_samples, n_valid, n_support, gap_detected, warnings, elapsed_ms, pinned, extra"
+)  # every column but the per-sample arrays and the thumbnail
 
 UNITS = {"m": 1.0, "cm": 100.0, "mm": 1000.0, "in": 1 / 0.0254}
 
@@ -88,85 +118,71 @@ def supported_decimals(sigma: float | None, factor: float) -> int:
     return int(min(6, max(0, 1 - math.floor(math.log10(sigma * factor)))))
 
 
-_FIXED_RESULT_KEYS = frozenset(
-    ("distance_m", "method", "fit", "p1_m", "p2_m", "basic_distance_m", "uncertainty_m", "n_samples", "n_valid",
-     "n_support", "samples_px", "support", "gap_detected", "warnings", "elapsed_ms")
-)  # fmt: skip
-
-
 class StoreError(RuntimeError):
     """The history database or a saved frame cannot be read or written; names the file."""
 
 
-def _json_meta(meta: Any) -> dict[str, Any]:
-    """The JSON-serialisable scalar part of a frame's meta (e.g. not the simulator's Truth object)."""
-    out: dict[str, Any] = {}
-    for k, v in dict(meta or {}).items():
-        if isinstance(v, (str, int, float, bool)) or v is None:
-            out[str(k)] = v
-    return out
+class StoreFull(StoreError):
+    """The disk holding the history is full (HTTP 507)."""
 
 
-def save_frame(frame: Frame, path: Path) -> None:
-    """Write a frame to ``path`` (.npz) atomically: a crash leaves either the old file or the new one."""
-    cam = frame.camera
-    arrays: dict[str, Any] = {
-        "image": frame.image,
-        "disparity": frame.disparity,
-        "camera": np.array([cam.fx, cam.fy, cam.cx, cam.cy, cam.width, cam.height], dtype=np.float64),
-        "numbers": np.array([frame.baseline_m, frame.doffs, frame.timestamp], dtype=np.float64),
-        "meta": np.array(json.dumps(_json_meta(frame.meta))),
-    }
-    if frame.confidence is not None:
-        arrays["confidence"] = frame.confidence
-    tmp = path.with_suffix(".tmp.npz")
-    with open(tmp, "wb") as fh:
-        # np.savez_compressed's zlib level 6 costs ~4x level 1 for a few % of size; frames are noisy anyway.
-        with zipfile.ZipFile(fh, "w", zipfile.ZIP_DEFLATED, compresslevel=1) as zf:
-            for name, value in arrays.items():
-                with zf.open(name + ".npy", "w", force_zip64=True) as member:
-                    np.lib.format.write_array(member, np.asanyarray(value), allow_pickle=False)
-        fh.flush()
-        os.fsync(fh.fileno())
-    os.replace(tmp, path)
+class FrameDropped(StoreError):
+    """The measurement's frame was deleted by the history cap (HTTP 410)."""
 
 
 def load_frame(path: Path) -> Frame:
-    """Read a frame written by :func:`save_frame`."""
+    """Read a saved frame: a ``.frame`` file, or an ``.npz`` of earlier versions."""
     try:
-        with np.load(path, allow_pickle=False) as z:
-            fx, fy, cx, cy, w, h = z["camera"].tolist()
-            baseline, doffs, ts = z["numbers"].tolist()
-            return Frame(
-                image=z["image"],
-                disparity=z["disparity"],
-                camera=PinholeCamera(fx=fx, fy=fy, cx=cx, cy=cy, width=int(w), height=int(h)),
-                baseline_m=baseline,
-                doffs=doffs,
-                confidence=z["confidence"] if "confidence" in z.files else None,
-                timestamp=ts,
-                meta=json.loads(str(z["meta"])),
-            )
-    except (OSError, KeyError, ValueError) as exc:
+        if path.suffix == ".npz":
+            return _load_npz(path)
+        return decode_frame(path.read_bytes())
+    except (OSError, KeyError, ValueError, TypeError) as exc:
         raise StoreError(f"cannot read saved frame {path}: {exc}; the history entry needs this file") from exc
+    except Exception as exc:  # zipfile.BadZipFile and friends: a damaged file, never a crash
+        raise StoreError(f"cannot read saved frame {path}: {exc}; the file is damaged") from exc
+
+
+def _load_npz(path: Path) -> Frame:
+    with np.load(path, allow_pickle=False) as z:
+        fx, fy, cx, cy, w, h = z["camera"].tolist()
+        baseline, doffs, ts = z["numbers"].tolist()
+        return Frame(
+            image=z["image"],
+            disparity=z["disparity"],
+            camera=PinholeCamera(fx=fx, fy=fy, cx=cx, cy=cy, width=int(w), height=int(h)),
+            baseline_m=baseline,
+            doffs=doffs,
+            confidence=z["confidence"] if "confidence" in z.files else None,
+            timestamp=ts,
+            meta=json.loads(str(z["meta"])),
+        )
 
 
 def _num(x: Any) -> float | None:
     return None if x is None or not math.isfinite(float(x)) else float(x)
 
 
+def _is_full(exc: BaseException) -> bool:
+    if isinstance(exc, OSError):
+        return exc.errno in _FULL_ERRNOS
+    return isinstance(exc, sqlite3.Error) and (
+        getattr(exc, "sqlite_errorcode", None) == 13 or "full" in str(exc).lower()  # SQLITE_FULL
+    )
+
+
 class Store:
     """Thread-safe measurement history; ``Store(path)`` creates the database and frames folder."""
 
-    def __init__(self, path: str | Path) -> None:
+    def __init__(self, path: str | Path, *, max_bytes: int | None = None) -> None:
         self.path = Path(path)
         self.frames_dir = self.path.with_name(self.path.stem + "-frames")
+        self.max_bytes = max_bytes
         try:
             self.path.parent.mkdir(parents=True, exist_ok=True)
             self.frames_dir.mkdir(exist_ok=True)
             self._db = sqlite3.connect(self.path, check_same_thread=False, isolation_level=None)
             self._db.execute("PRAGMA journal_mode=WAL")
-            self._db.execute("PRAGMA synchronous=NORMAL")
+            self._db.execute("PRAGMA synchronous=FULL")  # a committed row survives power loss, not only a crash
             self._db.executescript(_SCHEMA)
             for table, column, decl in _MIGRATIONS:
                 if column not in {r[1] for r in self._db.execute(f"PRAGMA table_info({table})")}:
@@ -174,92 +190,234 @@ class Store:
         except (OSError, sqlite3.Error) as exc:
             raise StoreError(f"cannot open the history database {self.path}: {exc}; pass --db with a writable path") from exc
         self._db.row_factory = sqlite3.Row
-        self._lock = threading.Lock()
-        self._pending: dict[str, Frame] = {}
-        self._queue: queue.Queue[str | None] = queue.Queue(maxsize=16)  # backpressure: bounded memory
-        self._writer = threading.Thread(target=self._write_frames, name="depthruler-store", daemon=True)
-        self._writer.start()
-        self.write_errors: list[str] = []
+        self._lock = threading.Lock()  # the one writing connection, self._db
+        self._books = threading.Lock()  # bookkeeping (uid locks, presaves, readers): never held across I/O
+        self._local = threading.local()  # a reading connection per thread: reads never wait for a commit (WAL)
+        self._readers: list[sqlite3.Connection] = []
+        self._saving: dict[str, threading.Lock] = {}  # one writer per frame uid; other frames go side by side
+        self._degraded = ""
+        self._next_probe = 0.0
+        self._presaver = ThreadPoolExecutor(max_workers=1, thread_name_prefix="depthruler-presave")
+        self._presaving = 0
+        self._presaved: dict[str, float] = {}  # uid -> when, for frames saved before any measurement
+        self._clean_leftovers()
 
     def close(self) -> None:
-        """Write the frames still queued, then close the database."""
-        self._queue.put(None)
-        self._writer.join()
-        with self._lock:
+        self._presaver.shutdown(wait=True)
+        with self._lock, self._books:
+            for conn in self._readers:
+                conn.close()
             self._db.close()
 
-    def flush(self) -> None:
-        """Block until every queued frame is on disk."""
-        self._queue.join()
+    def _reader(self) -> sqlite3.Connection:
+        conn = getattr(self._local, "db", None)
+        if conn is None:
+            conn = sqlite3.connect(self.path, check_same_thread=False, isolation_level=None)
+            conn.row_factory = sqlite3.Row
+            conn.execute("PRAGMA query_only=1")
+            self._local.db = conn
+            with self._books:
+                self._readers.append(conn)
+        return conn
 
-    def ensure_frame(self, uid: str, frame: Frame) -> None:
-        """Queue ``frame`` for saving under ``uid`` unless it is saved or queued already."""
+    def _one(self, sql: str, args: tuple[Any, ...] = ()) -> sqlite3.Row | None:
+        return self._reader().execute(sql, args).fetchone()
+
+    def _all(self, sql: str, args: tuple[Any, ...] = ()) -> list[sqlite3.Row]:
+        return self._reader().execute(sql, args).fetchall()
+
+    def _clean_leftovers(self) -> None:
+        """Delete what a crash can leave: temporary files, and frame files whose row was never committed."""
         with self._lock:
-            if uid in self._pending or self._db.execute("SELECT 1 FROM frames WHERE uid=?", (uid,)).fetchone():
-                return
-            self._pending[uid] = frame
-        self._queue.put(uid)
+            known = {r["file"] for r in self._db.execute("SELECT file FROM frames")}
+        for p in self.frames_dir.iterdir():
+            stale = p.name.endswith((TMP_SUFFIX, ".tmp.npz"))
+            orphan = p.suffix in (SUFFIX, ".npz") and p.name not in known
+            if (stale or orphan) and p.is_file():
+                p.unlink(missing_ok=True)
 
-    def _write_frames(self) -> None:
-        while (uid := self._queue.get()) is not None:
+    # -- health ----------------------------------------------------------------------------------
+
+    def _full(self, exc: BaseException, what: str) -> StoreFull:
+        self._degraded = f"the disk holding {self.frames_dir} is full ({exc}); free space there or lower --history-max-gb"
+        self._next_probe = 0.0
+        return StoreFull(f"{what} not stored: {self._degraded}")
+
+    @property
+    def degraded(self) -> str:
+        return self._degraded
+
+    def status(self) -> dict[str, Any]:
+        """``{"degraded": reason or "", ...}``; while degraded, a probe write (at most twice a
+        second) checks whether space came back, and clears the state when it did."""
+        if self._degraded and time.monotonic() >= self._next_probe:
+            self._next_probe = time.monotonic() + _PROBE_INTERVAL_S
+            probe = self.frames_dir / f".probe{TMP_SUFFIX}"
             try:
-                self._write_frame(uid)
-            except Exception as exc:  # noqa: BLE001 — a full disk must not kill the writer; report it
-                self.write_errors.append(f"saving frame {uid} failed: {exc}")
-            finally:
+                write_durably(probe, b"\0" * 65536)
+                probe.unlink()
                 with self._lock:
-                    self._pending.pop(uid, None)
-                self._queue.task_done()
-        self._queue.task_done()
+                    self._db.execute("PRAGMA wal_checkpoint(PASSIVE)")
+                self._degraded = ""
+            except (OSError, sqlite3.Error):
+                probe.unlink(missing_ok=True)
+        return {"degraded": self._degraded}
 
-    def _write_frame(self, uid: str) -> None:
-        with self._lock:
-            frame = self._pending.get(uid)
-        if frame is None:
-            return
-        name = f"{uid}.npz"
-        save_frame(frame, self.frames_dir / name)
-        h, w = frame.disparity.shape
-        with self._lock:
-            if not self._db.execute("SELECT 1 FROM measurements WHERE frame_uid=? LIMIT 1", (uid,)).fetchone():
-                orphan = True  # its measurements were deleted while it was queued
-            else:
-                orphan = False
-                self._db.execute(
-                    "INSERT OR IGNORE INTO frames(uid, file, width, height, timestamp, source, created) VALUES (?,?,?,?,?,?,?)",
-                    (uid, name, w, h, float(frame.timestamp), str(frame.meta.get("source", "")), time.time()),
-                )
-        if orphan:
-            (self.frames_dir / name).unlink(missing_ok=True)
+    # -- frames ----------------------------------------------------------------------------------
+
+    @contextmanager
+    def _frame_lock(self, uid: str) -> Iterator[None]:
+        with self._books:
+            lock = self._saving.setdefault(uid, threading.Lock())
+        with lock:
+            yield
+        with self._books:
+            if self._saving.get(uid) is lock and not lock.locked():
+                del self._saving[uid]
+
+    def presave(self, uid: str, frame: Frame) -> bool:
+        """Start writing ``frame`` in the background (a frozen frame, about to be measured); returns
+        False, doing nothing, while another presave is still running or queued."""
+        with self._books:
+            if self._presaving >= 1 or self._degraded:
+                return False
+            self._presaving += 1
+        self._presaver.submit(self._presave, uid, frame)
+        return True
+
+    def _presave(self, uid: str, frame: Frame) -> None:
+        try:
+            with self._frame_lock(uid):
+                known = self._one("SELECT 1 FROM frames WHERE uid=?", (uid,))
+                if not known and not (self.frames_dir / f"{uid}{SUFFIX}").exists():
+                    self._save_frame(uid, frame)
+                    with self._books:
+                        self._presaved[uid] = time.monotonic()
+        except StoreError:
+            pass  # the measurement, if one comes, writes the frame itself and reports the error
+        finally:
+            with self._books:
+                self._presaving -= 1
+
+    def _sweep_presaved(self) -> None:
+        """Delete presaved frames that no measurement used within ``_PRESAVE_KEEP_S``."""
+        now = time.monotonic()
+        with self._books:
+            old = [u for u, t in self._presaved.items() if now - t > _PRESAVE_KEEP_S]
+        for uid in old:
+            with self._frame_lock(uid):
+                with self._books:
+                    self._presaved.pop(uid, None)
+                used = self._one("SELECT 1 FROM frames WHERE uid=?", (uid,))
+                if not used:
+                    (self.frames_dir / f"{uid}{SUFFIX}").unlink(missing_ok=True)
+
+    def _save_frame(self, uid: str, frame: Frame) -> int:
+        """Write ``frame`` as ``<uid>.frame`` durably unless it is there already (the caller holds
+        the uid's lock); returns its size. Raises StoreFull on a full disk, StoreError otherwise."""
+        path = self.frames_dir / f"{uid}{SUFFIX}"
+        if path.exists():  # the rename is atomic: a file under this name is complete
+            return path.stat().st_size
+        data = encode_frame(frame)
+        try:
+            write_durably(path, data)
+        except OSError as exc:
+            if _is_full(exc):
+                raise self._full(exc, f"frame {uid}") from None
+            raise StoreError(f"cannot save frame {uid} to {path}: {exc}") from exc
+        return len(data)
 
     def frame(self, uid: str) -> Frame:
-        with self._lock:
-            pending = self._pending.get(uid)
-            row = self._db.execute("SELECT file FROM frames WHERE uid=?", (uid,)).fetchone()
-        if pending is not None:
-            return pending
+        row = self._one("SELECT file FROM frames WHERE uid=?", (uid,))
         if row is None:
-            raise StoreError(f"the frame {uid} of this measurement was not saved in {self.frames_dir} (lost in a crash?)")
+            raise StoreError(f"the frame {uid} of this measurement was not saved in {self.frames_dir}")
+        if not row["file"]:
+            raise FrameDropped(
+                f"the frame {uid} of this measurement was deleted to keep the history under --history-max-gb; "
+                "its numbers are kept (pin a measurement to keep its frame)"
+            )
         return load_frame(self.frames_dir / row["file"])
+
+    def preview(self, uid: str) -> tuple[np.ndarray, int]:
+        """The saved colour image of frame ``uid`` decoded at 1/4 size (fast, for a thumbnail), and
+        the frame's full width."""
+        row = self._one("SELECT file, width FROM frames WHERE uid=?", (uid,))
+        if row is None or not row["file"]:
+            raise StoreError(f"the frame {uid} is not saved (any more)")
+        path = self.frames_dir / row["file"]
+        if path.suffix == ".npz":
+            return load_frame(path).image, row["width"]
+        try:
+            import zipfile
+
+            with zipfile.ZipFile(path) as zf:
+                data = zf.read("color.jpg")
+        except Exception as exc:  # noqa: BLE001 — a damaged file is a missing thumbnail, not a crash
+            raise StoreError(f"cannot read saved frame {path}: {exc}") from exc
+        image = cv2.imdecode(np.frombuffer(data, np.uint8), cv2.IMREAD_REDUCED_COLOR_4)
+        if image is None:
+            raise StoreError(f"the colour image in {path} cannot be decoded")
+        return image, row["width"]
+
+    def _enforce_cap(self) -> None:
+        """Delete the oldest frames no pinned measurement uses until the files fit ``max_bytes``
+        (the newest frame always stays)."""
+        if self.max_bytes is None:
+            return
+        with self._lock:
+            total = self._db.execute("SELECT COALESCE(SUM(bytes), 0) FROM frames WHERE file != ''").fetchone()[0]
+            if total <= self.max_bytes:
+                return
+            rows = self._db.execute(
+                "SELECT uid, file, bytes FROM frames WHERE file != '' AND uid NOT IN "
+                "(SELECT frame_uid FROM measurements WHERE pinned=1) ORDER BY created, rowid"
+            ).fetchall()[:-1]
+            victims = []
+            for r in rows:
+                if total <= self.max_bytes:
+                    break
+                victims.append(r)
+                total -= r["bytes"]
+            self._db.executemany("UPDATE frames SET file='' WHERE uid=?", [(r["uid"],) for r in victims])
+        for r in victims:
+            (self.frames_dir / r["file"]).unlink(missing_ok=True)
+
+    # -- measurements ----------------------------------------------------------------------------
 
     def add(
         self,
         *,
         frame_id: int,
         frame_uid: str,
+        frame: Frame,
         source: str,
         p1: tuple[float, float],
         p2: tuple[float, float],
         options: dict[str, Any],
         result: dict[str, Any],
-        thumb: bytes | None,
+        thumb: bytes | None = None,
         context: dict[str, Any] | None = None,
     ) -> dict[str, Any]:
-        """Insert one measurement (``result`` is ``Measurement.to_dict()``) and return its stored record.
-        Result fields without a column of their own (e.g. ``quality``, ``reasons``, ``interval_m``) and
-        ``context`` (e.g. ``frame_index`` of a replay) are kept in the ``extra`` JSON column."""
-        extra = {k: v for k, v in result.items() if k not in _FIXED_RESULT_KEYS} | (context or {})
+        """Save the frame (once per uid), then insert one measurement (``result`` is
+        ``Measurement.to_dict()``; keys beyond the known columns are kept as JSON) and return its
+        stored record. ``context`` (e.g. ``frame_index`` of a replay) is kept with the result's extra
+        fields. When this returns, both are durable."""
+        with self._frame_lock(frame_uid):  # a delete of the frame's last measurement waits for this
+            mid = self._add(frame_uid, frame, frame_id, source, p1, p2, options, result, thumb, context)
+        self._enforce_cap()
+        self._sweep_presaved()
+        record = self.get(mid)
+        assert record is not None
+        return record
+
+    def _add(
+        self, frame_uid: str, frame: Frame, frame_id: int, source: str, p1: tuple[float, float], p2: tuple[float, float],
+        options: dict[str, Any], result: dict[str, Any], thumb: bytes | None, context: dict[str, Any] | None,
+    ) -> int:  # fmt: skip
+        size = self._save_frame(frame_uid, frame)
+        h, w = frame.disparity.shape
         created = time.time()
+        extra = {k: v for k, v in result.items() if k not in _FIXED_RESULT_KEYS} | (context or {})
         values = (
             created, frame_id, frame_uid, source, float(p1[0]), float(p1[1]), float(p2[0]), float(p2[1]),
             json.dumps(options), result["distance_m"], result["method"], result["fit"], json.dumps(result["p1_m"]),
@@ -268,20 +426,41 @@ class Store:
             int(result["gap_detected"]), json.dumps(result["warnings"]), result["elapsed_ms"], thumb, json.dumps(extra),
         )  # fmt: skip
         with self._lock:
-            cur = self._db.execute(
-                "INSERT INTO measurements(created, frame_id, frame_uid, source, p1_x, p1_y, p2_x, p2_y, options, "
-                "distance_m, method, fit, p1_m, p2_m, basic_distance_m, uncertainty_m, n_samples, n_valid, "
-                "n_support, samples_px, support, gap_detected, warnings, elapsed_ms, thumb, extra) "
-                "VALUES (?,?,?,?,?,?,?,?,?,?,?,?,?,?,?,?,?,?,?,?,?,?,?,?,?,?)",
-                values,
-            )
-            mid = cur.lastrowid
-        record = self.get(mid)
-        assert record is not None
-        return record
+            try:
+                self._db.execute("BEGIN IMMEDIATE")
+                self._db.execute(
+                    "INSERT OR IGNORE INTO frames(uid, file, width, height, timestamp, source, created, bytes) "
+                    "VALUES (?,?,?,?,?,?,?,?)",
+                    (frame_uid, f"{frame_uid}{SUFFIX}", w, h, float(frame.timestamp), str(frame.meta.get("source", "")), created, size),
+                )
+                cur = self._db.execute(
+                    "INSERT INTO measurements(created, frame_id, frame_uid, source, p1_x, p1_y, p2_x, p2_y, options, "
+                    "distance_m, method, fit, p1_m, p2_m, basic_distance_m, uncertainty_m, n_samples, n_valid, "
+                    "n_support, samples_px, support, gap_detected, warnings, elapsed_ms, thumb, extra) "
+                    "VALUES (?,?,?,?,?,?,?,?,?,?,?,?,?,?,?,?,?,?,?,?,?,?,?,?,?,?)",
+                    values,
+                )
+                self._db.execute("COMMIT")
+            except sqlite3.Error as exc:
+                if self._db.in_transaction:
+                    self._db.execute("ROLLBACK")
+                if _is_full(exc):
+                    raise self._full(exc, "measurement") from None
+                raise StoreError(f"cannot store the measurement in {self.path}: {exc}") from exc
+            self._degraded = ""  # a write went through: space is back
+        with self._books:
+            self._presaved.pop(frame_uid, None)
+        return int(cur.lastrowid)
+
+    def pin(self, mid: int, pinned: bool = True) -> dict[str, Any] | None:
+        """Pin (or unpin) a measurement: the history cap never deletes the frame of a pinned one."""
+        with self._lock:
+            self._db.execute("UPDATE measurements SET pinned=? WHERE id=?", (int(pinned), mid))
+        return self.get(mid)
 
     @staticmethod
     def _record(row: sqlite3.Row) -> dict[str, Any]:
+        keys = row.keys()
         extra = json.loads(row["extra"] or "{}")
         return {
             **extra,  # newer Measurement fields (quality, reasons, ...) and frame_index; never shadow ours
@@ -305,22 +484,20 @@ class Store:
             "n_samples": row["n_samples"],
             "n_valid": row["n_valid"],
             "n_support": row["n_support"],
-            "samples_px": json.loads(row["samples_px"]),
-            "support": json.loads(row["support"]),
+            **({"samples_px": json.loads(row["samples_px"]), "support": json.loads(row["support"])} if "support" in keys else {}),
             "gap_detected": bool(row["gap_detected"]),
             "warnings": json.loads(row["warnings"]),
             "elapsed_ms": row["elapsed_ms"],
+            "pinned": bool(row["pinned"]),
         }
 
     def get(self, mid: int) -> dict[str, Any] | None:
-        with self._lock:
-            row = self._db.execute("SELECT * FROM measurements WHERE id=?", (mid,)).fetchone()
+        row = self._one("SELECT * FROM measurements WHERE id=?", (mid,))
         return self._record(row) if row else None
 
     def list(self, limit: int = 1000) -> list[dict[str, Any]]:
-        """Newest first."""
-        with self._lock:
-            rows = self._db.execute("SELECT * FROM measurements ORDER BY id DESC LIMIT ?", (limit,)).fetchall()
+        """Full records, newest first."""
+        rows = self._all("SELECT * FROM measurements ORDER BY id DESC LIMIT ?", (limit,))
         return [self._record(r) for r in rows]
 
     def annotate(self, mid: int, name: str | None = None, note: str | None = None) -> dict[str, Any] | None:
@@ -335,19 +512,33 @@ class Store:
             self._db.execute("UPDATE measurements SET extra=? WHERE id=?", (json.dumps(extra), mid))
         return self.get(mid)
 
-    def thumb(self, mid: int) -> bytes | None:
+    def list_slim(self, limit: int = 100, before: int | None = None) -> list[dict[str, Any]]:
+        """Records without ``samples_px`` and ``support`` (the bulk of a record), newest first,
+        ``limit`` of them with an id below ``before`` (the last id of the previous page)."""
+        where, args = ("WHERE id < ?", (before, limit)) if before is not None else ("", (limit,))
+        rows = self._all(f"SELECT {_SLIM_COLUMNS} FROM measurements {where} ORDER BY id DESC LIMIT ?", args)
+        return [self._record(r) for r in rows]
+
+    def set_thumb(self, mid: int, thumb: bytes) -> None:
         with self._lock:
-            row = self._db.execute("SELECT thumb FROM measurements WHERE id=?", (mid,)).fetchone()
+            self._db.execute("UPDATE measurements SET thumb=? WHERE id=?", (thumb, mid))
+
+    def thumb(self, mid: int) -> bytes | None:
+        row = self._one("SELECT thumb FROM measurements WHERE id=?", (mid,))
         return bytes(row["thumb"]) if row and row["thumb"] is not None else None
 
     def delete(self, mid: int) -> bool:
         """Delete a measurement; its saved frame goes too once no measurement refers to it."""
+        row = self._one("SELECT frame_uid FROM measurements WHERE id=?", (mid,))
+        if row is None:
+            return False
+        with self._frame_lock(row["frame_uid"]):
+            return self._delete(mid, row["frame_uid"])
+
+    def _delete(self, mid: int, uid: str) -> bool:
         with self._lock:
-            row = self._db.execute("SELECT frame_uid FROM measurements WHERE id=?", (mid,)).fetchone()
-            if row is None:
+            if not self._db.execute("DELETE FROM measurements WHERE id=?", (mid,)).rowcount:
                 return False
-            uid = row["frame_uid"]
-            self._db.execute("DELETE FROM measurements WHERE id=?", (mid,))
             orphan = not self._db.execute("SELECT 1 FROM measurements WHERE frame_uid=? LIMIT 1", (uid,)).fetchone()
             file = None
             if orphan:
@@ -383,3 +574,4 @@ class Store:
                  f"{base_url}api/measurements/{r['id']}/color.png"]
             )  # fmt: skip
         return buf.getvalue()
+

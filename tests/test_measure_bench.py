@@ -56,3 +56,35 @@ def test_sklearn_reference_gives_the_same_answer():
         assert r["n_samples"] == 1280
         assert r["distance_m"] == pytest.approx(r["sklearn_distance_m"], rel=1e-3)
         assert r["speedup"] > 1.0
+
+
+def test_bench_dependencies_are_declared():
+    """Every third-party module a bench script imports is a main dependency or in the `bench` extra
+    (`depthruler bench measure` crashed on a plain install: No module named 'threadpoolctl')."""
+    import ast
+    import sys
+    import tomllib
+    from pathlib import Path
+
+    root = Path(__file__).resolve().parents[1]
+    project = tomllib.loads((root / "pyproject.toml").read_text())["project"]
+    declared = {d.split(">")[0].split("[")[0].strip().lower() for d in project["dependencies"] + project["optional-dependencies"]["bench"]}
+    distribution = {"sklearn": "scikit-learn", "cv2": "opencv-contrib-python-headless", "yaml": "pyyaml"}
+    ours = {"measure", "device", "sim", "service", "evaluation", "results_file"}
+    needed = set()
+    for script in (root / "bench").glob("*.py"):
+        for node in ast.walk(ast.parse(script.read_text())):
+            names = [a.name for a in node.names] if isinstance(node, ast.Import) else [node.module] if isinstance(node, ast.ImportFrom) and node.level == 0 else []
+            for name in names:
+                top = name.split(".")[0]
+                if top not in ours and top not in sys.stdlib_module_names:
+                    needed.add(distribution.get(top, top).lower())
+    assert needed and needed <= declared, sorted(needed - declared)
+
+
+def test_missing_bench_dependency_says_how_to_install(monkeypatch):
+    import sys
+
+    monkeypatch.setitem(sys.modules, "httpx", None)  # as on an install without the bench extra
+    result = CliRunner().invoke(app, ["bench", "service_load", "--no-record"])
+    assert result.exit_code == 2 and "depthruler[bench]" in result.output and "httpx" in result.output

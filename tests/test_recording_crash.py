@@ -68,7 +68,7 @@ def test_sigkill_mid_stream_keeps_every_complete_frame(tmp_path: Path, delay_s: 
             pass
     rec = open_recording(out)
     # every frame the writer reported done is there, and every fully written line is a frame
-    assert len(rec) >= len(printed) >= 8
+    assert len(rec) >= max(len(printed), 8)  # 8 lines were complete before the kill; a frame may not be printed yet
     assert len(rec) == parsed
     assert rec.manifest["complete"] is False
     for k in range(len(rec)):

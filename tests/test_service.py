@@ -19,6 +19,8 @@ from service.app import create_app
 
 W, H, FX, BASELINE, DISP = 320, 240, 300.0, 0.1, 15.0
 Z = FX * BASELINE / DISP  # 2.0 m: every pixel sees a fronto-parallel wall
+BASE = "http://127.0.0.1"  # a loopback Host, as a browser on this machine sends
+JSON = {"Content-Type": "application/json"}  # every POST says JSON, body or not (cross-site forms cannot)
 
 
 def plane_frame(index: int) -> Frame:
@@ -64,7 +66,7 @@ def make_client(tmp_path, factory=PlaneSource, **kw) -> TestClient:
     kw.setdefault("capture_fps", 200.0)
     kw.setdefault("reconnect_initial_s", 0.02)
     kw.setdefault("reconnect_max_s", 0.1)
-    return TestClient(create_app(factory, db_path=tmp_path / "h.db", **kw))
+    return TestClient(create_app(factory, db_path=tmp_path / "h.db", **kw), base_url=BASE)
 
 
 def latest(client: TestClient, after: int = 0) -> dict:
@@ -128,7 +130,7 @@ def test_evicted_frame_is_410_and_frozen_survives(tmp_path):
         old = latest(c)
         state["gate"].release(1)
         kept = latest(c, after=old["id"])
-        assert c.post(f"/api/frames/{kept['id']}/freeze").json()["frozen"] is True
+        assert c.post(f"/api/frames/{kept['id']}/freeze", headers=JSON).json()["frozen"] is True
         state["gate"].release(10)
         latest(c, after=kept["id"] + 9)
         r = measure(c, old["id"], (10, 10), (20, 20), method="basic")
@@ -206,7 +208,7 @@ def test_restart_keeps_history_and_reopens_frame(tmp_path):
         assert [m["id"] for m in listed] == [second["id"], first["id"]]
         assert listed[1]["distance_m"] == pytest.approx(first["distance_m"])
         assert listed[1]["p2"] == [290, 200]
-        opened = c.post(f"/api/measurements/{first['id']}/open").json()
+        opened = c.post(f"/api/measurements/{first['id']}/open", headers=JSON).json()
         fid = opened["frame"]["id"]
         assert opened["frame"]["frozen"] and opened["measurement"]["id"] == first["id"]
         again = measure(c, fid, (30, 40), (290, 200), method="basic").json()
@@ -217,7 +219,7 @@ def test_restart_keeps_history_and_reopens_frame(tmp_path):
         assert float(rows[0]["distance"]) == pytest.approx(first["distance_m"], abs=float(rows[0]["uncertainty_1sigma"]) / 10)
         assert c.get("/api/measurements", params={"format": "csv"}).text == c.get("/api/measurements.csv").text
     # the deleted measurement's frame is shared with kept ones, so it stays; one file per frame
-    assert len(list((tmp_path / "h-frames").glob("*.npz"))) == 1
+    assert len(list((tmp_path / "h-frames").glob("*.frame"))) == 1
 
 
 def test_disconnecting_source_is_reported_and_retried(tmp_path):
@@ -251,7 +253,7 @@ def test_disconnecting_source_is_reported_and_retried(tmp_path):
 
 
 def test_source_that_never_opens_keeps_service_up(tmp_path):
-    with TestClient(create_app("nosuchkind:x", db_path=tmp_path / "x.db", reconnect_initial_s=0.02)) as c:
+    with TestClient(create_app("nosuchkind:x", db_path=tmp_path / "x.db", reconnect_initial_s=0.02), base_url=BASE) as c:
         deadline = time.monotonic() + 5
         while c.get("/api/source").json()["retries"] < 2 and time.monotonic() < deadline:
             time.sleep(0.01)
@@ -272,7 +274,7 @@ def test_concurrent_measurements_no_errors(tmp_path):
 
         def one(i: int) -> float:
             fid = c.get("/api/frames/latest").json()["id"]
-            c.post(f"/api/frames/{fid}/freeze")
+            c.post(f"/api/frames/{fid}/freeze", headers=JSON)
             p1 = (float(rng.uniform(10, 150)), float(rng.uniform(10, 230)))
             p2 = (float(rng.uniform(170, 310)), float(rng.uniform(10, 230)))
             r = measure(c, fid, p1, p2, method="basic")
@@ -294,8 +296,8 @@ def test_recording_start_stop(tmp_path):
 
     with make_client(tmp_path, capture_fps=50.0) as c:
         latest(c)
-        out = tmp_path / "rec"
-        r = c.post("/api/recordings", json={"action": "start", "out": str(out)})
+        out = tmp_path / "recordings" / "rec"  # the default root: next to the database
+        r = c.post("/api/recordings", json={"action": "start", "out": "rec"})
         assert r.status_code == 200 and r.json()["active"], r.text
         assert c.post("/api/recordings", json={"action": "start"}).status_code == 409
         deadline = time.monotonic() + 10
@@ -338,7 +340,7 @@ def test_replay_without_loop_ends_instead_of_starting_over(tmp_path):
         for i in range(1, 4):
             w.write(plane_frame(i))
     spec = f"replay:{tmp_path / 'rec'}?realtime=0"
-    with TestClient(create_app(spec, db_path=tmp_path / "h.db", capture_fps=200.0, reconnect_initial_s=0.02)) as c:
+    with TestClient(create_app(spec, db_path=tmp_path / "h.db", capture_fps=200.0, reconnect_initial_s=0.02), base_url=BASE) as c:
         deadline = time.monotonic() + 10
         while c.get("/api/source").json()["state"] != "ended" and time.monotonic() < deadline:
             time.sleep(0.01)

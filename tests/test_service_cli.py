@@ -113,4 +113,4 @@ def test_serve_flags_override_config(tmp_path, monkeypatch):
         assert c.get("/api/source").status_code == 401
         assert c.get("/api/source", headers={"Authorization": "Bearer tok"}).json()["spec"] == "kinect:0"
     result = CliRunner().invoke(app, ["serve", "--source", "sim", "--host", "0.0.0.0", "--token", "", "--db", str(tmp_path / "o.db")])
-    assert "without a token" in result.output
+    assert result.exit_code == 2 and "--insecure-no-token" in result.output  # exposed needs a token

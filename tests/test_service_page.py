@@ -159,7 +159,7 @@ def test_result_fields_without_a_column_are_kept(tmp_path):
         "samples_px": [[1, 2]], "support": [True], "gap_detected": False, "warnings": [], "elapsed_ms": 1.0,
         "quality": "check", "reasons": ["the end p2 is extrapolated 12 px beyond the support"], "interval_m": [0.832, 0.838],
     }  # fmt: skip
-    rec = store.add(frame_id=1, frame_uid="u", source="sim", p1=(1, 2), p2=(3, 4), options={}, result=result, thumb=None,
+    rec = store.add(frame_id=1, frame_uid="u", frame=plane_frame(0), source="sim", p1=(1, 2), p2=(3, 4), options={}, result=result,
                     context={"frame_index": 7})  # fmt: skip
     store.close()
     again = Store(tmp_path / "h.db")

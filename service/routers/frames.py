@@ -5,19 +5,29 @@ from __future__ import annotations
 from typing import Annotated, Any
 
 import numpy as np
-from fastapi import APIRouter, HTTPException, Query
+from fastapi import APIRouter, HTTPException, Path, Query
 from fastapi.responses import Response
 
-from ..render import colorize_disparity, disparity_range, encode_png, frame_json, turbo_colors
+from ..frames import TooManyWaiters
+from ..render import colorize_disparity, disparity_range, encode_jpeg, encode_png, frame_json, turbo_colors
+from ..schemas import MAX_ID
 from ..state import State
 
 router = APIRouter(prefix="/api/frames", tags=["frames"])
+FrameId = Annotated[int, Path(ge=0, le=MAX_ID)]
 
 
 @router.get("/latest")
-def latest(state: State, after: int = 0, wait: Annotated[float, Query(ge=0, le=10)] = 0.0) -> dict[str, Any]:
-    # after a wait with nothing newer (a paused or ended replay) the newest frame is still the answer
-    entry = (state.ring.wait_latest(after, wait) if wait else None) or state.ring.latest()
+async def latest(
+    state: State, after: Annotated[int, Query(ge=0, le=MAX_ID)] = 0, wait: Annotated[float, Query(ge=0, le=10)] = 0.0
+) -> dict[str, Any]:
+    """The newest frame; with ``wait``, the first one newer than ``after`` (a long-poll served on the
+    event loop, so waiting clients hold no worker thread)."""
+    try:
+        # after a wait with nothing newer (a paused or ended replay) the newest frame is still the answer
+        entry = (await state.ring.wait_latest_async(after, wait) if wait else None) or state.ring.latest()
+    except TooManyWaiters as exc:
+        raise HTTPException(429, str(exc), headers={"Retry-After": "1"}) from None
     if entry is None:
         status = state.capture.status()
         raise HTTPException(
@@ -28,18 +38,25 @@ def latest(state: State, after: int = 0, wait: Annotated[float, Query(ge=0, le=1
 
 
 @router.get("/{frame_id}")
-def frame_info(state: State, frame_id: int) -> dict[str, Any]:
+def frame_info(state: State, frame_id: FrameId) -> dict[str, Any]:
     return frame_json(state.entry(frame_id))
 
 
 @router.get("/{frame_id}/color.png")
-def color_png(state: State, frame_id: int) -> Response:
+def color_png(state: State, frame_id: FrameId) -> Response:
     data = state.entry(frame_id).encoded("color.png", lambda f: encode_png(f.image))
     return Response(data, media_type="image/png", headers={"Cache-Control": "private, max-age=3600"})
 
 
+@router.get("/{frame_id}/color.jpg")
+def color_jpg(state: State, frame_id: FrameId) -> Response:
+    """The colour image for the live view: JPEG quality 85 (color.png has the exact pixels)."""
+    data = state.entry(frame_id).encoded("color.jpg", lambda f: encode_jpeg(f.image))
+    return Response(data, media_type="image/jpeg", headers={"Cache-Control": "private, max-age=3600"})
+
+
 @router.get("/{frame_id}/disparity.png")
-def disparity_png(state: State, frame_id: int) -> Response:
+def disparity_png(state: State, frame_id: FrameId) -> Response:
     data = state.entry(frame_id).encoded("disparity.png", lambda f: encode_png(colorize_disparity(f.disparity)))
     return Response(data, media_type="image/png", headers={"Cache-Control": "private, max-age=3600"})
 
@@ -91,12 +108,13 @@ def depth_scale(state: State, frame_id: int) -> dict[str, Any]:
 
 
 @router.post("/{frame_id}/freeze")
-def freeze(state: State, frame_id: int) -> dict[str, Any]:
-    state.entry(frame_id)
+def freeze(state: State, frame_id: FrameId) -> dict[str, Any]:
+    entry = state.entry(frame_id)
+    state.store.presave(entry.uid, entry.frame)  # a frozen frame is about to be measured: save it meanwhile
     return frame_json(state.ring.freeze(frame_id, True))
 
 
 @router.delete("/{frame_id}/freeze")
-def unfreeze(state: State, frame_id: int) -> dict[str, Any]:
+def unfreeze(state: State, frame_id: FrameId) -> dict[str, Any]:
     state.entry(frame_id)
     return frame_json(state.ring.freeze(frame_id, False))

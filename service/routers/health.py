@@ -6,6 +6,7 @@ import time
 from typing import Any
 
 from fastapi import APIRouter, HTTPException
+from starlette.concurrency import run_in_threadpool
 
 from ..frames import ReplayControlError
 from ..schemas import ReplayIn
@@ -15,14 +16,17 @@ router = APIRouter(prefix="/api", tags=["health"])
 
 
 @router.get("/health")
-def health(state: State) -> dict[str, Any]:
+async def health(state: State) -> dict[str, Any]:
+    """``status`` is "ok", or "degraded" with a ``reason`` (the history's disk is full: measurements
+    answer 507 until space comes back, checked on every call)."""
     status = state.capture.status()
+    degraded = (await run_in_threadpool(state.store.status))["degraded"] if state.store.degraded else ""
     return {
-        "status": "ok",
+        "status": "degraded" if degraded else "ok",
+        "reason": degraded,
         "source_state": status["state"],
         "frames": len(state.ring),
         "uptime_s": time.time() - state.started,
-        "store_errors": state.store.write_errors[-5:],
     }
 
 

@@ -2,23 +2,31 @@
 
 from __future__ import annotations
 
+import json
 from typing import Annotated, Any, Literal
 
-from fastapi import APIRouter, HTTPException, Query, Request
+from fastapi import APIRouter, HTTPException, Path, Query, Request
 from fastapi.responses import JSONResponse, PlainTextResponse, Response
 
 from measure import MeasureError, MeasureOptions, measure_distance
 
-from ..render import encode_png, frame_json, make_thumb
-from ..schemas import AnnotationIn, MeasureIn
+from ..render import encode_png, frame_json, make_thumb, png_from_jpeg
+from ..schemas import MAX_ID, AnnotationIn, MeasureIn
 from ..state import ServiceState, State
-from ..store import StoreError
+from ..store import FrameDropped, StoreError, StoreFull
 
 router = APIRouter(prefix="/api", tags=["measurements"])
+MeasurementId = Annotated[int, Path(ge=0, le=MAX_ID)]
 
 
-@router.post("/measure")
-def measure(state: State, body: MeasureIn) -> dict[str, Any]:
+def _json(obj: Any) -> Response:
+    """JSON encoded here, on the worker thread: FastAPI would encode a returned dict on the event
+    loop, where a record with its samples stalls every other request for a millisecond or more."""
+    return Response(json.dumps(obj, separators=(",", ":"), allow_nan=False).encode(), media_type="application/json")
+
+
+@router.post("/measure", response_model=None)
+def measure(state: State, body: MeasureIn) -> Response:
     entry = state.entry(body.frame_id)
     frame = entry.frame
     h, w = frame.disparity.shape
@@ -32,19 +40,23 @@ def measure(state: State, body: MeasureIn) -> dict[str, Any]:
         result = measure_distance(frame, body.p1, body.p2, MeasureOptions(**options))
     except MeasureError as exc:
         raise HTTPException(422, str(exc)) from None
-    record = state.store.add(
-        frame_id=entry.id,
-        frame_uid=entry.uid,
-        source=str(frame.meta.get("source", "")) or state.capture.spec,
-        p1=body.p1,
-        p2=body.p2,
-        options=options,
-        result=result.to_dict(),
-        thumb=make_thumb(frame, body.p1, body.p2),
-        context={"frame_index": replay["index"]} if isinstance(replay := frame.meta.get("replay"), dict) else None,
-    )
-    state.store.ensure_frame(entry.uid, frame)  # after the row exists: the writer drops frames nobody refers to
-    return record
+    try:
+        record = state.store.add(
+            frame_id=entry.id,
+            frame_uid=entry.uid,
+            frame=frame,
+            source=str(frame.meta.get("source", "")) or state.capture.spec,
+            p1=body.p1,
+            p2=body.p2,
+            options=options,
+            result=result.to_dict(),
+            context={"frame_index": replay["index"]} if isinstance(replay := frame.meta.get("replay"), dict) else None,
+        )  # returns once the measurement and its frame are on disk; the thumbnail is drawn on request
+    except StoreFull as exc:
+        raise HTTPException(507, str(exc)) from None
+    except StoreError as exc:
+        raise HTTPException(500, str(exc)) from None
+    return _json(record)
 
 
 Units = Literal["m", "cm", "mm", "in"]
@@ -77,11 +89,19 @@ def measurements_json(state: State) -> JSONResponse:
 
 @router.get("/measurements", response_model=None)
 def measurements(
-    state: State, request: Request, format: Literal["json", "csv"] = "json", limit: Annotated[int, Query(ge=1)] = 1000
-) -> Any:
+    state: State,
+    request: Request,
+    format: Literal["json", "csv"] = "json",
+    limit: Annotated[int, Query(ge=1, le=10_000)] = 1000,
+    before: Annotated[int | None, Query(ge=1, le=MAX_ID)] = None,
+) -> Response:
+    """The history, newest first, slim: every field but the per-sample arrays (``samples_px``,
+    ``support``: ``GET /api/measurements/{id}`` has them). Pages: ``limit`` records with an id
+    below ``before`` (pass the last id of the previous page). Encoded here, on a worker thread,
+    not on the event loop."""
     if format == "csv":
         return _csv(state, "m", request)
-    return state.store.list(limit)
+    return _json(state.store.list_slim(limit, before))
 
 
 def _record(state: ServiceState, mid: int) -> dict[str, Any]:
@@ -91,13 +111,14 @@ def _record(state: ServiceState, mid: int) -> dict[str, Any]:
     return record
 
 
-@router.get("/measurements/{mid}")
-def measurement(state: State, mid: int) -> dict[str, Any]:
-    return _record(state, mid)
+@router.get("/measurements/{mid}", response_model=None)
+def measurement(state: State, mid: MeasurementId) -> Response:
+    """The full record, with the per-sample arrays."""
+    return _json(_record(state, mid))
 
 
 @router.patch("/measurements/{mid}")
-def annotate(state: State, mid: int, body: AnnotationIn) -> dict[str, Any]:
+def annotate(state: State, mid: MeasurementId, body: AnnotationIn) -> dict[str, Any]:
     """Name and/or note a measurement."""
     record = state.store.annotate(mid, body.name, body.note)
     if record is None:
@@ -106,23 +127,42 @@ def annotate(state: State, mid: int, body: AnnotationIn) -> dict[str, Any]:
 
 
 @router.delete("/measurements/{mid}")
-def delete_measurement(state: State, mid: int) -> dict[str, Any]:
+def delete_measurement(state: State, mid: MeasurementId) -> dict[str, Any]:
     if not state.store.delete(mid):
         raise HTTPException(404, f"no measurement {mid}; GET /api/measurements lists them")
     return {"deleted": mid}
 
 
-@router.get("/measurements/{mid}/thumb.png")
-def thumb(state: State, mid: int) -> Response:
-    _record(state, mid)
+def _thumb(state: ServiceState, mid: int) -> bytes:
+    """The measurement's thumbnail, drawn on first request from its saved frame and kept."""
+    record = _record(state, mid)
     data = state.store.thumb(mid)
     if data is None:
-        raise HTTPException(404, f"measurement {mid} has no thumbnail")
-    return Response(data, media_type="image/png", headers={"Cache-Control": "private, max-age=86400"})
+        try:
+            image, width = state.store.preview(record["frame_uid"])
+        except StoreError as exc:
+            raise HTTPException(404, f"measurement {mid} has no thumbnail: {exc}") from None
+        data = make_thumb(image, width, record["p1"], record["p2"])
+        state.store.set_thumb(mid, data)
+    return data
+
+
+@router.get("/measurements/{mid}/thumb.jpg")
+def thumb_jpg(state: State, mid: MeasurementId) -> Response:
+    data = _thumb(state, mid)
+    media = "image/png" if data.startswith(b"\x89PNG") else "image/jpeg"  # histories from before kept PNG
+    return Response(data, media_type=media, headers={"Cache-Control": "private, max-age=86400"})
+
+
+@router.get("/measurements/{mid}/thumb.png")
+def thumb(state: State, mid: MeasurementId) -> Response:
+    data = _thumb(state, mid)
+    png = data if data.startswith(b"\x89PNG") else png_from_jpeg(data)
+    return Response(png, media_type="image/png", headers={"Cache-Control": "private, max-age=86400"})
 
 
 @router.get("/measurements/{mid}/color.png")
-def measured_color(state: State, mid: int) -> Response:
+def measured_color(state: State, mid: MeasurementId) -> Response:
     """The colour image of the saved frame a measurement was made on (the CSV's ``frame_url``)."""
     record = _record(state, mid)
     try:
@@ -133,12 +173,27 @@ def measured_color(state: State, mid: int) -> Response:
 
 
 @router.post("/measurements/{mid}/open")
-def reopen(state: State, mid: int) -> dict[str, Any]:
+def reopen(state: State, mid: MeasurementId) -> dict[str, Any]:
     """Put the saved frame of a measurement back into the ring (frozen) to view or re-measure it."""
     record = _record(state, mid)
     try:
         saved = state.store.frame(record["frame_uid"])
+    except FrameDropped as exc:
+        raise HTTPException(410, str(exc)) from None
     except StoreError as exc:
         raise HTTPException(404, str(exc)) from None
     entry = state.ring.push(saved, frozen=True, uid=record["frame_uid"])
     return {"frame": frame_json(entry), "measurement": record}
+
+
+@router.post("/measurements/{mid}/pin")
+def pin(state: State, mid: MeasurementId) -> dict[str, Any]:
+    """Keep this measurement's frame whatever the history cap (``--history-max-gb``)."""
+    _record(state, mid)
+    return state.store.pin(mid, True) or _record(state, mid)
+
+
+@router.delete("/measurements/{mid}/pin")
+def unpin(state: State, mid: MeasurementId) -> dict[str, Any]:
+    _record(state, mid)
+    return state.store.pin(mid, False) or _record(state, mid)

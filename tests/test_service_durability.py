@@ -1,0 +1,310 @@
+"""The service under faults: SIGKILL under load, a full disk, stale temporary files, a corrupt replayed
+frame, a source that times out once, and a capped history. Nothing acknowledged may be lost."""
+
+from __future__ import annotations
+
+import errno
+import os
+import shutil
+import signal
+import socket
+import subprocess
+import sys
+import threading
+import time
+from pathlib import Path
+
+import httpx
+import numpy as np
+import pytest
+from test_service import BASE, DISP, JSON, PlaneSource, latest, make_client, measure, plane_frame, true_length
+
+from device import SourceTimeout
+
+ROOT = Path(__file__).resolve().parents[1]
+SIM = "sim:poster?width=320&height=240&fps=30"
+
+
+def _free_port() -> int:
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+def _serve(db: Path, log: Path, prefix: tuple[str, ...] = (), extra: tuple[str, ...] = ()) -> tuple[subprocess.Popen, str]:
+    port = _free_port()
+    cmd = [*prefix, sys.executable, "-m", "service.cli", "serve", "--source", SIM, "--port", str(port), "--db", str(db), *extra]
+    env = {**os.environ, "PYTHONPATH": str(ROOT)}
+    proc = subprocess.Popen(cmd, cwd=ROOT, stdout=open(log, "ab"), stderr=subprocess.STDOUT, env=env)
+    base = f"http://127.0.0.1:{port}"
+    deadline = time.monotonic() + 120
+    while time.monotonic() < deadline:
+        if proc.poll() is not None:
+            raise AssertionError(f"depthruler serve exited: {log.read_text(errors='replace')}")
+        try:
+            if httpx.get(f"{base}/api/frames/latest", params={"wait": 2}, timeout=5).status_code == 200:
+                return proc, base
+        except httpx.TransportError:
+            pass
+        time.sleep(0.2)
+    proc.kill()
+    raise AssertionError("the server gave no frame within 120 s")
+
+
+def _points(frame: dict, k: int) -> tuple[list[float], list[float]]:
+    t = frame["truth"]
+    a, b = np.array(t["p1_px"]), np.array(t["p2_px"])
+    u = 0.1 + 0.02 * (k % 10)
+    return (a + (b - a) * u).tolist(), (a + (b - a) * (1 - u)).tolist()
+
+
+@pytest.mark.slow
+def test_sigkill_under_load_loses_no_acknowledged_measurement(tmp_path):
+    db = tmp_path / "h.db"
+    proc, base = _serve(db, tmp_path / "serve.log")
+    acked: list[dict] = []
+    lock = threading.Lock()
+    stop = threading.Event()
+
+    def client(k: int) -> None:
+        with httpx.Client(base_url=base, timeout=30, headers=JSON) as http:
+            n = 0
+            while not stop.is_set():
+                try:
+                    f = http.get("/api/frames/latest").json()
+                    for j in range(2 if k % 2 else 1):  # new frames, and two clicks on one frame
+                        p1, p2 = _points(f, n + j)
+                        r = http.post("/api/measure", json={"frame_id": f["id"], "p1": p1, "p2": p2, "options": {"method": "basic"}})
+                        if r.status_code == 200:
+                            with lock:
+                                acked.append(r.json())
+                    n += 1
+                except httpx.TransportError:
+                    return  # the server died under us: what it acknowledged must be there
+
+    threads = [threading.Thread(target=client, args=(k,)) for k in range(4)]
+    try:
+        for t in threads:
+            t.start()
+        deadline = time.monotonic() + 120
+        while len(acked) < 40 and time.monotonic() < deadline:
+            time.sleep(0.01)
+        proc.send_signal(signal.SIGKILL)
+        proc.wait(30)
+        stop.set()
+        for t in threads:
+            t.join(60)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+    assert len(acked) >= 40
+    assert len({m["frame_uid"] for m in acked}) >= 5  # many frames were saved while the kill landed
+    proc, base = _serve(db, tmp_path / "serve2.log")
+    try:
+        with httpx.Client(base_url=base, timeout=30, headers=JSON) as http:
+            for m in acked:
+                got = http.get(f"/api/measurements/{m['id']}")
+                assert got.status_code == 200, got.text
+                assert got.json()["distance_m"] == m["distance_m"]
+                opened = http.post(f"/api/measurements/{m['id']}/open")
+                assert opened.status_code == 200, (m["id"], opened.text)
+                again = http.post(
+                    "/api/measure",
+                    json={"frame_id": opened.json()["frame"]["id"], "p1": m["p1"], "p2": m["p2"], "options": {"method": "basic"}},
+                )
+                assert again.status_code == 200
+                # the saved disparity is exact to its 1/64 px step: the length agrees to well under a millimetre
+                assert again.json()["distance_m"] == pytest.approx(m["distance_m"], abs=5e-4)
+    finally:
+        proc.send_signal(signal.SIGTERM)
+        proc.wait(30)
+
+
+def _enospc(*_a, **_k):
+    raise OSError(errno.ENOSPC, "No space left on device")
+
+
+def test_full_disk_is_507_degraded_and_recovers(tmp_path, monkeypatch):
+    from service import store as store_module
+
+    with make_client(tmp_path) as c:
+        f = latest(c)
+        ok = measure(c, f["id"], (10, 10), (200, 10), method="basic")
+        assert ok.status_code == 200
+        real = store_module.write_durably
+        monkeypatch.setattr(store_module, "write_durably", _enospc)
+        f2 = latest(c, after=f["id"])
+        assert c.post(f"/api/frames/{f2['id']}/freeze", headers=JSON).status_code == 200
+        r = measure(c, f2["id"], (10, 10), (200, 10), method="basic")
+        assert r.status_code == 507, r.text
+        assert "full" in r.json()["detail"] and str(tmp_path) in r.json()["detail"]
+        h = c.get("/api/health").json()
+        assert h["status"] == "degraded" and "full" in h["reason"]
+        assert [m["id"] for m in c.get("/api/measurements").json()] == [ok.json()["id"]]  # nothing half-stored
+        monkeypatch.setattr(store_module, "write_durably", real)
+        deadline = time.monotonic() + 10  # space is back: health recovers by itself (a probe write twice a second)
+        while c.get("/api/health").json()["status"] != "ok" and time.monotonic() < deadline:
+            time.sleep(0.05)
+        assert c.get("/api/health").json() | {"uptime_s": 0, "frames": 0} == {
+            "status": "ok", "reason": "", "source_state": "streaming", "uptime_s": 0, "frames": 0
+        }
+        r = measure(c, f2["id"], (10, 10), (200, 10), method="basic")
+        assert r.status_code == 200
+        assert c.post(f"/api/measurements/{r.json()['id']}/open", headers=JSON).status_code == 200
+
+
+def _can_mount_tmpfs() -> bool:
+    if shutil.which("unshare") is None:
+        return False
+    probe = subprocess.run(["unshare", "-rm", "sh", "-c", "mount -t tmpfs -o size=1m tmpfs /mnt"], capture_output=True)
+    return probe.returncode == 0
+
+
+@pytest.mark.slow
+@pytest.mark.skipif(not _can_mount_tmpfs(), reason="needs unshare -rm and a tmpfs mount (user namespaces)")
+def test_really_full_tmpfs_is_507_and_recovers(tmp_path):
+    """The server runs in a mount namespace with its history on a 4 MB tmpfs; the test fills it."""
+    disk = tmp_path / "disk"
+    disk.mkdir()
+    db = disk / "h.db"
+    wrapper = ("unshare", "-rm", "sh", "-c", f'mount -t tmpfs -o size=4m tmpfs "{disk}" && exec "$0" "$@"')
+    proc, base = _serve(db, tmp_path / "serve.log", prefix=wrapper, extra=("--recordings", str(disk / "rec")))
+    inside = Path(f"/proc/{proc.pid}/root") / str(disk).lstrip("/")
+    try:
+        with httpx.Client(base_url=base, timeout=30, headers=JSON) as http:
+            f = http.get("/api/frames/latest").json()
+            p1, p2 = _points(f, 0)
+            body = {"frame_id": f["id"], "p1": p1, "p2": p2, "options": {"method": "basic"}}
+            first = http.post("/api/measure", json=body)
+            assert first.status_code == 200, first.text
+            with open(inside / "ballast", "wb") as fh:  # fill the disk
+                try:
+                    while True:
+                        fh.write(b"\0" * 65536)
+                        fh.flush()
+                except OSError as exc:
+                    assert exc.errno == errno.ENOSPC
+            codes = []
+            for _ in range(3):
+                f = http.get("/api/frames/latest", params={"after": f["id"], "wait": 5}).json()
+                codes.append(http.post("/api/measure", json={**body, "frame_id": f["id"]}).status_code)
+            assert codes == [507, 507, 507], codes
+            h = http.get("/api/health").json()
+            assert h["status"] == "degraded" and "full" in h["reason"]
+            (inside / "ballast").unlink()
+            deadline = time.monotonic() + 10
+            while http.get("/api/health").json()["status"] != "ok" and time.monotonic() < deadline:
+                time.sleep(0.1)
+            assert http.get("/api/health").json()["status"] == "ok"
+            f = http.get("/api/frames/latest", params={"after": f["id"], "wait": 5}).json()
+            r = http.post("/api/measure", json={**body, "frame_id": f["id"]})
+            assert r.status_code == 200, r.text
+            for mid in (first.json()["id"], r.json()["id"]):
+                assert http.post(f"/api/measurements/{mid}/open").status_code == 200
+    finally:
+        proc.send_signal(signal.SIGTERM)
+        proc.wait(30)
+
+
+def test_stale_temporary_files_are_cleaned_at_start(tmp_path):
+    frames = tmp_path / "h-frames"
+    frames.mkdir()
+    stale = [frames / "0123.tmp.npz", frames / ".abcd.frame.tmp", frames / "ffff.frame.tmp"]
+    for p in stale:
+        p.write_bytes(b"half a frame")
+    with make_client(tmp_path) as c:
+        f = latest(c)
+        assert measure(c, f["id"], (10, 10), (200, 10), method="basic").status_code == 200
+    assert not any(p.exists() for p in stale)
+    assert len(list(frames.iterdir())) == 1  # the one measured frame
+
+
+def test_frame_is_durable_when_the_measurement_answers(tmp_path):
+    """No background queue: the frame file exists, fsync'd, by the time the 200 arrives; it is compact
+    (PNG16 disparity + JPEG colour) and reopens with the disparity exact to its 1/64 px step."""
+    with make_client(tmp_path) as c:
+        f = latest(c)
+        m = measure(c, f["id"], (10, 10), (300, 200), method="basic").json()
+        files = list((tmp_path / "h-frames").iterdir())
+        assert len(files) == 1 and files[0].stat().st_size < 0.25 * (W * H * 7)  # 3 B colour + 4 B disparity raw
+        from service.store import load_frame
+
+        saved = load_frame(files[0])
+        want = plane_frame(_index(c, f))
+        np.testing.assert_array_equal(np.isnan(saved.disparity), np.isnan(want.disparity))
+        np.testing.assert_allclose(saved.disparity[8:, 8:], DISP, atol=1 / 128)
+        assert np.abs(saved.image.astype(int) - want.image.astype(int)).mean() < 2.0  # JPEG, visually lossless
+        assert saved.camera == want.camera and saved.baseline_m == want.baseline_m
+        assert m["distance_m"] == pytest.approx(true_length((10, 10), (300, 200)), rel=1e-6)
+
+
+W, H = 320, 240
+
+
+def _index(c, f) -> int:
+    return c.get(f"/api/frames/{f['id']}").json()["meta"]["index"]
+
+
+def test_source_timeout_is_retried_not_reopened(tmp_path):
+    opens = []
+
+    class Flaky(PlaneSource):
+        def open(self):
+            opens.append(1)
+            super().open()
+
+        def read(self, timeout_s=1.0):
+            if self.n in (3, 4):
+                self.n += 1
+                raise SourceTimeout("fake plane: no frame within the timeout")
+            return super().read(timeout_s)
+
+    with make_client(tmp_path, factory=Flaky) as c:
+        latest(c, after=10)
+        s = c.get("/api/source").json()
+        assert len(opens) == 1 and s["retries"] == 0 and s["state"] == "streaming"
+        assert s["timeouts"] == 2
+
+
+def test_replay_with_a_corrupt_frame_skips_it_and_ends(tmp_path):
+    from fastapi.testclient import TestClient
+
+    from device.recording import RecordingWriter
+    from service.app import create_app
+
+    with RecordingWriter(tmp_path / "rec", PlaneSource().info) as w:
+        for i in range(1, 6):
+            w.write(plane_frame(i))
+    (tmp_path / "rec" / "color" / "000002.png").write_bytes(b"not a png")
+    spec = f"replay:{tmp_path / 'rec'}?realtime=0"
+    app = create_app(spec, db_path=tmp_path / "h.db", capture_fps=200.0, reconnect_initial_s=0.02)
+    with TestClient(app, base_url=BASE) as c:
+        deadline = time.monotonic() + 10
+        while c.get("/api/source").json()["state"] != "ended" and time.monotonic() < deadline:
+            time.sleep(0.01)
+        time.sleep(0.2)
+        s = c.get("/api/source").json()
+        assert s["state"] == "ended" and s["frames"] == 4 and s["retries"] == 0, s
+        assert len(s["warnings"]) == 1 and "000002.png" in s["warnings"][0] and "skipped" in s["warnings"][0]
+
+
+def test_history_cap_drops_oldest_unpinned_frames(tmp_path):
+    state = {"gate": threading.Semaphore(0)}
+    with make_client(tmp_path, factory=lambda: PlaneSource(state=state), history_max_bytes=1) as c:
+        ids = []
+        after = 0
+        for _ in range(4):
+            state["gate"].release(1)
+            f = latest(c, after=after)
+            after = f["id"]
+            ids.append(measure(c, f["id"], (10, 10), (200, 10), method="basic").json()["id"])
+            if len(ids) == 1:
+                assert c.post(f"/api/measurements/{ids[0]}/pin", headers=JSON).json()["pinned"] is True
+        # a cap below one frame keeps the newest frame and the pinned one
+        assert c.post(f"/api/measurements/{ids[0]}/open", headers=JSON).status_code == 200
+        assert c.post(f"/api/measurements/{ids[3]}/open", headers=JSON).status_code == 200
+        for mid in ids[1:3]:
+            r = c.post(f"/api/measurements/{mid}/open", headers=JSON)
+            assert r.status_code == 410 and "--history-max-gb" in r.json()["detail"]
+            assert c.get(f"/api/measurements/{mid}").json()["distance_m"] > 0  # the numbers stay
+        assert len(list((tmp_path / "h-frames").iterdir())) == 2

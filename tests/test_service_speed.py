@@ -1,0 +1,119 @@
+"""What keeps the service fast under load: a slim paginated history list, JPEG for the live view,
+thumbnails off the measuring path, frames presaved when frozen; and newer Measurement fields kept."""
+
+from __future__ import annotations
+
+import csv
+import io
+import time
+
+import cv2
+import numpy as np
+import pytest
+from test_service import JSON, latest, make_client, measure, plane_frame
+
+
+def test_history_list_is_slim_and_paginated(tmp_path):
+    with make_client(tmp_path) as c:
+        f = latest(c)
+        c.post(f"/api/frames/{f['id']}/freeze", headers=JSON)
+        ids = [measure(c, f["id"], (10, 10 + k), (300, 20 + k)).json()["id"] for k in range(7)]
+        full = c.get(f"/api/measurements/{ids[0]}").json()
+        assert len(full["samples_px"]) == full["n_samples"] > 100 and len(full["support"]) == full["n_samples"]
+        page = c.get("/api/measurements", params={"limit": 3})
+        items = page.json()
+        assert [m["id"] for m in items] == ids[::-1][:3]
+        assert all("samples_px" not in m and "support" not in m for m in items)
+        slim = {k: v for k, v in full.items() if k not in ("samples_px", "support")}
+        assert c.get("/api/measurements").json()[-1] == slim  # every other field, unchanged
+        assert len(page.content) < 3 * 1200  # ~1 KB a record, not ~20 KB with the samples
+        nxt = c.get("/api/measurements", params={"limit": 3, "before": items[-1]["id"]}).json()
+        assert [m["id"] for m in nxt] == ids[::-1][3:6]
+        last = c.get("/api/measurements", params={"limit": 3, "before": nxt[-1]["id"]}).json()
+        assert [m["id"] for m in last] == ids[:1]
+
+
+def test_live_view_jpeg_and_exact_png(tmp_path):
+    with make_client(tmp_path) as c:
+        f = latest(c)
+        c.post(f"/api/frames/{f['id']}/freeze", headers=JSON)
+        want = plane_frame(c.get(f"/api/frames/{f['id']}").json()["meta"]["index"]).image
+        jpg = c.get(f"/api/frames/{f['id']}/color.jpg")
+        assert jpg.status_code == 200 and jpg.headers["content-type"] == "image/jpeg"
+        img = cv2.imdecode(np.frombuffer(jpg.content, np.uint8), cv2.IMREAD_COLOR)
+        assert img.shape == want.shape and np.abs(img.astype(int) - want).mean() < 3.0
+        png = c.get(f"/api/frames/{f['id']}/color.png").content
+        np.testing.assert_array_equal(cv2.imdecode(np.frombuffer(png, np.uint8), cv2.IMREAD_COLOR), want)
+
+
+def test_thumbnail_is_drawn_on_request_not_when_measuring(tmp_path):
+    with make_client(tmp_path) as c:
+        f = latest(c)
+        m = measure(c, f["id"], (10, 10), (300, 200), method="basic").json()
+        store = c.app.state.store
+        assert store.thumb(m["id"]) is None  # nothing drawn on the measuring path
+        jpg = c.get(f"/api/measurements/{m['id']}/thumb.jpg")
+        assert jpg.status_code == 200 and jpg.content[:3] == b"\xff\xd8\xff"
+        thumb = cv2.imdecode(np.frombuffer(jpg.content, np.uint8), cv2.IMREAD_COLOR)
+        assert thumb.shape == (180, 240, 3)
+        # the segment is drawn where it was measured: (10,10)-(300,200) scaled by 240/320
+        assert thumb[8, 8].tolist() != plane_frame(0).image[10, 10].tolist()
+        assert store.thumb(m["id"]) == jpg.content  # kept
+        png = c.get(f"/api/measurements/{m['id']}/thumb.png")
+        assert png.content[:8] == b"\x89PNG\r\n\x1a\n"
+
+
+def _freeze_and_wait_for_presave(c, tmp_path, fid: int):
+    """Freeze frame ``fid``; returns its saved file once the background presave wrote it."""
+    uid = c.post(f"/api/frames/{fid}/freeze", headers=JSON).json()["uid"]
+    path = tmp_path / "h-frames" / f"{uid}.frame"
+    deadline = time.monotonic() + 10
+    while not path.exists() and time.monotonic() < deadline:
+        time.sleep(0.01)
+    assert path.exists()
+    return path
+
+
+def test_frozen_frame_is_saved_before_the_measurement(tmp_path, monkeypatch):
+    from service import store as store_module
+
+    with make_client(tmp_path) as c:
+        f = latest(c)
+        _freeze_and_wait_for_presave(c, tmp_path, f["id"])
+
+        def no_writes(*_a, **_k):
+            raise AssertionError("the measurement wrote the frame again")
+
+        monkeypatch.setattr(store_module, "write_durably", no_writes)
+        r = measure(c, f["id"], (10, 10), (300, 200), method="basic")
+        assert r.status_code == 200, r.text
+        assert c.post(f"/api/measurements/{r.json()['id']}/open", headers=JSON).status_code == 200
+
+
+def test_presaved_frame_never_measured_is_removed_at_restart(tmp_path):
+    with make_client(tmp_path) as c:
+        path = _freeze_and_wait_for_presave(c, tmp_path, latest(c)["id"])
+    with make_client(tmp_path):
+        assert not path.exists()
+
+
+def test_newer_measurement_fields_are_stored_and_exported(tmp_path, monkeypatch):
+    from measure import Measurement
+
+    plain = Measurement.to_dict
+    monkeypatch.setattr(
+        Measurement, "to_dict", lambda self: {**plain(self), "quality": "good", "reasons": ["a", "b"], "interval_m": [1.0, 2.0]}
+    )
+    with make_client(tmp_path) as c:
+        f = latest(c)
+        m = measure(c, f["id"], (10, 10), (300, 200), method="basic").json()
+        assert (m["quality"], m["reasons"], m["interval_m"]) == ("good", ["a", "b"], [1.0, 2.0])
+        assert c.get("/api/measurements").json()[0]["quality"] == "good"
+        rows = list(csv.DictReader(io.StringIO(c.get("/api/measurements.csv").text)))
+        assert rows[0]["quality"] == "good" and rows[0]["reasons"] == "a; b"
+
+
+@pytest.mark.parametrize("limit", [0, 10_001])
+def test_list_limit_bounds(tmp_path, limit):
+    with make_client(tmp_path) as c:
+        assert c.get("/api/measurements", params={"limit": limit}).status_code == 422
