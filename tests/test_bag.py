@@ -552,7 +552,7 @@ def test_service_serves_a_bag(capture, tmp_path: Path) -> None:
     from service.app import create_app
 
     bag = write_viewer_bag(tmp_path / "viewer.bag", capture)
-    with TestClient(create_app(f"bag:{bag}", db_path=tmp_path / "h.db", capture_fps=200.0, reconnect_initial_s=0.02)) as c:
+    with TestClient(create_app(f"bag:{bag}", db_path=tmp_path / "h.db", capture_fps=200.0, reconnect_initial_s=0.02), base_url="http://127.0.0.1") as c:
         deadline = time.monotonic() + 20
         while c.get("/api/source").json()["state"] != "ended" and time.monotonic() < deadline:
             time.sleep(0.02)

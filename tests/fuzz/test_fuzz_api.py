@@ -37,14 +37,14 @@ def client():
     """The app running (its lifespan starts the capture thread, which fills the ring) with a frame to
     measure on. Requests go through this one client: schemathesis' own ASGI client would run the
     lifespan per request, and its end closes the store."""
-    with TestClient(APP, raise_server_exceptions=False) as c:  # a server error is a 500 answer
+    with TestClient(APP, base_url="http://127.0.0.1", raise_server_exceptions=False) as c:  # a server error is a 500 answer
         assert c.get("/api/frames/latest", params={"wait": 10}).status_code == 200
         yield c
     shutil.rmtree(_DB_DIR, ignore_errors=True)
 
 
 def _send(client: TestClient, case) -> httpx.Response:
-    kw = case.as_transport_kwargs(base_url="http://testserver")
+    kw = case.as_transport_kwargs(base_url="http://127.0.0.1")
     data = kw.pop("data", None)
     if isinstance(data, (bytes, str)):
         kw["content"] = data
