@@ -97,6 +97,7 @@ def _gain(r: dict, key: str | None = None) -> float:
     return ma["by_distance"][key]["mean"] - mb["by_distance"][key]["mean"]
 
 
+@pytest.mark.slow
 def test_paper_profile_holds_the_papers_relative_findings(reduced):
     r = reduced
     assert 0.5 < _gain(r) < 6.0  # the paper: +2.6 (here a poster only, square-on, at 2 and 7 m)
