@@ -1,10 +1,10 @@
 """The simulated rig as a Source: ``open_source("sim:poster?distance=6&lighting=outdoor&seed=3")``.
 
 Spec keys: profile ("stress" | "paper", sim.sensor.PROFILES: sensor fields and the poster's mount),
-distance (m), lighting, contention, quantization, seed, fps (0 = as fast as read),
-width, height, target, yaw (deg), roll (deg), mount ("stand" | "wall": the poster board on its legs
-or glued on the wall; default: the profile's), standoff (m, the board in front of the wall; fixed per source), board_w and
-board_l (m, the poster's size), mode ("model": the sensor model; "stereo": rendered left/right images
+distance (m), lighting, contention, quantization (both default to the profile's), seed, fps (0 = as
+fast as read), width, height, target, yaw (deg), roll (deg), mount ("stand" | "wall": the poster board
+on its legs or glued on the wall; default: the profile's), standoff (m, the board in front of the
+wall; fixed per source), board_w and board_l (m, the poster's size), mode ("model": the sensor model; "stereo": rendered left/right images
 through OpenCV SGBM), and any SensorModel field by name (e.g. noise_px=0.3).
 The scene names the spec target: "sim" alone is a poster at 4 m under indoor light.
 """
