@@ -547,6 +547,9 @@ def sim_markdown(results: dict[str, Any], plots: dict[str, str]) -> str:
         "",
         beside,
         "",
+        "The committed reports: `docs/eval/sim/` (stress profile) and `docs/eval/sim-paper/` (paper "
+        "profile); the README's accuracy section puts both profiles, and the robust method on each, side by side.",
+        "",
         "## Gains (accuracy points)",
         "",
         gains,
