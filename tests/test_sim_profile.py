@@ -8,6 +8,7 @@ import pytest
 
 import sim
 from device import SourceError, open_source
+from evaluation.paper_figures import paper_beside_ours
 from evaluation.report import EvalError
 from evaluation.sim_study import plan_sim, run_sim, summarize_sim
 from sim.scenario import make_model
@@ -105,3 +106,13 @@ def test_paper_profile_holds_the_papers_relative_findings(reduced):
     assert abs(_gain(r, "2")) < 1.0
     assert 88.0 < r["methods"]["basic"]["overall"]["mean"] < 97.0  # mild end points: not the stress profile's 46
     assert 0.03 < r["gap"]["false_positive_rate"] < 0.3  # the paper: 6.8 %
+
+
+@pytest.mark.slow
+def test_report_puts_the_papers_figures_beside_ours(reduced):
+    rows = {row[0]: row[1:] for row in paper_beside_ours(reduced)}
+    assert rows["paper − basic, all (points)"] == ["+2.6", f"{_gain(reduced):+.2f}"]
+    assert rows["z_only − basic, all (points)"][0] == "+0.6"
+    fp = reduced["gap"]["false_positive_rate"]
+    assert rows["gap false positives (paper method)"] == ["6.8 % of 1873", f"{100 * fp:.1f} % of {reduced['gap']['n_non_gap']}"]
+    assert rows["robust (default), mean ± std"][1].startswith(f"{reduced['methods']['robust']['overall']['mean']:.2f}")
