@@ -36,21 +36,22 @@ def sim_command(
     seed: int = typer.Option(0, "--seed", help="Base seed; each measurement's scene, sensor noise and clicks derive from it."),
     gap_fraction: float = typer.Option(0.1, "--gap-fraction", min=0.0, max=1.0, help="Extra gap-scene measurements, as a fraction of --measurements."),
     workers: int = typer.Option(2, "--workers", "-j", min=1, help="Worker processes."),
-    quantization: float | None = typer.Option(None, "--quantization", help="Disparity step of the simulated sensor in px (default: the simulator's, 1/4 px)."),
+    quantization: float | None = typer.Option(None, "--quantization", help="Disparity step of the simulated sensor in px (default: the profile's: 1/4 px stress, 1 px paper)."),
+    profile: str = typer.Option("stress", "--profile", help="Simulator profile: 'stress' (harsh end points) or 'paper' (the paper's tablet; see sim/sensor.py)."),
 ) -> None:
     """The paper's protocol on the simulated rig: 3 targets x 4 distances x 3 lightings, 4 methods."""
     from .sim_study import plan_sim, run_sim, sim_protocol, summarize_sim, write_sim_report
     from .report import EvalError
 
     try:
-        jobs = plan_sim(measurements, seed, gap_fraction, quantization)
+        jobs = plan_sim(measurements, seed, gap_fraction, quantization, profile)
     except EvalError as exc:
         raise typer.BadParameter(str(exc)) from exc
     t0 = time.perf_counter()
     with _progress() as progress:
         task = progress.add_task("simulating + measuring", total=len(jobs))
         records = run_sim(jobs, workers=workers, on_result=lambda _r: progress.advance(task))
-    protocol = sim_protocol(measurements, seed, workers, gap_fraction, quantization)
+    protocol = sim_protocol(measurements, seed, workers, gap_fraction, quantization, profile)
     protocol["wall_time_s"] = time.perf_counter() - t0
     results = summarize_sim(records, protocol)
     write_sim_report(out, results, records)

@@ -12,7 +12,7 @@ import numpy as np
 from measure import Frame
 
 from .scenes import BOARD_M, STANDOFFS_M, SceneParams, get_view, resolve_target
-from .sensor import SensorError, SensorModel, sense
+from .sensor import SensorError, SensorModel, get_profile, sense
 from .textures import LIGHTING
 from .truth import ClickModel, Truth
 
@@ -41,12 +41,15 @@ def noisy_image(render: np.ndarray, sigma: float, rng: np.random.Generator) -> n
     return cv2.add(render, sheet[oy : oy + h, ox : ox + w], dtype=cv2.CV_8U)
 
 
-def make_model(lighting: str = "indoor", **overrides: Any) -> SensorModel:
-    """A SensorModel for ``lighting`` with the named fields overridden; unknown names raise SensorError."""
+def make_model(lighting: str = "indoor", profile: str = "stress", **overrides: Any) -> SensorModel:
+    """A SensorModel for ``lighting`` and ``profile`` (sim.sensor.PROFILES) with the named fields
+    overridden (None = the profile's value); unknown names raise SensorError."""
     unknown = sorted(set(overrides) - SENSOR_FIELDS)
     if unknown:
         raise SensorError(f"unknown sensor parameter(s) {', '.join(unknown)}; use any of {', '.join(sorted(SENSOR_FIELDS))}")
-    return SensorModel(lighting=lighting, **overrides)
+    fields_ = dict(get_profile(profile).sensor)
+    fields_.update((k, v) for k, v in overrides.items() if v is not None)
+    return SensorModel(lighting=lighting, **fields_)
 
 
 def simulate_frame(
@@ -77,15 +80,16 @@ def scenario(
     target: str | None = None,
     distance_m: float = 4.0,
     lighting: str = "indoor",
-    contention: float = 0.5,
-    quantization: float = 0.25,
+    profile: str = "stress",
+    contention: float | None = None,
+    quantization: float | None = None,
     seed: int = 0,
     width: int = 1280,
     height: int = 720,
     yaw_deg: float = 0.0,
     roll_deg: float = 0.0,
-    clicks: ClickModel = ClickModel(),
-    mount: str = "stand",
+    clicks: ClickModel | None = None,
+    mount: str | None = None,
     board_m: tuple[float, float] = BOARD_M,
     standoff_m: float | None = None,
     **sensor_overrides: Any,
@@ -96,22 +100,27 @@ def scenario(
     noise, outliers, holes and the clicks, and for a poster on its stand (``mount="stand"``, the
     paper's free-standing target board) how far in front of the wall it stands (one of
     ``STANDOFFS_M`` unless ``standoff_m`` is given), so thousands of calls cost little more than the
-    noise. ``mount="wall"`` glues the poster flat on the wall instead; ``board_m`` is the poster's
+    noise. ``profile`` ("stress" or "paper", sim.sensor.PROFILES) sets the sensor fields, the click
+    model and the poster's mount; ``contention``, ``quantization``, ``clicks`` and ``mount`` override
+    it. ``mount="wall"`` glues the poster flat on the wall instead; ``board_m`` is the poster's
     (width, length) in metres (default A0 portrait, an assumption: the paper does not give it). Extra
     keyword arguments override SensorModel fields (e.g. ``noise_px=0.5``, ``outlier_model="baseline"``).
     Raises sim.SceneError / sim.SensorError (both ValueError) with the allowed values on bad input.
     """
     # spawn(3)'s first two children equal spawn(2)'s: adding the stand-off stream left noise and clicks as they were.
     sensor_seq, click_seq, scene_seq = np.random.SeedSequence(seed).spawn(3)
+    prof = get_profile(profile)
+    clicks = prof.clicks if clicks is None else clicks
+    mount = prof.mount if mount is None else mount
     poster: dict[str, Any] = {}
     if scene == "poster":
-        if standoff_m is None:
-            standoff_m = STANDOFFS_M[int(np.random.default_rng(scene_seq).integers(len(STANDOFFS_M)))]
+        if standoff_m is None:  # a poster on the wall has no stand-off: one view, not three
+            standoff_m = STANDOFFS_M[int(np.random.default_rng(scene_seq).integers(len(STANDOFFS_M)))] if mount == "stand" else 1.0
         poster = dict(mount=mount, board_w_m=float(board_m[0]), board_l_m=float(board_m[1]), standoff_m=float(standoff_m))
     params = SceneParams(scene=scene, distance_m=float(distance_m), yaw_deg=float(yaw_deg), roll_deg=float(roll_deg),
                          width=int(width), height=int(height), **poster)
     target = resolve_target(scene, target)
-    model = make_model(lighting, contention=float(contention), quantization=float(quantization), **sensor_overrides)
+    model = make_model(lighting, profile, contention=contention, quantization=quantization, **sensor_overrides)
     frame, truth = simulate_frame(params, model, np.random.default_rng(sensor_seq), target=target,
                                   timestamp=0.0, meta={"seed": seed})
     pts = clicks.clicks(truth, np.random.default_rng(click_seq), params.width, params.height)

@@ -1,9 +1,10 @@
 """The simulated rig as a Source: ``open_source("sim:poster?distance=6&lighting=outdoor&seed=3")``.
 
-Spec keys: distance (m), lighting, contention, quantization, seed, fps (0 = as fast as read),
-width, height, target, yaw (deg), roll (deg), mount ("stand" | "wall": the poster board on its legs
-or glued on the wall), standoff (m, the board in front of the wall; fixed per source), board_w and
-board_l (m, the poster's size), mode ("model": the sensor model; "stereo": rendered left/right images
+Spec keys: profile ("stress" | "paper", sim.sensor.PROFILES: sensor fields and the poster's mount),
+distance (m), lighting, contention, quantization (both default to the profile's), seed, fps (0 = as
+fast as read), width, height, target, yaw (deg), roll (deg), mount ("stand" | "wall": the poster board
+on its legs or glued on the wall; default: the profile's), standoff (m, the board in front of the
+wall; fixed per source), board_w and board_l (m, the poster's size), mode ("model": the sensor model; "stereo": rendered left/right images
 through OpenCV SGBM), and any SensorModel field by name (e.g. noise_px=0.3).
 The scene names the spec target: "sim" alone is a poster at 4 m under indoor light.
 """
@@ -21,7 +22,7 @@ from measure import Frame
 
 from .scenario import make_model, simulate_frame
 from .scenes import BOARD_M, SCENES, SceneError, SceneParams, get_view, resolve_target
-from .sensor import SensorError, SensorModel
+from .sensor import SensorError, SensorModel, get_profile
 from .textures import LIGHTING
 
 MODES = ("model", "stereo")
@@ -35,15 +36,16 @@ class SimConfig:
     target: str | None = None
     distance_m: float = 4.0
     lighting: str = "indoor"
-    contention: float = 0.5
-    quantization: float = 0.25
+    profile: str = "stress"
+    contention: float | None = None  # None = the profile's
+    quantization: float | None = None
     seed: int = 0
     fps: float = 10.0
     width: int = 1280
     height: int = 720
     yaw_deg: float = 0.0
     roll_deg: float = 0.0
-    mount: str = "stand"
+    mount: str | None = None  # None = the profile's
     standoff_m: float = 1.0
     board_w_m: float = BOARD_M[0]
     board_l_m: float = BOARD_M[1]
@@ -59,17 +61,20 @@ class SimConfig:
             raise SourceError(f"sim fps={self.fps} must be >= 0 (0 = as fast as frames are read)")
 
     def scene_params(self) -> SceneParams:
-        poster = dict(mount=self.mount, standoff_m=self.standoff_m, board_w_m=self.board_w_m,
+        mount = get_profile(self.profile).mount if self.mount is None else self.mount
+        poster = dict(mount=mount, standoff_m=self.standoff_m, board_w_m=self.board_w_m,
                       board_l_m=self.board_l_m) if self.scene == "poster" else {}
         return SceneParams(self.scene, self.distance_m, self.yaw_deg, self.roll_deg, self.width, self.height, **poster)
 
     def sensor_model(self) -> SensorModel:
-        return make_model(self.lighting, contention=self.contention, quantization=self.quantization, **dict(self.sensor))
+        return make_model(self.lighting, self.profile, contention=self.contention, quantization=self.quantization,
+                          **dict(self.sensor))
 
 
 _KEYS = {  # spec key -> (SimConfig field, parser)
     "distance": ("distance_m", float),
     "lighting": ("lighting", str),
+    "profile": ("profile", str),
     "contention": ("contention", float),
     "quantization": ("quantization", float),
     "seed": ("seed", int),
@@ -116,6 +121,10 @@ def config_from_spec(spec: SourceSpec) -> SimConfig:
     lighting = kwargs.get("lighting", "indoor")
     if lighting not in LIGHTING:
         raise SourceError(f"sim lighting={lighting!r} is unknown; use one of {', '.join(LIGHTING)}")
+    try:
+        get_profile(str(kwargs.get("profile", "stress")))
+    except SensorError as exc:
+        raise SourceError(f"sim source {str(spec)!r}: {exc}") from exc
     config = SimConfig(**kwargs, sensor=tuple(sorted(sensor.items())))  # type: ignore[arg-type]
     try:  # fail at parse time, not at the first read
         config.scene_params()
@@ -140,7 +149,7 @@ class SimSource(SourceBase):
             height=config.height,
             fps=config.fps,
             state="closed",
-            extra={"mode": config.mode, "baseline_m": self.model.baseline_wide_m},
+            extra={"mode": config.mode, "profile": config.profile, "baseline_m": self.model.baseline_wide_m},
         )
         self._index = 0
         self._t0 = 0.0
