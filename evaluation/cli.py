@@ -57,6 +57,19 @@ def sim_command(
     _print_summary(results["methods"], f"{out / 'report.md'}", protocol["wall_time_s"], results["gap"])
 
 
+@app.command("stress-sim")
+def stress_sim_command(
+    out: Path = typer.Option(..., "--out", help="Output folder for report.md, results.json and plots."),
+) -> None:
+    """The simulated stress study (evaluation/stress_sim.py): rooms across several surfaces, person, posters, doorways."""
+    from .stress_sim import DEV_SEEDS, HELD_OUT_SEEDS, run_stress_sim, write_stress_sim
+
+    t0 = time.perf_counter()
+    dev, held = run_stress_sim(DEV_SEEDS), run_stress_sim(HELD_OUT_SEEDS)
+    paths = write_stress_sim(out, dev, held, {"wall_time_s": time.perf_counter() - t0})
+    print(f"{len(dev) + len(held)} stress measurements; report: {paths['report']}")
+
+
 @app.command("middlebury")
 def middlebury_command(
     out: Path = typer.Option(..., "--out", help="Output folder for report.md, results.json and plots."),
@@ -65,8 +78,19 @@ def middlebury_command(
     max_segments: int = typer.Option(0, "--max-segments", min=0, help="At most this many segments per scene (0 = all selected)."),
     seed: int = typer.Option(0, "--seed", help="Seed of the click jitter and the contention outliers (segment selection is deterministic)."),
     jittered_clicks: int = typer.Option(2, "--jittered-clicks", min=0, help="Jittered click pairs per segment besides the exact end pixels."),
+    protocol: str = typer.Option("edge", "--protocol", help="edge: edge-to-edge segments; stress: clicks as people make them (evaluation/stress_middlebury.py)."),
 ) -> None:
     """Real stereo: SGBM and contended ground-truth disparity, ground-truth segment lengths."""
+    if protocol not in ("edge", "stress"):
+        raise typer.BadParameter(f"--protocol {protocol!r} is unknown; use edge or stress")
+    if protocol == "stress":
+        from .stress_middlebury import run_stress_middlebury, write_stress_middlebury
+
+        t0 = time.perf_counter()
+        records = run_stress_middlebury(data, scene or None, max_segments=max_segments or None, seed=seed)
+        paths = write_stress_middlebury(out, records, {"data": str(data), "seed": seed, "wall_time_s": time.perf_counter() - t0})
+        print(f"{len(records)} stress measurements; report: {paths['report']}")
+        return
     from .middlebury import ClickJitter, ContentionModel, run_middlebury, scene_dirs, summarize_middlebury, write_middlebury_report
     from .report import EvalError
 

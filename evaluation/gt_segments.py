@@ -51,6 +51,7 @@ class SegmentRules:
     max_skip: int = 30
     spacing_px: int = 12
     max_segments: int = 12
+    far_ends: bool = True  # rule 3; False keeps runs whatever lies beyond their ends (stress protocol)
 
 
 def _runs(d: np.ndarray, ok: np.ndarray, jump: float) -> list[tuple[int, int]]:
@@ -84,7 +85,7 @@ def _line_candidates(gt: np.ndarray, valid: np.ndarray, rules: SegmentRules, ori
     for line in range(arr.shape[0]):
         d, m = arr[line].astype(np.float64), ok[line]
         for s, e in _runs(d, m, rules.jump_px):
-            if e - s + 1 < rules.min_length_px or not _ends_behind(d, m, s, e, rules):
+            if e - s + 1 < rules.min_length_px or (rules.far_ends and not _ends_behind(d, m, s, e, rules)):
                 continue
             x = np.arange(s, e + 1, dtype=np.float64)
             coef = np.polyfit(x, d[s : e + 1], 1)

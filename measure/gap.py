@@ -9,6 +9,15 @@ extension to be in front by a margin of three per-pixel depth standard deviation
 depth (or one disparity quantum, whichever is larger), which a real gap (door, space between
 boxes: a depth step of decimetres) clears easily.
 
+The robust method's rule (``is_clear_gap``, issue #12): SGBM disparity is smooth and spatially
+correlated, so a per-pixel sigma from its residuals is tiny and "three sigmas in front" fired on
+35 % of the Middlebury stress segments that have no gap (dev scenes, SGBM), often from a handful
+of extension pixels before the image border. It now needs ``MIN_EXTENSION_SAMPLES`` = 10 valid
+pixels on each side and each extension ``GAP_STEP_REL`` = 20 % nearer than the segment's own
+surface (as well as the three correlation-inflated sigmas): 0 % false gaps on those segments
+(0.4 % held-out), doorways found in 91.7 % of the simulated stress cases (95.8 % before), and a
+recessed surface between two nearer ones (steps of 10-20 %) is measured as itself.
+
 Tried and rejected (eval sim, 1800 + 180 gap measurements): a one-sided rule (one extension in
 front by its margin, the other not behind by more than its margin) catches gaps whose background
 meets one object, e.g. boxes before a slanted wall: detection 80.6 -> 95.6 %, but false gaps on
@@ -55,6 +64,18 @@ def is_gap(ext: tuple[ExtensionDepth, ExtensionDepth], z_refined: tuple[float, f
             math.isfinite(e.depth_m) and math.isfinite(z) and e.depth_m < z - m
             for e, z, m in zip(ext, z_refined, margins)
         )
+    )
+
+
+MIN_EXTENSION_SAMPLES = 10  # valid pixels each extension needs before it may show a gap
+GAP_STEP_REL = 0.2  # each extension at least this much nearer (relative depth) than its end point
+
+
+def is_clear_gap(ext: tuple[ExtensionDepth, ExtensionDepth], z_refined: tuple[float, float], margins: tuple[float, float]) -> bool:
+    """The robust method's gap rule: both extensions with at least ``MIN_EXTENSION_SAMPLES`` valid
+    pixels, each nearer than its end point by ``GAP_STEP_REL`` of the end's depth and by its margin."""
+    return all(e.n_valid >= MIN_EXTENSION_SAMPLES for e in ext) and is_gap(
+        ext, z_refined, tuple(max(m, GAP_STEP_REL * z) for m, z in zip(margins, z_refined))
     )
 
 

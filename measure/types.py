@@ -167,6 +167,11 @@ class Measurement:
     gap_detected: bool
     warnings: tuple[str, ...]
     elapsed_ms: float
+    # 95 % interval of the distance (m), and the verdict on the answer (measure.verdict):
+    # "good" (the truth is expected inside the interval), "check" or "unreliable", with reasons.
+    interval_m: tuple[float, float] = (math.nan, math.nan)
+    quality: str = "check"
+    reasons: tuple[str, ...] = ()
 
     def to_dict(self) -> dict[str, Any]:
         """JSON-ready dict with the same field names (NaN becomes None)."""
@@ -190,4 +195,7 @@ class Measurement:
             "gap_detected": bool(self.gap_detected),
             "warnings": list(self.warnings),
             "elapsed_ms": float(self.elapsed_ms),
+            "interval_m": [num(v) for v in self.interval_m],
+            "quality": self.quality,
+            "reasons": list(self.reasons),
         }

@@ -153,6 +153,10 @@ def measure(
         return
     unc = f" ± {result.uncertainty_m:.4f} m" if math.isfinite(result.uncertainty_m) else " (uncertainty unknown)"
     typer.echo(f"distance {result.distance_m:.4f} m{unc}")
+    lo, hi = result.interval_m
+    if math.isfinite(lo) and math.isfinite(hi):
+        typer.echo(f"95 % interval {lo:.4f} - {hi:.4f} m")
+    typer.echo(f"quality: {result.quality.upper()}" + (f" ({'; '.join(result.reasons)})" if result.reasons else ""))
     typer.echo(f"method {result.method}, fit {result.fit}, {result.n_support}/{result.n_valid} samples in support")
     typer.echo(f"basic estimate {result.basic_distance_m:.4f} m")
     for w in result.warnings:

@@ -1,0 +1,183 @@
+"""Model selection for the robust method: one straight surface, or a surface of its own at each end.
+
+The robust disparity line d(t) = alpha + beta t (``measure.dline``) is the right model when both
+clicks lie on one straight surface: the paper's assumption. A segment from a wall down to the floor,
+or across a board standing in front of a wall, is two or three pieces; one robust line then fits the
+dominant piece and puts the other end at that piece's depth, precisely and wrongly.
+
+Test (cheap, run on every measurement): the run of samples next to each end that the global line
+does not support (the longest leading run of which at most ``PIECE_INLIERS`` are supported, so
+that scattered wrong matches do not cut it short) is that end's own piece. An end *disagrees* when its piece spans at least ``MIN_PIECE_PX`` px (a click that
+slipped a few pixels off an object onto the background behind it is not meant to measure the
+background) with at least ``MIN_LOCAL`` valid samples, and their
+median residual from the global line exceeds ``max(4 s, 10 % of the end's disparity)``
+(s = 1.4826 MAD of the line's support residuals). The 10 % floor is a depth change that smooth, correlated stereo
+error does not make over a piece of this size: on the Middlebury stress segments (one straight
+surface each) SGBM and StereoBM bias the last few pixels before an edge by 4-8 %, while the wall,
+board and floor of the simulated rooms differ by 14-300 %. A disagreeing end gets its own robust
+line, fit on its piece's samples within ``PIECE_FIT_PX`` of the click (same estimator), if that line supports ``LOCAL_SUPPORT`` of the
+piece (scattered wrong matches form no line) and differs from the global one at the click by the
+same threshold; its depth is that line's at the click: still on
+the clicked pixel's viewing ray.
+Units: t, window in px along the segment; disparities in px.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from .dline import DisparityLine, fit_disparity_line
+from .robust_range import median
+
+MIN_LOCAL = 10  # fewer valid samples than this in an end's piece: no line of its own
+MIN_PIECE_PX = 15  # a shorter piece is a click that slipped off the surface, not a surface of its own
+PIECE_INLIERS = 0.1  # an end's piece: a leading run at most this share of which the global line supports
+PIECE_FIT_PX = 40.0  # an end's own line is fit on the piece's part nearest the click
+DISAGREE_REL = 0.1  # relative disparity (= depth) offset an end's piece must show (module docstring)
+DISAGREE_SIGMAS = 4.0
+LOCAL_SUPPORT = 0.5  # share of its piece an end's own line must support: a surface, not scattered outliers
+
+
+def _piece_length(support: np.ndarray) -> int:
+    """Length of the longest leading run of samples of which at most PIECE_INLIERS are supported."""
+    share = np.cumsum(support) / np.arange(1, len(support) + 1)
+    hit = np.flatnonzero(share <= PIECE_INLIERS)
+    return int(hit[-1]) + 1 if hit.size else 0
+
+
+@dataclass(frozen=True)
+class EndModels:
+    """Disparity at each end (px), its slope along t, the 2x2 covariance of the two end disparities,
+    and which ends have a line of their own."""
+
+    d_end: np.ndarray
+    slope: np.ndarray
+    cov: np.ndarray
+    own: tuple[bool, bool]
+    offsets: tuple[float, float]  # median residual (px) of the samples nearest each end from its model
+
+    @property
+    def several(self) -> bool:
+        return any(self.own)
+
+
+def select_end_models(t: np.ndarray, d: np.ndarray, length: float, line: DisparityLine, quantum: float, seed: int) -> EndModels:
+    """Per-end model choice of the module docstring for samples at ``t`` (px, 0 = p1, ``length`` = p2,
+    in segment order)."""
+    d_end = np.array([line.at(0.0), line.at(length)], dtype=np.float64)
+    slope = np.array([line.beta, line.beta])
+    cov = line.cov_at(0.0, length)
+    r = d - line.at(t)
+    own = [False, False]
+    offsets = [0.0, 0.0]
+    local_cov = [0.0, 0.0]
+    n = len(t)
+    # The noise scale of the line's support (MAD: the RMS of a bisquare support is inflated by the
+    # half-fitting samples of another surface).
+    scale = 1.4826 * median(np.abs(r[line.support])) if line.support.any() else line.sigma_d
+    for e in (0, 1):
+        k = _piece_length(line.support if e == 0 else line.support[::-1])
+        if k < MIN_LOCAL or k > n - MIN_LOCAL:  # no piece, or no global line left beside it
+            continue
+        sel = slice(0, k) if e == 0 else slice(n - k, n)
+        if abs(float(t[sel][-1] - t[sel][0])) < MIN_PIECE_PX:
+            continue
+        off = median(r[sel])
+        offsets[e] = float(off)
+        thr = max(DISAGREE_SIGMAS * scale, DISAGREE_REL * abs(float(d_end[e])))
+        if abs(off) <= thr:
+            continue
+        te = 0.0 if e == 0 else length
+        near = np.abs(t[sel] - te) <= PIECE_FIT_PX
+        if near.sum() < MIN_LOCAL:
+            near = np.ones(k, bool)
+        local = fit_disparity_line(t[sel][near], d[sel][near], 0.5, seed, quantum)
+        dl = float(local.at(te))
+        dp = d[sel][near][local.support]
+        span = float(dp.max() - dp.min()) if dp.size else 0.0
+        if local.support.mean() < LOCAL_SUPPORT or abs(dl - d_end[e]) <= thr or not (dp.min() - span <= dl <= dp.max() + span):
+            # Scattered outliers, not a surface; a surface that meets the line at the click; or a
+            # line run off beyond its own data: an extrapolation, not a depth.
+            continue
+        d_end[e] = local.at(te)
+        slope[e] = local.beta
+        local_cov[e] = float(local.cov_at(te, te)[0, 0])
+        own[e] = True
+    # Residual structure next to each end: the median residual of the nearest supported samples (a shoe in
+    # front of a leg, a rounded head, edge fattening). Counted in the uncertainty as a possible bias.
+    m = max(MIN_LOCAL // 2, n // 10)
+    near_off = [0.0, 0.0]
+    if n >= 2 * m:
+        for e, sl in ((0, slice(0, m)), (1, slice(n - m, n))):
+            sup = r[sl][line.support[sl]]
+            if not own[e] and sup.size:
+                near_off[e] = float(median(sup))
+    if any(own):
+        # Ends on their own lines are independent of each other and of the global line.
+        full = cov.copy()
+        for e in (0, 1):
+            if own[e]:
+                full[e, :] = 0.0
+                full[:, e] = 0.0
+                full[e, e] = local_cov[e]
+        cov = full
+    return EndModels(d_end, slope, cov, (own[0], own[1]), (near_off[0], near_off[1]))
+
+
+def on_depth_edge(disparity: np.ndarray, valid_of, start: tuple[float, float], other: tuple[float, float], d_end: float, step: float, px: int) -> bool:
+    """A disparity more than ``step`` (relative) away from ``d_end`` within ``px`` pixels beyond ``start``
+    (away from ``other``): a click there that misses by a pixel or two lands on another surface."""
+    x0, y0 = start
+    ux, uy = x0 - other[0], y0 - other[1]
+    n = float(np.hypot(ux, uy))
+    k = np.arange(1, px + 1)
+    xs = np.rint(x0 + ux / n * k).astype(int)
+    ys = np.rint(y0 + uy / n * k).astype(int)
+    h, w = disparity.shape
+    inside = (xs >= 0) & (xs < w) & (ys >= 0) & (ys < h)
+    v = disparity[ys[inside], xs[inside]]
+    v = v[valid_of(v)]
+    return bool(v.size and (np.abs(v - d_end) > step * abs(d_end)).any())
+
+
+def extrapolated(t: np.ndarray, support: np.ndarray, length: float, own: tuple[bool, bool], px: float) -> bool:
+    """An end farther than ``px`` (and 15 % of the length) from the nearest sample supporting its model
+    (its own window's samples for an end with a line of its own)."""
+    limit = max(px, 0.15 * length)
+    for e, te in enumerate((0.0, length)):
+        ts = t if own[e] else t[support]
+        if ts.size == 0 or float(np.abs(ts - te).min()) > limit:
+            return True
+    return False
+
+
+CLEAN_SPREAD = 0.05  # a clean window's disparities lie within this (relative) of their median
+CLEAN_PX = 8  # ... and no depth step within this many pixels of the click along the segment
+
+
+def clean_window_disparity(disparity: np.ndarray, valid_of, click: tuple[float, float], other: tuple[float, float], window: int) -> float:
+    """The median disparity (px) of the ``window`` box at ``click`` when the click is plainly inside one
+    surface: every pixel of the box valid, all within CLEAN_SPREAD of their median, and no disparity
+    differing by more than 2 CLEAN_SPREAD within CLEAN_PX px either way along the segment; else NaN."""
+    h, w = disparity.shape
+    r = window // 2
+    xi, yi = int(round(click[0])), int(round(click[1]))
+    if not (r <= xi < w - r and r <= yi < h - r):
+        return float("nan")
+    box = disparity[yi - r : yi + r + 1, xi - r : xi + r + 1]
+    if not valid_of(box).all():
+        return float("nan")
+    med = float(np.median(box))
+    if float(np.abs(box - med).max()) > CLEAN_SPREAD * abs(med):
+        return float("nan")
+    ux, uy = other[0] - click[0], other[1] - click[1]
+    n = float(np.hypot(ux, uy))
+    k = np.arange(-CLEAN_PX, CLEAN_PX + 1)
+    xs = np.clip(np.rint(click[0] + ux / n * k).astype(int), 0, w - 1)
+    ys = np.clip(np.rint(click[1] + uy / n * k).astype(int), 0, h - 1)
+    v = disparity[ys, xs]
+    if (~valid_of(v)).any() or float(np.abs(v - med).max()) > 2 * CLEAN_SPREAD * abs(med):
+        return float("nan")
+    return med

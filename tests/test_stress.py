@@ -1,0 +1,94 @@
+"""Issue #12 on a reduced stress protocol (dev data only): coverage of the truth, the gap rule's
+false positives, segments across several surfaces, and "good" answers that are right."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from evaluation.stress import figures
+from evaluation.stress_middlebury import DEV_SCENES, run_stress_middlebury
+from evaluation.stress_sim import run_stress_sim
+from measure import MeasureOptions, measure_distance
+
+SCENES = DEV_SCENES  # dev scenes only
+
+
+@pytest.fixture(scope="module")
+def middlebury_stress(middlebury_dir):
+    assert set(SCENES) <= set(DEV_SCENES)
+    return run_stress_middlebury(middlebury_dir, SCENES, disparities=("sgbm", "gt_out50"))
+
+
+@pytest.fixture(scope="module")
+def sim_stress():
+    return run_stress_sim((0, 1), (3.0, 5.0))
+
+
+@pytest.mark.parametrize("disparity", ["sgbm", "gt_out50"])
+def test_good_answers_are_right_and_common(middlebury_stress, disparity):
+    f = figures([r for r in middlebury_stress if r.disparity == disparity])
+    assert f["n"] >= 100
+    assert f["good"] >= 0.5, f
+    assert f["good_and_A_below_90"] <= 0.05, f
+    assert f["cov_2sigma_among_good"] >= 0.8, f
+
+
+def test_uncertainty_covers_the_truth_on_sgbm(middlebury_stress):
+    f = figures([r for r in middlebury_stress if r.disparity == "sgbm"])
+    assert 0.6 <= f["cov_1sigma"] <= 0.76, f
+    assert 0.9 <= f["cov_2sigma"] <= 0.98, f
+    assert f["cov_interval"] >= 0.9, f
+    assert all(r.sigma_m > 0 for r in middlebury_stress if np.isfinite(r.robust_m))
+
+
+def test_gap_rule_does_not_fire_without_a_gap(middlebury_stress):
+    nogap = [r for r in middlebury_stress if r.case.condition == "nogap"]
+    assert len(nogap) >= 20
+    assert figures(nogap)["gap_rate_no_gap"] <= 0.05
+
+
+def test_every_answer_has_a_verdict(middlebury_stress):
+    for r in middlebury_stress:
+        if np.isfinite(r.robust_m):
+            assert r.quality in ("good", "check", "unreliable")
+            assert r.lo_m <= r.robust_m <= r.hi_m
+            assert r.quality != "good" or "gap detected" not in r.reasons
+
+
+def test_several_surfaces_in_simulated_rooms(sim_stress):
+    rooms = [r for r in sim_stress if r.case.group == "room"]
+    f = figures(rooms)
+    assert f["good_and_A_below_90"] <= 0.05, f
+    # Better than one straight line through wall, board and floor (mean A about 80 before).
+    assert f["median_A"] >= 95.0, f
+    crossing = [r for r in rooms if r.fit == "surfaces"]
+    assert crossing and all("segment crosses several surfaces" in r.reasons for r in crossing)
+
+
+def test_person_height_and_doorways(sim_stress):
+    person = [r for r in sim_stress if r.case.condition == "person"]
+    err = np.array([abs(r.robust_m - r.case.truth_m) / r.case.truth_m for r in person])
+    assert err.mean() <= 0.03, err
+    doors = figures([r for r in sim_stress if r.case.condition == "doorway"])
+    assert doors["gap_rate_gap"] >= 0.75, doors
+
+
+def test_wall_to_floor_through_a_board_is_not_confidently_wrong():
+    import sim
+
+    frame, truth, _ = sim.scenario("poster", distance_m=4.0, seed=1)
+    p1, p2 = (640.0, 40.0), (640.0, 660.0)
+    z = truth.depth_m
+    cam = frame.camera
+    pts = [np.array([(x - cam.cx) * z[int(y), int(x)] / cam.fx, (y - cam.cy) * z[int(y), int(x)] / cam.fy, z[int(y), int(x)]]) for x, y in (p1, p2)]
+    g = float(np.linalg.norm(pts[0] - pts[1]))
+    for method in ("robust", "paper", "basic"):
+        m = measure_distance(frame, p1, p2, MeasureOptions(method=method))
+        assert m.quality in ("good", "check", "unreliable")
+        lo, hi = m.interval_m
+        assert m.quality != "good" or lo <= g <= hi, (method, m.distance_m, m.interval_m, g)
+    m = measure_distance(frame, p1, p2)
+    assert abs(m.distance_m - g) / g < 0.05
+    assert "segment crosses several surfaces" in m.reasons
+    assert m.to_dict()["quality"] == m.quality and m.to_dict()["interval_m"] == list(m.interval_m)
