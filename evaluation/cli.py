@@ -84,8 +84,14 @@ def middlebury_command(
     if protocol not in ("edge", "stress"):
         raise typer.BadParameter(f"--protocol {protocol!r} is unknown; use edge or stress")
     if protocol == "stress":
+        from .middlebury import scene_dirs
+        from .report import EvalError
         from .stress_middlebury import run_stress_middlebury, write_stress_middlebury
 
+        try:
+            scene_dirs(data, scene or None)
+        except EvalError as exc:
+            raise typer.BadParameter(str(exc)) from exc
         t0 = time.perf_counter()
         records = run_stress_middlebury(data, scene or None, max_segments=max_segments or None, seed=seed)
         paths = write_stress_middlebury(out, records, {"data": str(data), "seed": seed, "wall_time_s": time.perf_counter() - t0})

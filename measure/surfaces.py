@@ -15,7 +15,10 @@ median residual from the global line exceeds ``max(4 s, 10 % of the end's dispar
 error does not make over a piece of this size: on the Middlebury stress segments (one straight
 surface each) SGBM and StereoBM bias the last few pixels before an edge by 4-8 %, while the wall,
 board and floor of the simulated rooms differ by 14-300 %. A disagreeing end gets its own robust
-line, fit on its piece's samples within ``PIECE_FIT_PX`` of the click (same estimator), if that line supports ``LOCAL_SUPPORT`` of the
+line, fit on its piece's samples within ``PIECE_FIT_PX`` of the click (same estimator), if its
+residual scatter is at most ``LOCAL_ROUGHNESS`` times the main surface's and its disparity
+changes by at most ``MAX_PIECE_CHANGE`` across the piece (wrong matches in a
+contended band next to an edge pair up by chance but scatter widely), if that line supports ``LOCAL_SUPPORT`` of the
 piece (scattered wrong matches form no line) and differs from the global one at the click by the
 same threshold; its depth is that line's at the click: still on
 the clicked pixel's viewing ray.
@@ -24,6 +27,7 @@ Units: t, window in px along the segment; disparities in px.
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 import numpy as np
@@ -37,6 +41,8 @@ PIECE_INLIERS = 0.1  # an end's piece: a leading run at most this share of which
 PIECE_FIT_PX = 40.0  # an end's own line is fit on the piece's part nearest the click
 DISAGREE_REL = 0.1  # relative disparity (= depth) offset an end's piece must show (module docstring)
 DISAGREE_SIGMAS = 4.0
+MAX_PIECE_CHANGE = 0.5  # an own line may change its disparity by at most half across its piece
+LOCAL_ROUGHNESS = 3.0  # an own line may scatter at most this many times the main surface's noise
 LOCAL_SUPPORT = 0.5  # share of its piece an end's own line must support: a surface, not scattered outliers
 
 
@@ -96,10 +102,14 @@ def select_end_models(t: np.ndarray, d: np.ndarray, length: float, line: Dispari
         local = fit_disparity_line(t[sel][near], d[sel][near], 0.5, seed, quantum)
         dl = float(local.at(te))
         dp = d[sel][near][local.support]
-        span = float(dp.max() - dp.min()) if dp.size else 0.0
-        if local.support.mean() < LOCAL_SUPPORT or abs(dl - d_end[e]) <= thr or not (dp.min() - span <= dl <= dp.max() + span):
-            # Scattered outliers, not a surface; a surface that meets the line at the click; or a
-            # line run off beyond its own data: an extrapolation, not a depth.
+        if dp.size < MIN_LOCAL // 2 or local.support.mean() < LOCAL_SUPPORT:
+            continue  # scattered wrong matches, not a surface
+        rough = local.sigma_d > LOCAL_ROUGHNESS * max(scale, quantum / math.sqrt(12.0))
+        # A surface's depth does not halve across a few dozen pixels; chance alignments of wrong matches do.
+        steep = abs(local.beta) * float(np.ptp(t[sel][near])) > MAX_PIECE_CHANGE * abs(float(dp.mean()))
+        # Beyond its own data the line is an extrapolation, not a depth.
+        outside = not (dp.min() - 3.0 * local.sigma_d <= dl <= dp.max() + 3.0 * local.sigma_d)
+        if rough or steep or outside or abs(dl - d_end[e]) <= thr:
             continue
         d_end[e] = local.at(te)
         slope[e] = local.beta
