@@ -26,7 +26,7 @@ from measure import Frame, MeasureOptions, PinholeCamera, measure_distance
 
 from .frames import Capture, FrameRing
 from .recorder import Recorder
-from .routers import frames, health, measurements, recordings
+from .routers import checks, frames, health, measurements, recordings
 from .state import ServiceState
 from .store import Store
 
@@ -112,7 +112,7 @@ def create_app(
                     )
             return await call_next(request)
 
-    for module in (health, frames, measurements, recordings):
+    for module in (health, frames, measurements, recordings, checks):
         app.include_router(module.router)
     app.mount("/", StaticFiles(directory=STATIC_DIR, html=True), name="static")
     return app

@@ -3,7 +3,8 @@
 Spec keys: distance (m), lighting, contention, quantization, seed, fps (0 = as fast as read),
 width, height, target, yaw (deg), roll (deg), mount ("stand" | "wall": the poster board on its legs
 or glued on the wall), standoff (m, the board in front of the wall; fixed per source), board_w and
-board_l (m, the poster's size), mode ("model": the sensor model; "stereo": rendered left/right images
+board_l (m, the poster's size), squares ("7x5"), square_mm, marker_mm and dictionary (the "charuco" scene's
+printed ChArUco board, as `depthruler calibrate` and `check` take them), mode ("model": the sensor model; "stereo": rendered left/right images
 through OpenCV SGBM), and any SensorModel field by name (e.g. noise_px=0.3).
 The scene names the spec target: "sim" alone is a poster at 4 m under indoor light.
 """
@@ -20,7 +21,7 @@ from device.errors import SourceError, SourceNotFound, SourceTimeout
 from measure import Frame
 
 from .scenario import make_model, simulate_frame
-from .scenes import BOARD_M, SCENES, SceneError, SceneParams, get_view, resolve_target
+from .scenes import BOARD_M, CHARUCO_BOARD, SCENES, SceneError, SceneParams, get_view, resolve_target
 from .sensor import SensorError, SensorModel
 from .textures import LIGHTING
 
@@ -48,6 +49,10 @@ class SimConfig:
     board_w_m: float = BOARD_M[0]
     board_l_m: float = BOARD_M[1]
     mode: str = "model"
+    squares: str = f"{CHARUCO_BOARD[0]}x{CHARUCO_BOARD[1]}"
+    square_mm: float = CHARUCO_BOARD[2] * 1000
+    marker_mm: float = CHARUCO_BOARD[3] * 1000
+    dictionary: str = CHARUCO_BOARD[4]
     sensor: tuple[tuple[str, object], ...] = field(default_factory=tuple)  # extra SensorModel overrides
 
     def __post_init__(self) -> None:
@@ -61,7 +66,20 @@ class SimConfig:
     def scene_params(self) -> SceneParams:
         poster = dict(mount=self.mount, standoff_m=self.standoff_m, board_w_m=self.board_w_m,
                       board_l_m=self.board_l_m) if self.scene == "poster" else {}
+        if self.scene == "charuco":
+            poster = dict(mount=self.mount, standoff_m=self.standoff_m, charuco=self.charuco())
         return SceneParams(self.scene, self.distance_m, self.yaw_deg, self.roll_deg, self.width, self.height, **poster)
+
+    def charuco(self) -> tuple[int, int, float, float, str]:
+        """The printed board of the "charuco" scene: (squares across, down, square m, marker m, dictionary)."""
+        x, _, y = self.squares.lower().partition("x")
+        if not (x.isdigit() and y.isdigit()):
+            raise SceneError(f"squares={self.squares!r} is not COLSxROWS, e.g. squares=7x5")
+        import cv2
+
+        if not hasattr(cv2.aruco, self.dictionary):
+            raise SceneError(f"unknown ArUco dictionary {self.dictionary!r}; use e.g. DICT_5X5_100, DICT_4X4_50")
+        return (int(x), int(y), self.square_mm / 1000.0, self.marker_mm / 1000.0, self.dictionary)
 
     def sensor_model(self) -> SensorModel:
         return make_model(self.lighting, contention=self.contention, quantization=self.quantization, **dict(self.sensor))
@@ -84,6 +102,10 @@ _KEYS = {  # spec key -> (SimConfig field, parser)
     "board_w": ("board_w_m", float),
     "board_l": ("board_l_m", float),
     "mode": ("mode", str),
+    "squares": ("squares", str),
+    "square_mm": ("square_mm", float),
+    "marker_mm": ("marker_mm", float),
+    "dictionary": ("dictionary", str),
 }
 
 
