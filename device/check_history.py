@@ -53,8 +53,13 @@ def append_check(path: str | Path, record: dict[str, Any]) -> Path:
     line = json.dumps(record, allow_nan=False, separators=(",", ":")) + "\n"
     try:
         path.parent.mkdir(parents=True, exist_ok=True)
-        with open(path, "a", encoding="utf-8") as fh:
-            fh.write(line)
+        with open(path, "a+b") as fh:
+            fh.seek(0, os.SEEK_END)
+            if fh.tell() > 0:
+                fh.seek(-1, os.SEEK_END)
+                if fh.read(1) != b"\n":
+                    line = "\n" + line  # a line cut by a crash stays alone; this record starts its own
+            fh.write(line.encode("utf-8"))
             fh.flush()
             os.fsync(fh.fileno())
     except OSError as exc:

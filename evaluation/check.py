@@ -447,25 +447,31 @@ def findings(fig: dict) -> list[Finding]:
         # a scale: the robust slope says the same as the median, and the bias is no end-point offset
         # (the 2-square and longer bins agree; one-square pairs are too noisy to judge)
         firm = [v["bias_pct"] for key, v in fig["per_length"].items() if v["n"] >= 3 and key != LENGTH_BINS[0][2]]
-        consistent = abs(fig["scale_pct"] - b) <= tol and all(abs(x - b) <= tol for x in firm)
+        bins_agree = abs(fig["scale_pct"] - b) <= tol and all(abs(x - b) <= tol for x in firm)
+        dz = fig["depth_vs_pose_pct"]
+        depth_agrees = dz is not None and abs(dz - b) <= tol  # the pose does not use the baseline
         word = "long" if b > 0 else "short"
         span = f" ({min(biases):+.1f} to {max(biases):+.1f} % from short to long pairs)" if biases else ""
         measured = f"lengths read {abs(b):.1f} % {word} at {z:.1f} m ({fig['bias_pairs']} long pairs, ±{1.96 * se:.1f} %){span}"
-        dz = fig["depth_vs_pose_pct"]
-        if consistent:
-            depth_note = ""
-            if dz is not None:
-                depth_note = (f"; stereo depth reads {dz:+.1f} % against the board's pose from the image alone, "
-                              "as a baseline error does" if abs(dz - b) <= max(0.5, 0.5 * abs(b)) else
-                              f"; but stereo depth agrees with the board's pose ({dz:+.1f} %), which a baseline error would not")
+        if depth_agrees:
             out.append(Finding(
-                measured=measured + " - the same at every length: a scale error",
-                cause="the baseline in the calibration is probably off by about "
-                      f"{b:+.1f} % (it scales every depth and length alike){depth_note}; a board printed at another "
-                      "scale than --square-mm gives the same signature",
+                measured=measured + f"; stereo depth reads {dz:+.1f} % against the board's pose from the image alone"
+                         + (" - the same at every length: a scale error" if bins_agree else ": a scale error"),
+                cause=f"the baseline in the calibration is probably off by about {b:+.1f} % (it scales every depth and "
+                      "length alike, and the pose does not use it); a board printed at another scale than --square-mm "
+                      "gives the same signature",
                 action=f"measure a printed square with a ruler: if it is {sq_mm:g} mm, recalibrate (depthruler calibrate) "
                        f"or scale the calibration's T by {1 / (1 + b / 100):.4f}; otherwise pass the measured --square-mm",
                 severity="fail" if abs(b) >= 2.0 else "warn",
+            ))
+        elif bins_agree:
+            out.append(Finding(
+                measured=measured + f" - the same at every length, but stereo depth agrees with the board's pose "
+                         f"({dz:+.1f} %)" if dz is not None else measured,
+                cause="a scale in the lengths that depth does not share: not the baseline; the corner positions or the "
+                      "measurement method",
+                action="check the image is sharp and the board flat; report it with the check's PNG",
+                severity="warn",
             ))
         else:
             out.append(Finding(
@@ -485,7 +491,7 @@ def findings(fig: dict) -> list[Finding]:
         ))
     pm = fig["expected_pm_pct"]
     d = fig["disparity_px"]
-    if pm > FAR_PM_PCT or (d is not None and d < FAR_DISPARITY_PX):
+    if pm > FAR_PM_PCT or (d is not None and d < FAR_DISPARITY_PX and pm > 1.0):
         closer = z / pm if math.isfinite(z) and pm > 0 else math.nan  # the error grows about with distance
         out.append(Finding(
             measured=f"95 % of long lengths fall within ±{pm:.1f} % of the truth at {z:.1f} m (disparity {d:.0f} px on the board)",
