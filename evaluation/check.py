@@ -116,7 +116,7 @@ def corner_grid(board: BoardSpec, ids: np.ndarray) -> np.ndarray:
 
 def board_points(board: BoardSpec, ids: np.ndarray) -> np.ndarray:
     """Board-frame 3D points (N x 3, m) of chessboard corner ids, as OpenCV's CharucoBoard places them."""
-    return board.board().getChessboardCorners()[np.asarray(ids, np.int64)].astype(np.float64)
+    return np.asarray(board.board().getChessboardCorners(), np.float64)[np.asarray(ids, np.int64)]
 
 
 def board_pairs(board: BoardSpec, ids: Sequence[int]) -> list[CornerPair]:
@@ -308,7 +308,7 @@ def run_check(frames: Iterable[Frame], board: BoardSpec, options: MeasureOptions
             continue
         views.append(board_view(board, det, frame, index))
         dets.append(det)
-        pairs.extend(measure_pairs(frame, det, board_pairs(board, det.ids), index, options))
+        pairs.extend(measure_pairs(frame, det, board_pairs(board, det.ids.tolist()), index, options))
     if not views:
         raise CheckError(
             f"no {board.squares_x}x{board.squares_y} ChArUco board ({board.dictionary}) with at least {MIN_CORNERS} "
@@ -352,6 +352,7 @@ def figures(result: CheckResult) -> dict:
     err_long = err[long_pairs]
     spread = _frame_spread(pr)
     v = result.views
+    ratio = _mean(x.depth_ratio for x in v)
     return {
         "board": {"squares": f"{result.board.squares_x}x{result.board.squares_y}",
                   "square_mm": result.board.square_m * 1000, "marker_mm": result.board.marker_m * 1000,
@@ -384,7 +385,7 @@ def figures(result: CheckResult) -> dict:
         "plane_noise_mm": _mm(_mean(x.plane_noise_m for x in v)),
         "plane_noise_px": _mean(x.plane_noise_px for x in v),
         "outlier_share": _mean(x.outlier_share for x in v),
-        "depth_vs_pose_pct": None if _mean(x.depth_ratio for x in v) is None else 100.0 * (_mean(x.depth_ratio for x in v) - 1.0),
+        "depth_vs_pose_pct": None if ratio is None else 100.0 * (ratio - 1.0),
         "disparity_px": _mean(x.disparity_px for x in v),
         "frame_spread_mm": spread[0],
         "frame_spread_pct": spread[1],
@@ -550,15 +551,58 @@ def findings(fig: dict) -> list[Finding]:
     return out
 
 
+TREND_MIN_CHECKS = 3
+TREND_MIN_RATIO = 1.5  # farthest / nearest distance among the checks
+
+
+def trend_findings(history: Sequence[dict], fig: dict) -> list[Finding]:
+    """What the earlier checks of the same camera and calibration add (``history``: their records with
+    "figures"): whether the bias stays the same across distances (a baseline: ``Z = fx B / d`` scales
+    every distance alike) or grows with distance (a disparity offset delta: the relative error of
+    ``fx B / (d + delta)`` is about ``-delta / d = -delta Z / (fx B)``, proportional to Z)."""
+    pts = [(h["figures"]["distance_m"], h["figures"]["bias_pct"], h["figures"]["disparity_px"])
+           for h in history if h.get("figures")] + [(fig["distance_m"], fig["bias_pct"], fig["disparity_px"])]
+    pts = [p for p in pts if all(v is not None and math.isfinite(v) for v in p)]
+    if len(pts) < TREND_MIN_CHECKS:
+        return []
+    z, bias, d = (np.array(v, np.float64) for v in zip(*pts))
+    if z.max() / z.min() < TREND_MIN_RATIO:
+        return []
+    slope, icpt = np.polyfit(z, bias, 1)
+    change = slope * (z.max() - z.min())
+    where = f"{len(pts)} checks from {z.min():.1f} to {z.max():.1f} m"
+    if abs(change) >= BIAS_PCT:
+        fb = float(np.median(d * z))  # fx * B in px m, from each check's disparity at its distance
+        delta = -slope * fb / 100.0
+        return [Finding(
+            measured=f"over {where} the bias goes from {icpt + slope * z.min():+.1f} to {icpt + slope * z.max():+.1f} %: "
+                     "it grows with distance",
+            cause=f"a disparity offset of about {delta:+.2f} px (the calibration's principal points or doffs, or the "
+                  "rectification), not only the baseline, which would read the same % at every distance",
+            action="recalibrate with board views spread over the working distances",
+            severity="warn",
+        )]
+    if abs(float(np.mean(bias))) >= BIAS_PCT:
+        return [Finding(
+            measured=f"over {where} the bias stays at {np.mean(bias):+.1f} % (±{abs(change) / 2:.1f})",
+            cause="a scale that does not depend on distance: the baseline (or the board's printed size), not a "
+                  "disparity offset",
+            action="see the baseline finding above",
+            severity="info",
+        )]
+    return []
+
+
 def status(found: Sequence[Finding]) -> str:
     """"ok" (nothing to act on), "check" (a warning) or "poor" (a failing figure)."""
     severities = {f.severity for f in found}
     return "poor" if "fail" in severities else "check" if "warn" in severities else "ok"
 
 
-def report(result: CheckResult) -> dict:
-    """figures + findings + status, JSON-ready."""
+def report(result: CheckResult, history: Sequence[dict] = ()) -> dict:
+    """figures + findings + status, JSON-ready; ``history``: earlier check records of the same camera and
+    calibration, for :func:`trend_findings`."""
     fig = figures(result)
-    found = findings(fig)
+    found = findings(fig) + trend_findings(history, fig)
     return {"status": status(found), "figures": fig, "findings": [asdict(f) for f in found],
             "missed_frames": list(result.missed_frames)}

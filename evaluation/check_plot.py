@@ -83,7 +83,7 @@ def write_check_png(path: str | Path, frame: Frame, result: CheckResult, rep: di
     ax = fig.add_axes((0.01, 0.30, 0.55, 0.66))
     ax.imshow(frame.image[ya:yb, xa:xb, ::-1], extent=(xa - 0.5, xb - 0.5, yb - 0.5, ya - 0.5))
     order = np.argsort(np.abs(err))  # the worst pairs on top
-    segs = np.array([[pairs[i].p1_px, pairs[i].p2_px] for i in order])
+    segs = [[pairs[i].p1_px, pairs[i].p2_px] for i in order]
     lc = LineCollection(segs, cmap="coolwarm", norm=TwoSlopeNorm(0.0, -vmax, vmax), linewidths=1.6, alpha=0.9)
     lc.set_array(err[order])
     ax.add_collection(lc)

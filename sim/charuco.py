@@ -19,7 +19,7 @@ import numpy as np
 
 from measure import PinholeCamera
 
-from .raycast import Pose, Surface
+from .raycast import Pose, Rect, Surface
 from .scenes import SceneParams, board_frame, charuco_corner_offsets, charuco_sheet_m, get_view
 
 SUPERSAMPLE = 4
@@ -58,6 +58,7 @@ def board_pattern(surface: Surface, camera: PinholeCamera, pose: Pose, board: tu
     tex, per_m = board_texture(tuple(board))
     w_m, h_m, _ = charuco_sheet_m(board)
     prim = surface.prim
+    assert isinstance(prim, Rect), "the ChArUco board is a flat Rect"
     c, u, v = (np.asarray(a, np.float64) for a in (prim.centre, prim.u, prim.v))
     n = np.cross(u, v)
     o = pose.C

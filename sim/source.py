@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import time
 from dataclasses import dataclass, field, fields, replace
+from typing import Any
 
 import numpy as np
 
@@ -64,8 +65,8 @@ class SimConfig:
             raise SourceError(f"sim fps={self.fps} must be >= 0 (0 = as fast as frames are read)")
 
     def scene_params(self) -> SceneParams:
-        poster = dict(mount=self.mount, standoff_m=self.standoff_m, board_w_m=self.board_w_m,
-                      board_l_m=self.board_l_m) if self.scene == "poster" else {}
+        poster: dict[str, Any] = dict(mount=self.mount, standoff_m=self.standoff_m, board_w_m=self.board_w_m,
+                                      board_l_m=self.board_l_m) if self.scene == "poster" else {}
         if self.scene == "charuco":
             poster = dict(mount=self.mount, standoff_m=self.standoff_m, charuco=self.charuco())
         return SceneParams(self.scene, self.distance_m, self.yaw_deg, self.roll_deg, self.width, self.height, **poster)

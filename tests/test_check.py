@@ -6,6 +6,8 @@ from __future__ import annotations
 
 import dataclasses
 import json
+import os
+import re
 
 import numpy as np
 import pytest
@@ -100,6 +102,28 @@ def test_check_matches_the_evaluation_and_names_a_wrong_baseline(distance):
     assert "baseline in the calibration" in first["cause"] and "recalibrate" in first["action"] and rep2["status"] != "ok"
 
 
+def test_history_across_distances_tells_a_disparity_offset_from_a_baseline():
+    """A disparity offset of 0.3 px (Z = fx B / (d + 0.3)) reads shorter the farther the board; each check
+    alone blames the baseline, the three together find the offset and its size."""
+    records, fixed = [], []
+    for distance in (1.0, 2.0, 4.0):
+        board = board_for(distance)
+        with open_source(sim_spec(distance, board)) as src:
+            frame = src.read()
+        shifted = report(run_check([dataclasses.replace(frame, doffs=0.3)], board), records)
+        records.append(shifted)
+        fixed.append(report(run_check([dataclasses.replace(frame, baseline_m=frame.baseline_m * 0.98)], board), fixed))
+    print([f"{r['figures']['bias_pct']:+.2f}" for r in records], records[-1]["findings"][-1]["cause"][:60])
+    last = records[-1]["findings"][-1]
+    assert "grows with distance" in last["measured"]
+    delta = float(re.search(r"disparity offset of about ([+-][0-9.]+) px", last["cause"]).group(1))
+    assert delta == pytest.approx(0.3, abs=0.08)
+    assert records[0]["findings"] and not any("grows with distance" in f["measured"] for f in records[1]["findings"])
+    steady = fixed[-1]["findings"][-1]
+    level = float(re.search(r"stays at ([+-][0-9.]+) %", steady["measured"]).group(1))
+    assert level == pytest.approx(-2.0, abs=0.3) and "the baseline" in steady["cause"]
+
+
 def test_board_pairs_cover_rows_columns_diagonals_short_to_full():
     board = BoardSpec(7, 5, 0.04, 0.03, "DICT_5X5_100")
     pairs = board_pairs(board, range(board.n_corners))
@@ -110,6 +134,25 @@ def test_board_pairs_cover_rows_columns_diagonals_short_to_full():
     # a pair off every row, column and 45 degree line (e.g. 2 across, 1 down) is not taken
     assert all(p.kind != "row" or (p.id2 - p.id1) < 6 for p in pairs)
     assert len(pairs) == 4 * 15 + 6 * 6 + sum(p.kind == "diagonal" for p in pairs)
+
+
+@pytest.mark.hardware
+def test_hardware_check_of_the_whole_chain(tmp_path):
+    """With DEPTHRULER_HARDWARE=1 and a camera looking at a printed board, the same check on the real chain
+    (sensor, calibration, disparity, method). DEPTHRULER_CHECK_SOURCE (default "oak") names the source and
+    DEPTHRULER_CHECK_BOARD the board as "7x5,40,30,DICT_5X5_100" (squares, square mm, marker mm, dictionary)."""
+    from service.cli import app
+
+    source = os.environ.get("DEPTHRULER_CHECK_SOURCE", "oak")
+    squares, square, marker, dictionary = os.environ.get("DEPTHRULER_CHECK_BOARD", "7x5,40,30,DICT_5X5_100").split(",")
+    res = runner.invoke(app, ["check", "--source", source, "--squares", squares, "--square-mm", square, "--marker-mm",
+                              marker, "--dictionary", dictionary, "--frames", "5", "--json", "--out", str(tmp_path),
+                              "--no-history"])
+    assert res.exit_code == 0, res.output
+    fig = json.loads(res.output.strip().splitlines()[-1])["figures"]
+    print(json.dumps(fig, indent=1))
+    assert fig["frames_with_board"] >= 3 and fig["pairs"] >= 50
+    assert abs(fig["bias_pct"]) <= 1.0 and fig["interval_coverage"] >= 0.8
 
 
 def test_no_board_is_a_typed_error():
