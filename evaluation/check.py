@@ -32,6 +32,7 @@ distance; bad end points give an error of fixed millimetres, large in % on short
 from __future__ import annotations
 
 import math
+import warnings
 from collections.abc import Iterable, Sequence
 from dataclasses import asdict, dataclass, field
 
@@ -94,7 +95,7 @@ class BoardView:
     plane_noise_px: float  # the same in disparity
     outlier_share: float  # share of the board's points > 3 sigma off that plane
     depth_ratio: float  # median stereo depth / pose depth at the detected corners
-    disparity_px: float  # median disparity on the board
+    disparity_px: float  # median disparity on the board (d + doffs)
 
 
 @dataclass(frozen=True)
@@ -106,6 +107,7 @@ class CheckResult:
     views: tuple[BoardView, ...]
     missed_frames: tuple[int, ...] = ()
     detections: tuple[Detection, ...] = field(default=(), repr=False)  # per view, for drawing
+    fx_baseline: float = math.nan  # fx * B (px m) of the first frame with the board
 
 
 def corner_grid(board: BoardSpec, ids: np.ndarray) -> np.ndarray:
@@ -202,15 +204,13 @@ def robust_plane(xs: np.ndarray, ys: np.ndarray, d: np.ndarray, iterations: int 
 
 def robust_line(x: np.ndarray, y: np.ndarray, iterations: int = 10) -> tuple[float, float]:
     """Slope and intercept of y = k x + c, bisquare-reweighted (a few wild pairs do not set them)."""
-    w = np.ones(len(x))
-    k = c = 0.0
     A = np.stack([x, np.ones_like(x)], axis=1)
+    k, c = float(np.median(y / x)), 0.0  # start from a pure scale, which a few wild pairs do not move
     for _ in range(iterations):
-        sw = np.sqrt(w)
-        (k, c), *_ = np.linalg.lstsq(A * sw[:, None], y * sw, rcond=None)
         r = y - (k * x + c)
         scale = max(1.4826 * float(np.median(np.abs(r))), 1e-12)
-        w = np.clip(1 - (r / (4.685 * scale)) ** 2, 0, None) ** 2 + 1e-12
+        sw = np.clip(1 - (r / (4.685 * scale)) ** 2, 0, None) + 1e-6  # sqrt of the bisquare weight
+        (k, c), *_ = np.linalg.lstsq(A * sw[:, None], y * sw, rcond=None)
     return float(k), float(c)
 
 
@@ -234,21 +234,21 @@ def board_view(board: BoardSpec, det: Detection, frame: Frame, index: int) -> Bo
     ratio = stereo_z / pose_z
     ratio = ratio[np.isfinite(ratio) & (ratio > 0)]
     grid = corner_grid(board, det.ids)
-    steps = [np.linalg.norm(det.corners[a] - det.corners[b]) for a in range(len(grid)) for b in range(len(grid))
-             if abs(grid[a] - grid[b]).sum() == 1]
+    neighbours = np.abs(grid[:, None, :] - grid[None, :, :]).sum(axis=2) == 1
+    steps = np.linalg.norm(det.corners[:, None, :] - det.corners[None, :, :], axis=2)[neighbours]
     return BoardView(
         frame=index,
         n_corners=len(det.ids),
         distance_m=float(centre[2]),
         tilt_deg=tilt,
-        px_per_square=float(np.median(steps)) if steps else math.nan,
+        px_per_square=float(np.median(steps)) if steps.size else math.nan,
         fill_rate=float(valid.mean()) if valid.size else 0.0,
         plane_rms_m=plane_fit_rms(pts),
         plane_noise_m=noise,
         plane_noise_px=sigma_px,
         outlier_share=outliers,
         depth_ratio=float(np.median(ratio)) if ratio.size else math.nan,
-        disparity_px=float(np.nanmedian(frame.disparity[mask])) if valid.any() else math.nan,
+        disparity_px=float(np.nanmedian(frame.disparity[mask])) + frame.doffs if valid.any() else math.nan,
     )
 
 
@@ -259,12 +259,9 @@ def _window_median(disparity: np.ndarray, pts: np.ndarray, r: int) -> np.ndarray
     cy = np.clip(np.rint(pts[:, 1]).astype(int), r, h - 1 - r)
     off = np.arange(-r, r + 1)
     win = disparity[cy[:, None, None] + off[None, :, None], cx[:, None, None] + off[None, None, :]]
-    with np.errstate(all="ignore"):
-        import warnings
-
-        with warnings.catch_warnings():
-            warnings.simplefilter("ignore", RuntimeWarning)
-            return np.nanmedian(win.reshape(len(pts), -1), axis=1)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", RuntimeWarning)  # a window without data gives NaN, said once here
+        return np.nanmedian(win.reshape(len(pts), -1), axis=1)
 
 
 def measure_pairs(frame: Frame, det: Detection, pairs: Iterable[CornerPair], index: int = 0,
@@ -301,6 +298,7 @@ def run_check(frames: Iterable[Frame], board: BoardSpec, options: MeasureOptions
     views: list[BoardView] = []
     dets: list[Detection] = []
     missed: list[int] = []
+    fx_b = math.nan
     for index, frame in enumerate(frames):
         det = detect_board(detector, frame.image)
         if det is None or len(det.ids) < MIN_CORNERS:
@@ -308,6 +306,8 @@ def run_check(frames: Iterable[Frame], board: BoardSpec, options: MeasureOptions
             continue
         views.append(board_view(board, det, frame, index))
         dets.append(det)
+        if not views[1:]:
+            fx_b = frame.camera.fx * frame.baseline_m
         pairs.extend(measure_pairs(frame, det, board_pairs(board, det.ids.tolist()), index, options))
     if not views:
         raise CheckError(
@@ -315,7 +315,7 @@ def run_check(frames: Iterable[Frame], board: BoardSpec, options: MeasureOptions
             f"corners in {len(missed)} frame(s); show the whole board to the camera in good light, and give the "
             "board options it was printed with (--squares, --square-mm, --marker-mm, --dictionary)"
         )
-    return CheckResult(board, tuple(pairs), tuple(views), tuple(missed), tuple(dets))
+    return CheckResult(board, tuple(pairs), tuple(views), tuple(missed), tuple(dets), fx_b)
 
 
 def _mean(values: Iterable[float]) -> float | None:
@@ -387,6 +387,7 @@ def figures(result: CheckResult) -> dict:
         "outlier_share": _mean(x.outlier_share for x in v),
         "depth_vs_pose_pct": None if ratio is None else 100.0 * (ratio - 1.0),
         "disparity_px": _mean(x.disparity_px for x in v),
+        "fx_baseline": result.fx_baseline,  # fx * B (px m) of the frames: depth = fx_baseline / disparity
         "frame_spread_mm": spread[0],
         "frame_spread_pct": spread[1],
         "frame_bias_pct": [float(err[[p.frame == x.frame for p in pr]].mean()) for x in v if any(p.frame == x.frame for p in pr)],
@@ -560,20 +561,19 @@ def trend_findings(history: Sequence[dict], fig: dict) -> list[Finding]:
     "figures"): whether the bias stays the same across distances (a baseline: ``Z = fx B / d`` scales
     every distance alike) or grows with distance (a disparity offset delta: the relative error of
     ``fx B / (d + delta)`` is about ``-delta / d = -delta Z / (fx B)``, proportional to Z)."""
-    pts = [(h["figures"]["distance_m"], h["figures"]["bias_pct"], h["figures"]["disparity_px"])
-           for h in history if h.get("figures")] + [(fig["distance_m"], fig["bias_pct"], fig["disparity_px"])]
+    pts = [(h["figures"].get("distance_m"), h["figures"].get("bias_pct"), h["figures"].get("fx_baseline"))
+           for h in history if h.get("figures")] + [(fig["distance_m"], fig["bias_pct"], fig["fx_baseline"])]
     pts = [p for p in pts if all(v is not None and math.isfinite(v) for v in p)]
     if len(pts) < TREND_MIN_CHECKS:
         return []
-    z, bias, d = (np.array(v, np.float64) for v in zip(*pts))
+    z, bias, fxb = (np.array(v, np.float64) for v in zip(*pts))
     if z.max() / z.min() < TREND_MIN_RATIO:
         return []
     slope, icpt = np.polyfit(z, bias, 1)
     change = slope * (z.max() - z.min())
     where = f"{len(pts)} checks from {z.min():.1f} to {z.max():.1f} m"
     if abs(change) >= BIAS_PCT:
-        fb = float(np.median(d * z))  # fx * B in px m, from each check's disparity at its distance
-        delta = -slope * fb / 100.0
+        delta = -slope * float(np.median(fxb)) / 100.0
         return [Finding(
             measured=f"over {where} the bias goes from {icpt + slope * z.min():+.1f} to {icpt + slope * z.max():+.1f} %: "
                      "it grows with distance",
