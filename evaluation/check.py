@@ -453,7 +453,7 @@ def findings(fig: dict) -> list[Finding]:
         dz = fig["depth_vs_pose_pct"]
         depth_agrees = dz is not None and abs(dz - b) <= tol  # the pose does not use the baseline
         word = "long" if b > 0 else "short"
-        span = f" ({min(biases):+.1f} to {max(biases):+.1f} % from short to long pairs)" if biases else ""
+        span = f" ({min(biases):+.1f} to {max(biases):+.1f} % across lengths)" if biases else ""
         measured = f"lengths read {abs(b):.1f} % {word} at {z:.1f} m ({fig['bias_pairs']} long pairs, ±{1.96 * se:.1f} %){span}"
         if depth_agrees:
             out.append(Finding(

@@ -5,7 +5,8 @@ width, height, target, yaw (deg), roll (deg), mount ("stand" | "wall": the poste
 or glued on the wall), standoff (m, the board in front of the wall; fixed per source), board_w and
 board_l (m, the poster's size), squares ("7x5"), square_mm, marker_mm and dictionary (the "charuco" scene's
 printed ChArUco board, as `depthruler calibrate` and `check` take them), mode ("model": the sensor model; "stereo": rendered left/right images
-through OpenCV SGBM), and any SensorModel field by name (e.g. noise_px=0.3).
+through OpenCV SGBM), baseline_error (the frames report a baseline off by this share, e.g. 0.02: a camera
+whose calibration is wrong, for `depthruler check` to find), and any SensorModel field by name (e.g. noise_px=0.3).
 The scene names the spec target: "sim" alone is a poster at 4 m under indoor light.
 """
 
@@ -50,6 +51,7 @@ class SimConfig:
     board_w_m: float = BOARD_M[0]
     board_l_m: float = BOARD_M[1]
     mode: str = "model"
+    baseline_error: float = 0.0  # the reported baseline is (1 + this) x the true one: a wrong calibration
     squares: str = f"{CHARUCO_BOARD[0]}x{CHARUCO_BOARD[1]}"
     square_mm: float = CHARUCO_BOARD[2] * 1000
     marker_mm: float = CHARUCO_BOARD[3] * 1000
@@ -63,6 +65,8 @@ class SimConfig:
             raise SourceError(f"sim mode={self.mode!r} is unknown; use one of {', '.join(MODES)}")
         if self.fps < 0:
             raise SourceError(f"sim fps={self.fps} must be >= 0 (0 = as fast as frames are read)")
+        if not (-0.5 < self.baseline_error < 0.5):
+            raise SourceError(f"sim baseline_error={self.baseline_error} must lie in (-0.5, 0.5), e.g. 0.02 for 2 % long")
 
     def scene_params(self) -> SceneParams:
         poster: dict[str, Any] = dict(mount=self.mount, standoff_m=self.standoff_m, board_w_m=self.board_w_m,
@@ -103,6 +107,7 @@ _KEYS = {  # spec key -> (SimConfig field, parser)
     "board_w": ("board_w_m", float),
     "board_l": ("board_l_m", float),
     "mode": ("mode", str),
+    "baseline_error": ("baseline_error", float),
     "squares": ("squares", str),
     "square_mm": ("square_mm", float),
     "marker_mm": ("marker_mm", float),
@@ -206,6 +211,8 @@ class SimSource(SourceBase):
             frame, _ = stereo_frame(cfg.scene_params(), self.model, rng, target=cfg.target, meta=meta)
         else:
             frame, _ = simulate_frame(cfg.scene_params(), self.model, rng, target=cfg.target, meta=meta)
+        if cfg.baseline_error:
+            frame = replace(frame, baseline_m=frame.baseline_m * (1.0 + cfg.baseline_error))
         return frame
 
 

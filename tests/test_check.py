@@ -124,6 +124,20 @@ def test_history_across_distances_tells_a_disparity_offset_from_a_baseline():
     assert level == pytest.approx(-2.0, abs=0.3) and "the baseline" in steady["cause"]
 
 
+def test_sim_board_options_and_a_wrong_calibration():
+    from device import SourceError
+
+    board = board_for(1.0)
+    with open_source(sim_spec(1.0, board, baseline_error=0.02)) as src:
+        frame = src.read()
+        assert src.config.scene_params().charuco == (7, 5, 0.04, 0.03, "DICT_5X5_100")
+    assert frame.baseline_m == pytest.approx(0.06 * 1.02, rel=1e-12)
+    for bad, match in (("squares=7", "COLSxROWS"), ("dictionary=DICT_9X9", "unknown ArUco dictionary"),
+                       ("square_mm=40&marker_mm=50", "markers smaller"), ("baseline_error=0.7", "baseline_error")):
+        with pytest.raises(SourceError, match=match):
+            open_source(f"sim:charuco?{bad}")
+
+
 def test_board_pairs_cover_rows_columns_diagonals_short_to_full():
     board = BoardSpec(7, 5, 0.04, 0.03, "DICT_5X5_100")
     pairs = board_pairs(board, range(board.n_corners))
