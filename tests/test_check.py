@@ -85,7 +85,7 @@ def test_check_matches_the_evaluation_and_names_a_wrong_baseline(distance):
     assert fig["pairs"] >= 200 and fig["frames_with_board"] == 2
     assert abs(fig["mean_accuracy"] - ref) <= 1.0
     assert abs(fig["bias_pct"]) <= 0.5
-    assert fig["distance_m"] == pytest.approx(distance, rel=0.01) and fig["tilt_deg"] < 3.0
+    assert fig["distance_m"] == pytest.approx(distance, rel=0.002) and fig["tilt_deg"] < 0.2  # square on
     assert abs(fig["depth_vs_pose_pct"]) < 0.5
     assert not any("baseline in the calibration" in f["cause"] for f in rep["findings"])
     assert fig["frame_spread_pct"] is not None
@@ -227,7 +227,7 @@ def test_video_stereo_pair_of_the_board_gives_its_lengths_within_the_interval(tm
           f"coverage {fig['interval_coverage']:.3f}, |error|/half-interval median {np.median(np.abs(err) / half):.2f}, "
           f"tilt {fig['tilt_deg']:.1f} deg, distance {fig['distance_m']:.3f} m, fill {fig['fill_rate']:.2f}")
     assert fig["pairs"] >= 100
-    assert fig["tilt_deg"] == pytest.approx(20.0, abs=1.0)
+    assert fig["tilt_deg"] == pytest.approx(20.0, abs=0.3) and fig["distance_m"] == pytest.approx(2.0, rel=0.005)
     assert fig["interval_coverage"] >= 0.95  # the board's lengths lie within the reported 95 % intervals
     assert abs(fig["bias_pct"]) <= 1.0
 
