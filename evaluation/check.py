@@ -354,7 +354,7 @@ def figures(result: CheckResult) -> dict:
     # A scale error is read on the long pairs, where end-point noise is small against the length.
     long_pairs = sq >= LONG_SQUARES if np.sum(sq >= LONG_SQUARES) >= 10 else np.ones(len(sq), bool)
     err_long = err[long_pairs]
-    spread = _frame_spread(pr)
+    spread = _frame_spread([p for p, keep in zip(pr, long_pairs) if keep])
     v = result.views
     ratio = _mean(x.depth_ratio for x in v)
     return {
@@ -365,6 +365,7 @@ def figures(result: CheckResult) -> dict:
         "frames_with_board": len(v),
         "pairs": len(pr),
         "mean_accuracy": float(acc.mean()),
+        "long_mean_accuracy": float(acc[long_pairs].mean()),
         "median_accuracy": float(np.median(acc)),
         # The median over the long pairs: short pairs on a contended patch of disparity have a heavy
         # tail that a mean follows, and end-point errors weigh most on them.
@@ -432,6 +433,8 @@ class Finding:
 # calibration achieves) and three standard errors; fill rate and plane RMS follow the Depth Quality
 # Tool's usual reading (a flat, lit target fills > 80 %; RMS < 1 % of distance is typical of stereo).
 BIAS_PCT = 0.5
+SHORT_A = 95.0  # a short length scoring below this (and 3 points below the long ones) is worth a word
+LOW_A = 95.0  # long lengths below this: the check fails
 FILL_LOW, FILL_OK = 0.5, 0.8
 PLANE_RMS_PCT = 1.0
 NOISE_PX = 0.5  # disparity noise of a sound matcher on a flat, lit board is a few tenths of a pixel
@@ -550,9 +553,21 @@ def findings(fig: dict) -> list[Finding]:
             action="hold camera and board still; measure on a frozen frame",
             severity="info",
         ))
-    if fig["mean_accuracy"] < 95 and not any(f.severity == "fail" for f in out):
-        out.append(Finding(measured=f"mean accuracy {fig['mean_accuracy']:.1f} is low", severity="fail",
-                           cause="see the other findings", action="fix those, then check again"))
+    short = fig["per_length"].get(LENGTH_BINS[0][2])
+    long_a = fig["long_mean_accuracy"]
+    if short and short["mean_accuracy"] < min(SHORT_A, long_a - 3.0):
+        px_short = fig["px_per_square"]
+        out.append(Finding(
+            measured=f"short lengths (1 square, {px_short:.0f} px) score A {short['mean_accuracy']:.1f} "
+                     f"(bias {short['bias_pct']:+.1f} %) against {long_a:.1f} for 3 squares or more",
+            cause="a short segment holds few disparity samples, and each end's depth error is a large share of it",
+            action="measure objects that span 100 px or more in the image: move closer for small ones",
+            severity="warn",
+        ))
+    if long_a < LOW_A and not any(f.severity == "fail" for f in out):
+        out.append(Finding(measured=f"even lengths of 3 squares or more score only A {long_a:.1f}", severity="fail",
+                           cause="see the findings above (light, texture, distance)",
+                           action="fix those, then check again"))
     return out
 
 
