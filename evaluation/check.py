@@ -354,6 +354,7 @@ def figures(result: CheckResult) -> dict:
     # A scale error is read on the long pairs, where end-point noise is small against the length.
     long_pairs = sq >= LONG_SQUARES if np.sum(sq >= LONG_SQUARES) >= 10 else np.ones(len(sq), bool)
     err_long = err[long_pairs]
+    frames_long = np.array([p.frame for p in pr])[long_pairs]
     spread = _frame_spread([p for p, keep in zip(pr, long_pairs) if keep])
     v = result.views
     ratio = _mean(x.depth_ratio for x in v)
@@ -395,7 +396,8 @@ def figures(result: CheckResult) -> dict:
         "fx_baseline": result.fx_baseline,  # fx * B (px m) of the frames: depth = fx_baseline / disparity
         "frame_spread_mm": spread[0],
         "frame_spread_pct": spread[1],
-        "frame_bias_pct": [float(err[[p.frame == x.frame for p in pr]].mean()) for x in v if any(p.frame == x.frame for p in pr)],
+        # per frame, the bias as above (median of the long pairs' errors)
+        "frame_bias_pct": [float(np.median(err_long[frames_long == x.frame])) for x in v if np.any(frames_long == x.frame)],
     }
 
 

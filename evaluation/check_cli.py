@@ -101,11 +101,12 @@ def _summary(r: dict) -> str:
     def n(x, fmt="{:.1f}"):
         return "-" if x is None else fmt.format(x)
 
+    margin = None if f["bias_se_pct"] is None else 1.96 * f["bias_se_pct"]
     lines = [
         f"check {r['status'].upper()}: {r['source']} (serial {r['serial']}), board {f['board']['squares']} x "
         f"{f['board']['square_mm']:g} mm at {n(f['distance_m'], '{:.2f}')} m, tilt {n(f['tilt_deg'])} deg",
         f"  {f['pairs']} pairs on {f['frames_with_board']}/{f['frames']} frames: mean A {f['mean_accuracy']:.2f}, "
-        f"median A {f['median_accuracy']:.2f}, bias {f['bias_pct']:+.2f} % (±{n(None if f['bias_se_pct'] is None else 1.96 * f['bias_se_pct'], '{:.2f}')}), "
+        f"median A {f['median_accuracy']:.2f}, bias {f['bias_pct']:+.2f} % (±{n(margin, '{:.2f}')}), "
         f"spread {f['spread_pct']:.2f} %",
         f"  good {100 * f['good_share']:.0f} %, truth inside the 95 % interval {100 * f['interval_coverage']:.0f} %, "
         f"fill rate {n(None if f['fill_rate'] is None else 100 * f['fill_rate'], '{:.0f}')} %, "
