@@ -155,6 +155,25 @@ def test_board_pairs_cover_rows_columns_diagonals_short_to_full():
     assert all({p.id1, p.id2} <= {0, 1, 7, 8, 23} for p in board_pairs(board, [0, 1, 7, 8, 23]))
 
 
+@pytest.mark.hardware
+def test_hardware_check_of_the_whole_chain(tmp_path):
+    """With DEPTHRULER_HARDWARE=1 and a camera looking at a printed board, the same check on the real chain
+    (sensor, calibration, disparity, method). DEPTHRULER_CHECK_SOURCE (default "oak") names the source and
+    DEPTHRULER_CHECK_BOARD the board as "7x5,40,30,DICT_5X5_100" (squares, square mm, marker mm, dictionary)."""
+    from service.cli import app
+
+    source = os.environ.get("DEPTHRULER_CHECK_SOURCE", "oak")
+    squares, square, marker, dictionary = os.environ.get("DEPTHRULER_CHECK_BOARD", "7x5,40,30,DICT_5X5_100").split(",")
+    res = runner.invoke(app, ["check", "--source", source, "--squares", squares, "--square-mm", square, "--marker-mm",
+                              marker, "--dictionary", dictionary, "--frames", "5", "--json", "--out", str(tmp_path),
+                              "--no-history"])
+    assert res.exit_code == 0, res.output
+    fig = json.loads(res.output.strip().splitlines()[-1])["figures"]
+    print(json.dumps(fig, indent=1))
+    assert fig["frames_with_board"] >= 3 and fig["pairs"] >= 50
+    assert abs(fig["bias_pct"]) <= 1.0 and fig["interval_coverage"] >= 0.8
+
+
 def test_no_board_is_a_typed_error():
     with open_source(f"sim:poster?distance=3&fps=0&width={W}&height={H}") as src:
         frame = src.read()
