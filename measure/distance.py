@@ -44,23 +44,33 @@ Why these choices (A = 100 - 100 |g - m| / g, mean over measurements unless note
 - Stress protocol (issue #12; evaluation/stress_middlebury.py and stress_sim.py: exact, jittered,
   inside, piece, long and no-gap click pairs on SGBM, StereoBM and ground truth with 50 % uniform
   outliers; simulated rooms, person, posters, doorways). Dev Middlebury scenes (Adirondack, Piano,
-  Playroom, Shelves), before -> after this model selection, gap rule and calibration, SGBM:
-  share A < 90 13.1 -> 11.5 %, 1σ/2σ coverage of the truth 7.5/13.7 -> 74.6/90.2 %, gap fired on
-  no-gap segments 35.4 -> 0 %; "good" 61.1 % of answers, "good" with A < 90 3.9 % of all, 2σ
-  coverage among "good" 88.2 %. Held-out scenes (Motorcycle, Pipes, Recycle, Teddy), SGBM:
-  1σ/2σ 78.8/92.7 %, good 61.6 %, good & A < 90 2.0 %. Simulated rooms across wall, board and
-  floor (dev seeds, 72 pairs): mean A 85.1 / 94.5 / -14.0 -> 96.4 / 98.2 / 94.1 for
-  wall-board-floor / wall-floor / board-floor (basic 98.8 / 95.6 / 98.6); no room answer is
-  "good" with A < 90. Posters (98.21) and person height (97.66) unchanged; doorways found
-  91.7 % (was 95.8 % with the three-sigma rule).
+  Playroom, Shelves), before -> after this model selection, gap rule, window fallback and
+  calibration, SGBM: share A < 90 13.1 -> 9.8 %, 1σ/2σ coverage of the truth 7.5/13.7 ->
+  76.0/90.2 %, gap fired on no-gap segments 35.4 -> 0 %, robust A < 90 where basic >= 90 in
+  2.2 %; "good" 61.4 % of answers, "good" with A < 90 4.2 % of all, 2σ coverage among "good"
+  87.8 %. Held-out scenes (Motorcycle, Pipes, Recycle, Teddy), SGBM: 1σ/2σ 79.6/93.5 %, good
+  61.6 %, good & A < 90 2.0 %. Simulated rooms across wall, board and floor (dev seeds, 72 pairs):
+  mean A 85.1 / 94.5 / -14.0 -> 94.9 / 98.0 / 91.9 for wall-board-floor / wall-floor /
+  board-floor (basic 98.8 / 95.6 / 98.6; held-out seeds 96.3 / 98.7 / 95.1, basic 98.1 / 95.4 /
+  97.5); no dev room answer is "good" with A < 90. Posters (98.21) and person height (97.66, +2.3 %
+  on average) unchanged; doorways found in 91.7 % (95.8 % with the three-sigma rule).
+- Imprecise line, one surface (one sigma above ``IMPRECISE`` = 8 % of the distance, typically a
+  short piece full of wrong matches): the click windows answer when neither is on a depth edge and
+  their standard error, counted as one sample per matching window, is smaller. Dev stress, SGBM:
+  A < 90 10.9 -> 9.8 %, robust much worse than basic 3.9 -> 2.2 %; StereoBM mean A 87.8 -> 96.7.
 - Per-end surfaces (``measure.surfaces``): a piece needs 15 px (the simulator's touch clicks
   slip up to ~13 px off an object; at 30 px the rooms lose 2-6 points, at 15 px posters are
-  unchanged) and a 10 % offset (SGBM and StereoBM bias the last pixels before an edge by
-  4-8 % on single Middlebury surfaces; at 4 % the single-surface segments switched models in
-  8 % of the stress cases and lost accuracy).
-- Tried and dropped: a click window joining the line's end value by inverse variance where the
-  line is poorly determined (sim rooms +0.8 points, but SGBM dev mean A 95.2 -> 89.6: SGBM's
-  smooth, fattened windows look precise where they are wrong).
+  unchanged), a smooth, not steep own line inside its data (without these 11 of 1800 eval sim
+  answers went to 4-40 m on wrong matches in a contended band) and a 10 % offset (SGBM and
+  StereoBM bias the last pixels before an edge by 4-8 % on single Middlebury surfaces; at 4 % the
+  single-surface segments switched models in 8 % of the stress cases and lost accuracy). A click
+  plainly inside one surface (a clean 5x5 window, no step within 8 px) whose window depth is 10 %
+  off the line's takes the window's depth (``_clean_ends``; 14 of 2108 stress cases).
+- Tried and dropped: a click window joining the line's end value by inverse variance wherever the
+  line is less precise than the window (sim rooms +0.8 points, but SGBM dev mean A 95.2 -> 89.6:
+  SGBM's smooth, fattened windows look precise where they are wrong; hence the one-sample window
+  error and the 8 % gate above). A 10-15 % gap step finds more of the simulated box gaps (33 ->
+  58 %) but fires on 3-17 % of the Middlebury no-gap segments.
 - Confidence maps: not used. The default SGBM confidence of ``device.sgbm`` is 1.0 on every
   valid pixel, so weighting by it equals dropping invalid pixels, which sampling already does.
   The left-right consistency (``lr_confidence=1``) is graded, but dropping samples below it
@@ -99,7 +109,7 @@ from .types import Frame, MeasureError, MeasureOptions, Measurement, PinholeCame
 from .uncertainty import (
     MODEL_SHARE,
     calibrated_sigma,
-    click_sigma as _click_sigma,
+    click_sigma,
     correlation_inflation,
     disparity_quantum,
     endpoint_depth_sigma,
@@ -112,6 +122,7 @@ from .verdict import EDGE_PX, EDGE_STEP, EXTRAPOLATED_PX, FEW_SAMPLES, FEW_SHARE
 __all__ = ["backproject", "measure_distance", "window_median_disparity"]
 
 BASIC_CLICK_SHARE = 1.5  # px: the basic answer's click error, as a share of the segment's pixel length
+IMPRECISE = 0.08  # relative one-sigma above which the robust line yields to clean click windows
 MIN_FIT_SAMPLES = 5  # fewer valid samples than this cannot support a robust 3-D fit
 NO_DEPTH = "endpoint has no depth within window"
 
@@ -174,8 +185,8 @@ def _fb(frame: Frame) -> float:
     return frame.camera.fx * frame.baseline_m
 
 
-def click_sigma(frame: Frame, xy1, xy2, d_end: np.ndarray, slope: np.ndarray, dist: float) -> float:
-    return _click_sigma(lambda x, y: ray(frame, x, y), xy1, xy2, d_end, slope, _fb(frame), frame.doffs, dist)
+def _click_term(frame: Frame, xy1, xy2, d_end: np.ndarray, slope: np.ndarray, dist: float) -> float:
+    return click_sigma(lambda x, y: ray(frame, x, y), xy1, xy2, d_end, slope, _fb(frame), frame.doffs, dist)
 
 
 def _on_edge(frame: Frame, start, other, d_end: float) -> bool:
@@ -253,7 +264,7 @@ def _robust(frame, xy1, xy2, options, basic: BasicEnds, samples: SegmentSamples,
     fit_sigma = inflate * math.sqrt(max(0.0, float(grad @ ends.cov @ grad)))
     levels = int(np.unique(samples.disparity[line.support]).size)
     quant = quantization_sigma(dist, float(z.mean()), fb, quantum, levels, line.sigma_d)
-    click = click_sigma(frame, xy1, xy2, d_end, ends.slope, dist)
+    click = _click_term(frame, xy1, xy2, d_end, ends.slope, dist)
     model = 0.0
     if ends.several:
         reasons.append("segment crosses several surfaces")
@@ -291,6 +302,14 @@ def _robust(frame, xy1, xy2, options, basic: BasicEnds, samples: SegmentSamples,
     if other:
         reasons.append(other)
     fit = "constant-depth" if line.beta == 0.0 and not ends.several else ("surfaces" if ends.several else "line")
+    if not gap and not ends.several and basic.ok and sigma > IMPRECISE * out:
+        # The line says little here (short, sparse or full of wrong matches); click windows off any
+        # depth edge, with the standard error of one matching window, measure the same two points.
+        edge = _on_edge(frame, xy1, xy2, fb / basic.p1_m[2] - frame.doffs) or _on_edge(frame, xy2, xy1, fb / basic.p2_m[2] - frame.doffs)
+        bs = basic.uncertainty_m * options.window
+        if not edge and math.isfinite(bs) and bs < sigma:
+            return _basic_measurement(basic, "robust", t0, samples, tuple(warnings) + ("imprecise line; basic answer",), support=line.support,
+                                      reasons=[r for r in reasons if not r.startswith("methods disagree")], window_sigma=bs)
     return _measurement(q1f, q2f, "robust", "none" if gap else fit, basic, sigma, samples, line.support, gap, warnings, t0, reasons)
 
 
@@ -350,6 +369,7 @@ def _basic_measurement(
     gap: bool = False,
     support: np.ndarray | None = None,
     reasons: list[str] | tuple[str, ...] = (),
+    window_sigma: float | None = None,
 ) -> Measurement:
     if samples is None:  # the basic method samples only the two clicks
         pixels = np.array([basic.click1, basic.click2], dtype=np.float64)
@@ -360,7 +380,8 @@ def _basic_measurement(
     sup = np.zeros(len(pixels), bool) if support is None else support
     dist = basic.distance_m
     # The window medians' standard errors leave out the click and edge effects the robust answer models.
-    sigma = calibrated_sigma(math.hypot(basic.uncertainty_m, BASIC_CLICK_SHARE * dist * 2.0 / max(1.0, math.dist(basic.click1, basic.click2))), dist)
+    base = basic.uncertainty_m if window_sigma is None else window_sigma
+    sigma = calibrated_sigma(math.hypot(base, BASIC_CLICK_SHARE * dist * 2.0 / max(1.0, math.dist(basic.click1, basic.click2))), dist)
     lo, hi = interval(dist, sigma)
     why = list(reasons) + (["gap detected"] if gap and "gap detected" not in reasons else [])
     quality, why = judge(why, None if samples is None else len(samples.points), dist, 0.5 * (hi - lo))

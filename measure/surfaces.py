@@ -77,7 +77,6 @@ def select_end_models(t: np.ndarray, d: np.ndarray, length: float, line: Dispari
     cov = line.cov_at(0.0, length)
     r = d - line.at(t)
     own = [False, False]
-    offsets = [0.0, 0.0]
     local_cov = [0.0, 0.0]
     n = len(t)
     # The noise scale of the line's support (MAD: the RMS of a bisquare support is inflated by the
@@ -91,7 +90,6 @@ def select_end_models(t: np.ndarray, d: np.ndarray, length: float, line: Dispari
         if abs(float(t[sel][-1] - t[sel][0])) < MIN_PIECE_PX:
             continue
         off = median(r[sel])
-        offsets[e] = float(off)
         thr = max(DISAGREE_SIGMAS * scale, DISAGREE_REL * abs(float(d_end[e])))
         if abs(off) <= thr:
             continue
