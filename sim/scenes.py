@@ -8,9 +8,10 @@ target's front surface from the camera, along Z (the paper's 2, 4, 6 and 7 m, or
 The poster is the paper's "oriented target board" (Figures 1-2): by default a rigid board on two thin
 legs, standing ``standoff_m`` in front of the wall at any yaw and roll, so its whole outline is a depth
 edge (where the sensor model puts its contended band and edge fattening, and where a tap just off
-the board meets the wall behind). ``mount="wall"`` keeps the older poster glued flat on the wall. The "charuco" scene stands a printed
-ChArUco board the same way (OpenCV's own board image, ``SceneParams.charuco``; sim/charuco.py), so its
-corners' 3D positions are known exactly and `depthruler check` runs end to end on the simulator.
+the board meets the wall behind). ``mount="wall"`` keeps the older poster glued flat on the wall.
+The "charuco" scene stands a printed ChArUco board the same way (OpenCV's own board image,
+``SceneParams.charuco``; sim/charuco.py), so its corners' 3D positions are known exactly and
+`depthruler check` runs end to end on the simulator.
 
 A :class:`View` caches one ray-cast (depth, object ids) and the colour renders of every lighting
 preset per (scene, pose, image size), so a new frame only costs the sensor noise.
