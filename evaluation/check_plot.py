@@ -109,7 +109,9 @@ def write_check_png(path: str | Path, frame: Frame, result: CheckResult, rep: di
     sc.set_ylim(-lim, lim)
     fx = fig.add_axes((0.31, 0.0, 0.68, 0.27))
     fx.axis("off")
-    fx.text(0, 0.95, _findings_text(rep), va="top", family="monospace", fontsize=8.5)
+    text = _findings_text(rep)
+    n_lines = text.count("\n") + 1
+    fx.text(0, 0.95, text, va="top", family="monospace", fontsize=8.5 if n_lines <= 15 else max(5.0, 8.5 * 15 / n_lines))
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
     fig.savefig(path)
