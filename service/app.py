@@ -27,7 +27,7 @@ from measure import Frame, MeasureOptions, PinholeCamera, measure_distance
 from .frames import Capture, FrameRing
 from .guard import LOOPBACK_HOSTS, MAX_BODY_BYTES, RequestGuard
 from .recorder import Recorder
-from .routers import frames, health, measurements, recordings
+from .routers import checks, frames, health, measurements, recordings
 from .state import ServiceState
 from .store import Store
 
@@ -124,7 +124,7 @@ def create_app(
                     )
             return await call_next(request)
 
-    for module in (health, frames, measurements, recordings):
+    for module in (health, frames, measurements, recordings, checks):
         app.include_router(module.router)
     app.mount("/", StaticFiles(directory=STATIC_DIR, html=True), name="static")
     app.add_middleware(RequestGuard, allowed_hosts=allowed_hosts, max_body_bytes=max_body_bytes)  # outermost

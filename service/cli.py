@@ -30,6 +30,7 @@ COMMANDS: dict[str, str] = {
     "export": "device.recording_cli:export",
     "calibrate": "device.cli:calibrate",
     "eval": "evaluation.cli:app",
+    "check": "evaluation.check_cli:check",
     "bench": "service.bench_cli:bench",
 }
 

@@ -9,6 +9,9 @@ The poster is the paper's "oriented target board" (Figures 1-2): by default a ri
 legs, standing ``standoff_m`` in front of the wall at any yaw and roll, so its whole outline is a depth
 edge (where the sensor model puts its contended band and edge fattening, and where a tap just off
 the board meets the wall behind). ``mount="wall"`` keeps the older poster glued flat on the wall.
+The "charuco" scene stands a printed ChArUco board the same way (OpenCV's own board image,
+``SceneParams.charuco``; sim/charuco.py), so its corners' 3D positions are known exactly and
+`depthruler check` runs end to end on the simulator.
 
 A :class:`View` caches one ray-cast (depth, object ids) and the colour renders of every lighting
 preset per (scene, pose, image size), so a new frame only costs the sensor noise.
@@ -31,13 +34,14 @@ from .truth import Truth
 CAMERA_HEIGHT_M = 1.4
 REFERENCE_FX_AT_1280 = 1000.0  # focal length (px) of the reference camera at 1280 px long side: 65 deg HFOV
 
-SCENES: tuple[str, ...] = ("poster", "person", "doorway", "boxes", "table")
+SCENES: tuple[str, ...] = ("poster", "person", "doorway", "boxes", "table", "charuco")
 TARGETS: dict[str, tuple[str, ...]] = {  # the first one is the scene's default target
     "poster": ("poster-width", "poster-length"),
     "person": ("person-height",),
     "doorway": ("doorway",),
     "boxes": ("box-gap", "box-width"),
     "table": ("table-width",),
+    "charuco": ("board-width", "board-height"),
 }
 
 
@@ -51,6 +55,9 @@ MOUNTS: tuple[str, ...] = ("stand", "wall")
 # size is not published: A0 portrait (841 x 1189 mm) is an assumption, a common size for a printed
 # measurement board that still fits a 1280x720 frame at 2 m (595 px tall).
 BOARD_M: tuple[float, float] = (0.841, 1.189)
+# The ChArUco board of the "charuco" scene when none is named: (squares across, down, square m, marker m,
+# dictionary), the board `depthruler check` is documented with (sim/charuco.py).
+CHARUCO_BOARD: tuple[int, int, float, float, str] = (7, 5, 0.040, 0.030, "DICT_5X5_100")
 # How far a free-standing board is in front of the wall (m); scenario() draws one per seed.
 STANDOFFS_M: tuple[float, ...] = (0.5, 1.0, 1.5)
 
@@ -73,6 +80,7 @@ class SceneParams:
     board_w_m: float = BOARD_M[0]
     board_l_m: float = BOARD_M[1]
     standoff_m: float = 1.0
+    charuco: tuple[int, int, float, float, str] = CHARUCO_BOARD  # scene "charuco": the printed board
 
     def __post_init__(self) -> None:
         if self.scene not in SCENES:
@@ -89,6 +97,10 @@ class SceneParams:
             raise SceneError(f"board size {self.board_w_m} x {self.board_l_m} m is out of range; use 0.05 to 3 m per side")
         if not (0.1 <= self.standoff_m <= 5.0):
             raise SceneError(f"standoff_m={self.standoff_m} is out of range; use 0.1 to 5 m in front of the wall")
+        sx, sy, square, marker, _ = self.charuco
+        if not (sx >= 3 and sy >= 3 and 0 < marker < square and sx * square <= 3.0 and sy * square <= 3.0):
+            raise SceneError(f"ChArUco board {sx}x{sy} squares of {square} m, markers {marker} m: use at least 3x3 "
+                             "squares, markers smaller than squares, at most 3 m per side")
 
 
 @dataclass(frozen=True)
@@ -145,7 +157,56 @@ def _wall(place: _Placer, z: float, material: str = "paint", obj: str = "wall", 
 
 
 def _poster(p: SceneParams) -> SceneSpec:
+    prims, c, u, v = _printed_board(p, p.board_w_m, p.board_l_m, "poster", "poster")
     w, l = p.board_w_m, p.board_l_m
+    place = _Placer(p.distance_m, p.yaw_deg)
+    targets = {
+        "poster-width": TargetSpec("poster-width", place.vec(c - w / 2 * u), place.vec(c + w / 2 * u), ("poster",), ("poster",), False),
+        "poster-length": TargetSpec("poster-length", place.vec(c - l / 2 * v), place.vec(c + l / 2 * v), ("poster",), ("poster",), False),
+    }
+    return SceneSpec(prims, targets, CAMERA_HEIGHT_M)
+
+
+def charuco_sheet_m(board: tuple[int, int, float, float, str]) -> tuple[float, float, float]:
+    """Sheet width, height and white margin (m) of a printed ChArUco board: the squares plus a margin of
+    half a square all round (the quiet zone the detector needs against the wall behind)."""
+    sx, sy, square = board[0], board[1], board[2]
+    margin = square / 2
+    return sx * square + 2 * margin, sy * square + 2 * margin, margin
+
+
+def charuco_corner_offsets(board: tuple[int, int, float, float, str]) -> np.ndarray:
+    """In-plane offsets (K x 2, m, along the sheet's u right and v down, from the sheet centre) of the
+    board's chessboard corners in OpenCV's id order (row by row from the top left), K = (sx-1)(sy-1)."""
+    sx, sy, square = board[0], board[1], board[2]
+    i, j = np.meshgrid(np.arange(1, sx), np.arange(1, sy))
+    return np.stack([i.ravel() * square - sx * square / 2, j.ravel() * square - sy * square / 2], axis=1)
+
+
+def _charuco(p: SceneParams) -> SceneSpec:
+    w, l, _ = charuco_sheet_m(p.charuco)
+    prims, c, u, v = _printed_board(p, w, l, "charuco", "board")
+    place = _Placer(p.distance_m, p.yaw_deg)
+    k = charuco_corner_offsets(p.charuco)
+    sx = p.charuco[0]
+    world = lambda a: place.vec(c + a[0] * u + a[1] * v)  # noqa: E731
+    targets = {  # the outer corners of the top row and of the left column
+        "board-width": TargetSpec("board-width", world(k[0]), world(k[sx - 2]), ("board",), ("board",), False),
+        "board-height": TargetSpec("board-height", world(k[0]), world(k[-(sx - 1)]), ("board",), ("board",), False),
+    }
+    return SceneSpec(prims, targets, CAMERA_HEIGHT_M)
+
+
+def board_frame(p: SceneParams) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """World centre and unit axes u (right), v (down) of the printed board of a poster or charuco scene."""
+    w, l = charuco_sheet_m(p.charuco)[:2] if p.scene == "charuco" else (p.board_w_m, p.board_l_m)
+    _, c, u, v = _printed_board(p, w, l, "", "")
+    return c, u, v
+
+
+def _printed_board(p: SceneParams, w: float, l: float, material: str, obj: str
+                   ) -> tuple[tuple[Primitive, ...], np.ndarray, np.ndarray, np.ndarray]:
+    """Floor, wall (and legs) and a printed board of w x l m: the primitives, the board centre and axes."""
     place = _Placer(p.distance_m, p.yaw_deg)
     ly = np.array([0.0, 1.0, 0.0])
     r = math.radians(p.roll_deg)
@@ -163,12 +224,8 @@ def _poster(p: SceneParams) -> SceneSpec:
             for top in (c + sx * w / 4 * u + l / 4 * v + 0.03 * place.lz for sx in (-1, 1))
         )  # behind the board, down to the floor: only their lower part shows, under the bottom edge
         background = (_wall(_Placer(p.distance_m, 0.0), max(p.standoff_m, reach + 0.1)), *legs)
-    poster = Rect(place.vec(c), place.vec(u), place.vec(v), (w / 2, l / 2), "poster", "poster")
-    targets = {
-        "poster-width": TargetSpec("poster-width", place.vec(c - w / 2 * u), place.vec(c + w / 2 * u), ("poster",), ("poster",), False),
-        "poster-length": TargetSpec("poster-length", place.vec(c - l / 2 * v), place.vec(c + l / 2 * v), ("poster",), ("poster",), False),
-    }
-    return SceneSpec((_floor(), *background, poster), targets, CAMERA_HEIGHT_M)
+    board = Rect(place.vec(c), place.vec(u), place.vec(v), (w / 2, l / 2), material, obj)
+    return (_floor(), *background, board), c, u, v
 
 
 def _person(p: SceneParams, height_m: float = 1.75) -> SceneSpec:
@@ -247,7 +304,8 @@ def _table(p: SceneParams, top=(1.2, 0.75), height_m: float = 0.75, thickness_m:
     return SceneSpec(tuple(prims), targets, height_m)
 
 
-_BUILDERS = {"poster": _poster, "person": _person, "doorway": _doorway, "boxes": _boxes, "table": _table}
+_BUILDERS = {"poster": _poster, "person": _person, "doorway": _doorway, "boxes": _boxes, "table": _table,
+             "charuco": _charuco}
 
 
 def build_scene(params: SceneParams) -> SceneSpec:
@@ -342,6 +400,12 @@ def _shade(surfaces: tuple[Surface, ...], patterns: list[np.ndarray], shape: tup
     return (np.clip(img, 0, 1) * 255.0 + 0.5).astype(np.uint8).reshape(h, w, 3)
 
 
+def _charuco_pattern(surface: Surface, camera: PinholeCamera, pose: Pose, board: tuple) -> np.ndarray:
+    from .charuco import board_pattern  # OpenCV's ArUco module, only for this scene
+
+    return board_pattern(surface, camera, pose, board)
+
+
 @lru_cache(maxsize=32)  # ~18 MB each at 1280x720
 def get_view(params: SceneParams, shift_m: float = 0.0) -> View:
     """The cached ray-cast of ``params`` from the reference camera, or from a camera ``shift_m`` metres to
@@ -358,7 +422,8 @@ def get_view(params: SceneParams, shift_m: float = 0.0) -> View:
     lut = np.array([objects.index(p.obj) for p in spec.prims] + [-1], np.int16)
     obj = lut[hits.prim]  # prim == -1 picks the trailing -1
     poster_mm = (int(round(params.board_w_m * 1000)), int(round(params.board_l_m * 1000)))  # print fills the board
-    patterns = [pattern(s.prim.material, s.uv, seed=params.texture_seed, poster_mm=poster_mm) for s in hits.surfaces]
+    patterns = [pattern(s.prim.material, s.uv, seed=params.texture_seed, poster_mm=poster_mm) if s.prim.material != "charuco"
+                else _charuco_pattern(s, camera, pose, params.charuco) for s in hits.surfaces]
     renders = {name: _shade(hits.surfaces, patterns, depth.shape, name) for name in LIGHTING}
     for a in (depth, obj, *renders.values()):
         a.setflags(write=False)

@@ -4,8 +4,11 @@ Spec keys: profile ("stress" | "paper", sim.sensor.PROFILES: sensor fields and t
 distance (m), lighting, contention, quantization (both default to the profile's), seed, fps (0 = as
 fast as read), width, height, target, yaw (deg), roll (deg), mount ("stand" | "wall": the poster board
 on its legs or glued on the wall; default: the profile's), standoff (m, the board in front of the
-wall; fixed per source), board_w and board_l (m, the poster's size), mode ("model": the sensor model; "stereo": rendered left/right images
-through OpenCV SGBM), and any SensorModel field by name (e.g. noise_px=0.3).
+wall; fixed per source), board_w and board_l (m, the poster's size), squares ("7x5"), square_mm,
+marker_mm and dictionary (the "charuco" scene's printed ChArUco board, as `depthruler calibrate` and
+`check` take them), mode ("model": the sensor model; "stereo": rendered left/right images
+through OpenCV SGBM), baseline_error (the frames report a baseline off by this share, e.g. 0.02: a camera
+whose calibration is wrong, for `depthruler check` to find), and any SensorModel field by name (e.g. noise_px=0.3).
 The scene names the spec target: "sim" alone is a poster at 4 m under indoor light.
 """
 
@@ -13,6 +16,7 @@ from __future__ import annotations
 
 import time
 from dataclasses import dataclass, field, fields, replace
+from typing import Any
 
 import numpy as np
 
@@ -21,7 +25,7 @@ from device.errors import SourceError, SourceNotFound, SourceTimeout
 from measure import Frame
 
 from .scenario import make_model, simulate_frame
-from .scenes import BOARD_M, SCENES, SceneError, SceneParams, get_view, resolve_target
+from .scenes import BOARD_M, CHARUCO_BOARD, SCENES, SceneError, SceneParams, get_view, resolve_target
 from .sensor import SensorError, SensorModel, get_profile
 from .textures import LIGHTING
 
@@ -50,6 +54,11 @@ class SimConfig:
     board_w_m: float = BOARD_M[0]
     board_l_m: float = BOARD_M[1]
     mode: str = "model"
+    baseline_error: float = 0.0  # the reported baseline is (1 + this) x the true one: a wrong calibration
+    squares: str = f"{CHARUCO_BOARD[0]}x{CHARUCO_BOARD[1]}"
+    square_mm: float = CHARUCO_BOARD[2] * 1000
+    marker_mm: float = CHARUCO_BOARD[3] * 1000
+    dictionary: str = CHARUCO_BOARD[4]
     sensor: tuple[tuple[str, object], ...] = field(default_factory=tuple)  # extra SensorModel overrides
 
     def __post_init__(self) -> None:
@@ -59,12 +68,27 @@ class SimConfig:
             raise SourceError(f"sim mode={self.mode!r} is unknown; use one of {', '.join(MODES)}")
         if self.fps < 0:
             raise SourceError(f"sim fps={self.fps} must be >= 0 (0 = as fast as frames are read)")
+        if not (-0.5 < self.baseline_error < 0.5):
+            raise SourceError(f"sim baseline_error={self.baseline_error} must lie in (-0.5, 0.5), e.g. 0.02 for 2 % long")
 
     def scene_params(self) -> SceneParams:
         mount = get_profile(self.profile).mount if self.mount is None else self.mount
-        poster = dict(mount=mount, standoff_m=self.standoff_m, board_w_m=self.board_w_m,
-                      board_l_m=self.board_l_m) if self.scene == "poster" else {}
+        poster: dict[str, Any] = dict(mount=mount, standoff_m=self.standoff_m, board_w_m=self.board_w_m,
+                                      board_l_m=self.board_l_m) if self.scene == "poster" else {}
+        if self.scene == "charuco":
+            poster = dict(mount=mount, standoff_m=self.standoff_m, charuco=self.charuco())
         return SceneParams(self.scene, self.distance_m, self.yaw_deg, self.roll_deg, self.width, self.height, **poster)
+
+    def charuco(self) -> tuple[int, int, float, float, str]:
+        """The printed board of the "charuco" scene: (squares across, down, square m, marker m, dictionary)."""
+        x, _, y = self.squares.lower().partition("x")
+        if not (x.isdigit() and y.isdigit()):
+            raise SceneError(f"squares={self.squares!r} is not COLSxROWS, e.g. squares=7x5")
+        import cv2
+
+        if not hasattr(cv2.aruco, self.dictionary):
+            raise SceneError(f"unknown ArUco dictionary {self.dictionary!r}; use e.g. DICT_5X5_100, DICT_4X4_50")
+        return (int(x), int(y), self.square_mm / 1000.0, self.marker_mm / 1000.0, self.dictionary)
 
     def sensor_model(self) -> SensorModel:
         return make_model(self.lighting, self.profile, contention=self.contention, quantization=self.quantization,
@@ -89,6 +113,11 @@ _KEYS = {  # spec key -> (SimConfig field, parser)
     "board_w": ("board_w_m", float),
     "board_l": ("board_l_m", float),
     "mode": ("mode", str),
+    "baseline_error": ("baseline_error", float),
+    "squares": ("squares", str),
+    "square_mm": ("square_mm", float),
+    "marker_mm": ("marker_mm", float),
+    "dictionary": ("dictionary", str),
 }
 
 
@@ -192,6 +221,8 @@ class SimSource(SourceBase):
             frame, _ = stereo_frame(cfg.scene_params(), self.model, rng, target=cfg.target, meta=meta)
         else:
             frame, _ = simulate_frame(cfg.scene_params(), self.model, rng, target=cfg.target, meta=meta)
+        if cfg.baseline_error:
+            frame = replace(frame, baseline_m=frame.baseline_m * (1.0 + cfg.baseline_error))
         return frame
 
 

@@ -35,6 +35,8 @@ MATERIALS: dict[str, Material] = {
     "jeans": Material((0.45, 0.28, 0.18), 0.15, 0.003),
     "shoe": Material((0.12, 0.12, 0.14), 0.10, 0.003),
     "skin": Material((0.55, 0.66, 0.85), 0.06, 0.004),
+    # A printed ChArUco board (sim/charuco.py gives its colours): ink at 0.06, paper at 0.90.
+    "charuco": Material((0.48, 0.48, 0.48), 1.0, 0.001, "charuco"),
 }
 
 
