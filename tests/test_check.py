@@ -256,7 +256,7 @@ def test_video_stereo_pair_of_the_board_gives_its_lengths_within_the_interval(tm
 
     from service.app import create_app
 
-    client = TestClient(create_app("sim", db_path=db))
+    client = TestClient(create_app("sim", db_path=db), base_url="http://127.0.0.1")
     got = client.get("/api/checks").json()
     assert got["count"] == 1 and got["checks"][0]["calibration_sha256"] == record["calibration_sha256"]
     assert client.get("/api/checks", params={"serial": "nope"}).json()["count"] == 0
