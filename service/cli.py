@@ -30,6 +30,7 @@ COMMANDS: dict[str, str] = {
     "export": "device.recording_cli:export",
     "calibrate": "device.cli:calibrate",
     "eval": "evaluation.cli:app",
+    "batch": "evaluation.batch_cli:app",
     "bench": "service.bench_cli:bench",
 }
 
