@@ -130,18 +130,20 @@ def close_readers() -> None:
 
 
 def flatten(value: Any) -> Any:
-    """A ``to_dict()`` value as a Parquet cell: scalars and lists stay; NaN becomes None; a mapping
-    becomes a JSON string (its keys may differ between rows)."""
-    import json
-
-    if isinstance(value, float) and not math.isfinite(value):
-        return None
+    """A ``to_dict()`` value as a Parquet cell: scalars and lists stay (tuples become lists, lists of
+    lists stay nested); NaN becomes None; a mapping becomes a JSON string (its keys may differ
+    between rows)."""
+    if isinstance(value, float):
+        return value if math.isfinite(value) else None
     if isinstance(value, dict):
+        import json
+
         return json.dumps(value, sort_keys=True, default=str)
-    if isinstance(value, tuple):
-        return [flatten(v) for v in value]
-    if isinstance(value, list):
-        return [flatten(v) for v in value]
+    if isinstance(value, (list, tuple)):
+        if value and isinstance(value[0], (list, tuple, dict)):
+            return [flatten(v) for v in value]
+        # the hot path (hundreds of samples per row): one pass, no call per element
+        return [None if isinstance(v, float) and not math.isfinite(v) else v for v in value]
     return value
 
 
@@ -149,10 +151,10 @@ TASK_COLUMNS = ("task", "task_key", "source", "frame", "p1_x", "p1_y", "p2_x", "
 RUN_COLUMNS = ("run", "version", "worker", "finished", "frame_read_ms", "error", "error_type")
 
 
-def task_row(task: Task, run: str) -> dict[str, Any]:
+def task_row(task: Task, run: str, defaults: dict[str, Any]) -> dict[str, Any]:
     row: dict[str, Any] = {
         "task": task.index,
-        "task_key": task.key,
+        "task_key": task.key(defaults),
         "source": task.source,
         "frame": task.frame if isinstance(task.frame, int) else None,  # a history frame's uid is in frame_uid
         "p1_x": float(task.p1[0]),
@@ -179,8 +181,8 @@ def measure_task(task: Task, frame: Frame | None, defaults: dict[str, Any]) -> d
         return out
     try:
         m = measure_distance(frame, task.p1, task.p2, options)
-    except MeasureError as exc:
-        return {**out, "error": str(exc), "error_type": type(exc).__name__}
+    except Exception as exc:  # noqa: BLE001 — bad clicks (MeasureError) or a bug: this task's error row, not a lost run
+        return {**out, "error": str(exc) or repr(exc), "error_type": type(exc).__name__}
     for k, v in m.to_dict().items():
         out[k if k not in TASK_COLUMNS + RUN_COLUMNS else f"m_{k}"] = flatten(v)
     return out
@@ -209,7 +211,7 @@ def run_group(group: TaskGroup) -> list[dict[str, Any]]:
             except Exception as exc:  # noqa: BLE001 — a missing or corrupt frame is its tasks' error row
                 frame_error = exc
             read_ms = (time.perf_counter() - t0) * 1e3
-        row = task_row(task, group.run)
+        row = task_row(task, group.run, group.defaults)
         row.update(version=version, worker=worker, frame_read_ms=read_ms if reader is not None else None)
         row.update(measure_task(task, frame, group.defaults))
         failure = open_error or frame_error
@@ -286,11 +288,11 @@ def run_batch(
     defaults = dict(defaults or {})
     store = ResultStore(out, resume=resume, overwrite=overwrite)
     done = store.done()
-    changed = [t.index for t in tasks if t.index in done and done[t.index] != t.key]
+    changed = [t.index for t in tasks if t.index in done and done[t.index] != t.key(defaults)]
     if changed:
         raise ResultsError(
             f"{len(changed)} task(s) (first: row {changed[0] + 1}) differ from the ones {out} holds for those rows; "
-            "the task table changed since that run: use --overwrite"
+            "the task table or the --set options changed since that run: use --overwrite"
         )
     todo = [t for t in tasks if t.index not in done]
     run = uuid.uuid4().hex[:12]

@@ -75,7 +75,7 @@ def run_command(
 
         def started(todo: int, skipped: int) -> None:
             progress.update(bar, total=todo)
-            progress.console.print(f"{len(tasks)} tasks, {skipped} already done; running {todo} {executor.describe()}")
+            progress.console.print(f"{len(tasks)} tasks, {skipped} already done; running {todo} {executor.describe()}", soft_wrap=True)
 
         def rows_done(rows: list[dict]) -> None:
             nonlocal errors

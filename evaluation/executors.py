@@ -102,7 +102,7 @@ class PoolExecutor:
 
 
 class RayExecutor:
-    """Groups as Ray tasks (one CPU each) on a Ray cluster.
+    """Groups as Ray tasks on a Ray cluster, each reserving ``task_cpus`` CPUs (default 1).
 
     ``address``: ``"local"`` starts a Ray instance on this machine (``num_cpus`` CPUs, default all);
     ``"auto"`` joins the cluster already running here or named by ``RAY_ADDRESS``; anything else is
@@ -113,7 +113,7 @@ class RayExecutor:
 
     name = "ray"
 
-    def __init__(self, address: str = "auto", num_cpus: int | None = None) -> None:
+    def __init__(self, address: str = "auto", num_cpus: int | None = None, task_cpus: int = 1) -> None:
         try:
             import ray
         except ImportError as exc:
@@ -134,14 +134,16 @@ class RayExecutor:
                     "give its address (HOST:6379 or ray://HOST:10001), or use --ray local"
                 ) from exc
             self._started = True
-        self.workers = int(ray.cluster_resources().get("CPU", 1))
+        self.task_cpus = task_cpus
+        self.workers = max(1, int(ray.cluster_resources().get("CPU", 1)) // task_cpus)
         self._remote: dict[Callable, Any] = {}
 
     def imap(self, fn: Callable[[T], R], items: Sequence[T]) -> Iterator[tuple[int, R]]:
         ray = self._ray
         remote = self._remote.get(fn)
         if remote is None:
-            remote = self._remote[fn] = ray.remote(num_cpus=1, max_retries=0)(fn)
+            # Ray retries a group whose worker or node died (its rows reach the caller only once it finished).
+            remote = self._remote[fn] = ray.remote(num_cpus=self.task_cpus)(fn)
         refs = {remote.remote(item): i for i, item in enumerate(items)}
         pending = list(refs)
         try:
@@ -160,7 +162,8 @@ class RayExecutor:
 
     def describe(self) -> str:
         nodes = sum(1 for n in self._ray.nodes() if n.get("Alive"))
-        return f"on Ray ({self.workers} CPUs on {nodes} node(s))"
+        cpus = int(self._ray.cluster_resources().get("CPU", 1))
+        return f"on Ray ({cpus} CPUs on {nodes} node(s), {self.workers} groups at a time)"
 
     def __enter__(self) -> RayExecutor:
         return self

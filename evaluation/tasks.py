@@ -53,11 +53,11 @@ class Task:
     options: dict[str, Any] = field(default_factory=dict)
     extra: dict[str, Any] = field(default_factory=dict)
 
-    @property
-    def key(self) -> str:
-        """A digest of what the task measures (source, frame, points, options): ``--resume`` checks
-        that a row done by an earlier run is the same task."""
-        blob = json.dumps([self.source, self.frame, self.p1, self.p2, sorted(self.options.items())], default=str)
+    def key(self, defaults: dict[str, Any] | None = None) -> str:
+        """A digest of what the task measures (source, frame, points, its options over the run's
+        ``defaults``): ``--resume`` checks that a row done by an earlier run is the same task."""
+        options = sorted({**(defaults or {}), **self.options}.items())
+        blob = json.dumps([self.source, self.frame, self.p1, self.p2, options], default=str)
         return hashlib.sha1(blob.encode()).hexdigest()[:16]
 
 

@@ -31,10 +31,11 @@ SIZE = "width=480&height=270"
 VOLATILE = {"run", "worker", "finished", "frame_read_ms", "elapsed_ms"}
 
 
-def invoke(args: list[str]):
+def invoke(args: list[str]) -> str:
+    """The command's output, on one line (rich wraps long lines at the terminal width)."""
     res = CliRunner().invoke(cli, args)
     assert res.exit_code == 0, res.output + repr(res.exception)
-    return res
+    return " ".join(res.output.split())
 
 
 @pytest.fixture(scope="module")
@@ -87,12 +88,17 @@ def test_same_results_in_process_pool_and_ray(archive, tmp_path, ray_session):
     tasks = read_tasks(tasks_csv)
     assert len(tasks) == 2 * 4 * 3 * 2 + 1
     outs = {}
-    for name, ex in (("inproc", InProcessExecutor()), ("pool", PoolExecutor(2)), ("ray", RayExecutor())):
+    for name, ex in (("inproc", InProcessExecutor()), ("pool", PoolExecutor(2))):
         with ex:
             summary = run_batch(tasks, tmp_path / f"{name}.parquet", ex)
         assert summary["measured"] == len(tasks) and summary["rows"] == len(tasks)
         outs[name] = tmp_path / f"{name}.parquet"
     close_readers()
+    # Ray through the command line: --ray auto joins the session's Ray instance (2 CPUs)
+    outs["ray"] = tmp_path / "ray.parquet"
+    res = invoke(["batch", str(tasks_csv), "--out", str(outs["ray"]), "--ray", "auto"])
+    assert "on Ray (2 CPUs on 1 node(s), 2 groups at a time)" in res and f"{len(tasks)} tasks measured (1 error rows)" in res
+    assert ray_session.is_initialized()  # the command did not shut down a Ray it did not start
     ref = stable(outs["inproc"])
     assert [r["task"] for r in ref] == list(range(len(tasks)))
     assert stable(outs["pool"]) == ref
@@ -129,7 +135,7 @@ def test_missing_frame_file_is_an_error_row(archive, tmp_path):
         w.writerow(["source", "frame", "p1_x", "p1_y", "p2_x", "p2_y", "method", "label"])
         w.writerows(rows)
     res = invoke(["batch", str(tasks_csv), "--out", str(tmp_path / "r.parquet"), "--workers", "1"])
-    assert "4 tasks measured (1 error rows)" in res.output
+    assert "4 tasks measured (1 error rows)" in res
     out = {r["label"]: r for r in pq.read_table(tmp_path / "r.parquet").to_pylist()}
     assert out["f2"]["error"] and "disparity" in out["f2"]["error"] and out["f2"]["error_type"] == "RecordingError"
     assert all(out[k]["error"] is None and out[k]["distance_m"] > 0 for k in ("f0", "f1", "f3"))
@@ -160,12 +166,15 @@ def test_resume_after_a_killed_run(archive, tmp_path):
     (first_run,) = {r["run"] for r in before}
 
     res = invoke(["batch", str(tasks_csv), "--out", str(out), "--workers", "1", "--resume"])
-    assert f"{n} tasks, {len(done)} already done; running {n - len(done)}" in res.output
+    assert f"{n} tasks, {len(done)} already done; running {n - len(done)}" in res
     rows = pq.read_table(out).to_pylist()
     assert sorted(r["task"] for r in rows) == list(range(n))  # every task once
     assert {r["task"] for r in rows if r["run"] == first_run} == done  # the killed run's rows kept...
     assert len({r["run"] for r in rows}) == 2 and sum(r["run"] != first_run for r in rows) == n - len(done)  # ...not redone
     assert not parts.exists()
+    # other options are other tasks: resuming with them is refused
+    res = CliRunner().invoke(cli, ["batch", str(tasks_csv), "--out", str(out), "--resume", "--set", "window=7"])
+    assert res.exit_code == 1 and "--set options changed" in res.output
     # a finished run is not overwritten by accident
     res = CliRunner().invoke(cli, ["batch", str(tasks_csv), "--out", str(out), "--workers", "1"])
     assert res.exit_code == 1 and "--resume" in res.output and "--overwrite" in res.output
@@ -224,7 +233,7 @@ def test_diff_counts_moves_beyond_uncertainty(archive, tmp_path):
     same = diff_results(a, a)
     assert same["moved_beyond_uncertainty"] == 0 and same["unchanged_exactly"] == 16
     res = invoke(["batch", "diff", str(a), str(b), "--json"])
-    assert json.loads(res.output)["moved_beyond_uncertainty"] == want
+    assert json.loads(res)["moved_beyond_uncertainty"] == want
     close_readers()
 
 
