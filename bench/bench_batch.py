@@ -53,22 +53,31 @@ def make_archive(root: Path, recordings: int, frames: int, clicks: int) -> Path:
     return table
 
 
-def timed_run(tasks, executor, out: Path) -> float:
-    """Tasks per second of one whole batch on ``executor``."""
+def cpu_s(pid: int) -> float | None:
+    """CPU seconds (user + system) a local process has used so far, from /proc; None once it is gone."""
+    try:
+        fields = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()
+    except OSError:
+        return None
+    return (int(fields[11]) + int(fields[12])) / os.sysconf("SC_CLK_TCK")
+
+
+def timed_run(tasks, executor, out: Path, pids: set[int]) -> tuple[float, float, set[int]]:
+    """One whole batch on ``executor``: (tasks per second, CPU seconds of this process and of the
+    workers, the worker pids). ``pids``: the workers seen before, whose CPU is read before the run
+    (a worker first seen in this run counts from its start)."""
+    import pyarrow.parquet as pq
+
     from evaluation.batch import run_batch
 
+    before = {p: cpu_s(p) or 0.0 for p in pids | {os.getpid()}}
     t0 = time.perf_counter()
     s = run_batch(tasks, out, executor, overwrite=True)
     wall = time.perf_counter() - t0
     assert s["rows"] == len(tasks)
-    return len(tasks) / wall
-
-
-def warmed(executor, tasks, out: Path) -> float:
-    """Start the executor's workers (a first, untimed batch); its wall time in seconds."""
-    t0 = time.perf_counter()
-    timed_run(tasks, executor, out)
-    return time.perf_counter() - t0
+    workers = {int(w.rsplit(":", 1)[1]) for w in pq.read_table(out, columns=["worker"]).column("worker").to_pylist()}
+    cpu = sum((cpu_s(p) or 0.0) - before.get(p, 0.0) for p in workers | {os.getpid()})
+    return len(tasks) / wall, cpu, workers
 
 
 def run(recordings: int, frames: int, clicks: int, repeat: int) -> tuple[dict[str, dict], dict]:
@@ -84,7 +93,7 @@ def run(recordings: int, frames: int, clicks: int, repeat: int) -> tuple[dict[st
         info = {"tasks": len(tasks), "archive_s": time.perf_counter() - t0}
         out = tmp / "results.parquet"
         executors = {"in-process": InProcessExecutor(), "pool 1": PoolExecutor(1), "pool 2": PoolExecutor(2)}
-        startup = {}
+        startup: dict[str, float] = {}
         try:
             import ray  # noqa: F401
         except ImportError:
@@ -94,21 +103,38 @@ def run(recordings: int, frames: int, clicks: int, repeat: int) -> tuple[dict[st
             # runs at a time with the same Ray processes around it as for 2 workers.
             t1 = time.perf_counter()
             executors["ray 2"] = RayExecutor("local", num_cpus=2)
-            startup["ray init"] = time.perf_counter() - t1
+            info["ray_init_s"] = time.perf_counter() - t1
             executors["ray 1"] = RayExecutor("local", task_cpus=2)
-        for name, ex in executors.items():
-            startup[name] = warmed(ex, tasks, out)
+        pids: dict[str, set[int]] = {}
+        for name, ex in executors.items():  # start the workers: a first, untimed batch
+            t1 = time.perf_counter()
+            pids[name] = timed_run(tasks, ex, out, set())[2]
+            startup[name] = time.perf_counter() - t1
         rates: dict[str, list[float]] = {k: [] for k in executors}
+        cpus: dict[str, list[float]] = {k: [] for k in executors}
         for _ in range(repeat):  # alternate, so every configuration sees the same load of this shared host
             for name, ex in executors.items():
-                rates[name].append(timed_run(tasks, ex, out))
+                rate, cpu, seen = timed_run(tasks, ex, out, pids[name])
+                pids[name] |= seen
+                rates[name].append(rate)
+                cpus[name].append(cpu)
     finally:
         for ex in reversed(list(executors.values())):
             ex.close()
         close_readers()
         shutil.rmtree(tmp, ignore_errors=True)
-    summary = {k: {"median": statistics.median(v), "min": min(v), "max": max(v), "startup_s": startup.get(k)} for k, v in rates.items()}
-    info["ray_init_s"] = startup.get("ray init")
+    summary = {
+        k: {
+            "median": statistics.median(v),
+            "best": max(v),
+            "min": min(v),
+            "startup_s": startup.get(k),
+            "cpu_ms_per_task": 1e3 * statistics.median(cpus[k]) / info["tasks"],
+            # cores this run had on average: CPU seconds over wall seconds
+            "cores": statistics.median(c * r / info["tasks"] for c, r in zip(cpus[k], v)),
+        }
+        for k, v in rates.items()
+    }
     return summary, info
 
 
@@ -117,7 +143,7 @@ def main(argv: list[str] | None = None) -> None:
     ap.add_argument("--recordings", type=int, default=4, help="simulated recordings in the archive (default 4)")
     ap.add_argument("--frames", type=int, default=6, help="frames per recording (default 6)")
     ap.add_argument("--clicks", type=int, default=6, help="measurements per frame (default 6)")
-    ap.add_argument("--repeat", type=int, default=5, help="timed runs per configuration (default 5)")
+    ap.add_argument("--repeat", type=int, default=7, help="timed runs per configuration (default 7)")
     ap.add_argument("--write", action="store_true", help=f"record the table in bench/RESULTS.md ({SECTION!r})")
     args = ap.parse_args(argv)
     if min(args.recordings, args.frames, args.clicks, args.repeat) < 1:
@@ -131,36 +157,53 @@ def main(argv: list[str] | None = None) -> None:
     def row(name: str, note: str = "") -> str:
         x = s[name]
         start = f"{x['startup_s']:.1f} s" if x["startup_s"] is not None else ""
-        return f"| {name} | {x['median']:.1f} | {x['min']:.1f}-{x['max']:.1f} | {x['median'] / ref:.2f} | {start} | {note} |"
+        return (
+            f"| {name} | {x['median']:.1f} | {x['best']:.1f} | {x['min']:.1f}-{x['best']:.1f} | {x['median'] / ref:.2f} | "
+            f"{x['cpu_ms_per_task']:.1f} | {x['cores']:.2f} | {start} | {note} |"
+        )
 
-    speedup = s["pool 2"]["median"] / s["pool 1"]["median"]
+    def ratio(a: str, b: str, key: str) -> float:
+        return s[a][key] / s[b][key]
+
     lines = [
         SECTION,
         "",
         f"`bench/bench_batch.py` (`depthruler bench batch --write`): {info['tasks']} tasks = {args.recordings} recordings of the "
         f"simulated rig (1280x720, {args.frames} frames each, made by the recorder) x {args.clicks} robust measurements per frame; "
         "one whole `run_batch` per run (read each frame once, measure, stream Parquet parts, merge), on workers that already ran "
-        f"one batch; median of {args.repeat} runs, the configurations alternating run by run. Reference: the same batch in this "
-        "process. Ray: one local instance with 2 CPUs; its 1-worker row runs groups that reserve both CPUs.",
+        f"one batch; {args.repeat} runs per configuration, the configurations alternating run by run. Reference: the same batch "
+        "in this process. Ray: one local instance with 2 CPUs; its 1-worker row runs groups that reserve both CPUs. CPU: user + "
+        "system time of this process and the worker processes (/proc; Ray's own raylet and GCS not counted); cores = CPU "
+        "seconds per wall second, i.e. how much of the machine the run actually got.",
         "",
-        "| executor | tasks/s (median) | min-max | / in-process | first batch incl. worker start-up | note |",
-        "| --- | --- | --- | --- | --- | --- |",
+        "| executor | tasks/s median | best | range | median / in-process | CPU ms per task | cores used | first batch incl. start-up | note |",
+        "| --- | --- | --- | --- | --- | --- | --- | --- | --- |",
         row("in-process"),
         row("pool 1"),
-        row("pool 2", f"{speedup:.2f}x pool 1"),
+        row("pool 2", f"{ratio('pool 2', 'pool 1', 'median'):.2f}x pool 1 (best {ratio('pool 2', 'pool 1', 'best'):.2f}x)"),
     ]
+    summary_line = (
+        f"2 workers over 1, median (best) runs: pool {ratio('pool 2', 'pool 1', 'median'):.2f}x "
+        f"({ratio('pool 2', 'pool 1', 'best'):.2f}x)"
+    )
     if "ray 1" in s:
-        ray_speedup = s["ray 2"]["median"] / s["ray 1"]["median"]
-        lines.append(row("ray 1", f"{s['ray 1']['median'] / s['pool 1']['median']:.2f}x pool 1"))
-        lines.append(row("ray 2", f"{ray_speedup:.2f}x ray 1; {s['ray 2']['median'] / s['pool 2']['median']:.2f}x pool 2"))
-        lines.append("")
-        lines.append(
-            f"2 workers over 1: pool {speedup:.2f}x, Ray {ray_speedup:.2f}x (target >= 1.6x). Ray's overhead over the pool "
-            f"(1 - Ray rate / pool rate): {100 * (1 - s['ray 1']['median'] / s['pool 1']['median']):.0f} % at 1 worker, "
-            f"{100 * (1 - s['ray 2']['median'] / s['pool 2']['median']):.0f} % at 2 workers; starting Ray took {info['ray_init_s']:.1f} s."
+        lines.append(row("ray 1", f"{ratio('ray 1', 'pool 1', 'median'):.2f}x pool 1"))
+        lines.append(row("ray 2", f"{ratio('ray 2', 'ray 1', 'median'):.2f}x ray 1; {ratio('ray 2', 'pool 2', 'median'):.2f}x pool 2"))
+        summary_line += (
+            f", Ray {ratio('ray 2', 'ray 1', 'median'):.2f}x ({ratio('ray 2', 'ray 1', 'best'):.2f}x) (target >= 1.6x). "
+            f"Ray's overhead over the pool in CPU per task: {100 * (ratio('ray 1', 'pool 1', 'cpu_ms_per_task') - 1):+.0f} % at 1 worker, "
+            f"{100 * (ratio('ray 2', 'pool 2', 'cpu_ms_per_task') - 1):+.0f} % at 2 workers; in median rate: "
+            f"{100 * (1 - ratio('ray 1', 'pool 1', 'median')):.0f} % at 1 worker, {100 * (1 - ratio('ray 2', 'pool 2', 'median')):.0f} % "
+            f"at 2 workers. Starting Ray took {info['ray_init_s']:.1f} s."
         )
     else:
-        lines += ["", f"2 workers over 1: pool {speedup:.2f}x (target >= 1.6x). Ray not installed: no Ray rows."]
+        summary_line += " (target >= 1.6x). Ray not installed: no Ray rows."
+    summary_line += (
+        f" On two idle cores the CPU per task would allow at most 2 x {s['pool 1']['cpu_ms_per_task']:.1f} / "
+        f"{s['pool 2']['cpu_ms_per_task']:.1f} = {2 * ratio('pool 1', 'pool 2', 'cpu_ms_per_task'):.2f}x for the pool "
+        "(an upper bound from CPU times, not a measured rate)."
+    )
+    lines += ["", summary_line]
     lines += [
         "",
         f"Machine: {machine()}; {started:%Y-%m-%d %H:%M} UTC; load average (1, 5, 15 min) "

@@ -300,7 +300,10 @@ def run_batch(
     if on_start:
         on_start(len(todo), len(tasks) - len(todo))
     t0 = time.perf_counter()
-    n = run_tasks(executor, groups, store, on_rows)
+    try:
+        n = run_tasks(executor, groups, store, on_rows)
+    finally:
+        close_readers()  # the in-process executor's sources: a later run must see the archive as it is then
     wall = time.perf_counter() - t0
     total = store.finish(
         {"depthruler.version": project_version(), "depthruler.defaults": json.dumps(defaults), "depthruler.executor": executor.describe()}

@@ -20,7 +20,8 @@ class _RunByDefault(TyperGroup):
 
 app = typer.Typer(
     cls=_RunByDefault,
-    help="Re-measure archives of recordings (or the service's history) on this machine or a Ray cluster; compare two runs.",
+    help="Re-measure archives of recordings (or the service's history) on this machine or a Ray cluster; compare two runs. "
+    "`depthruler batch TASKS --out RESULTS.parquet` is short for `depthruler batch run TASKS --out RESULTS.parquet`.",
     no_args_is_help=True,
 )
 
