@@ -33,6 +33,7 @@ REQUIRED = ("source", "frame", "p1_x", "p1_y", "p2_x", "p2_y")
 OPTION_FIELDS: dict[str, type] = {f.name: f.type for f in dataclasses.fields(MeasureOptions)}  # type: ignore[misc]
 FILE_KINDS = ("replay", "depthpng", "middlebury", "video", "history")  # spec kinds whose target is a path
 RANDOM_ACCESS_KINDS = ("replay", "history")  # a frame can be read without reading the ones before it
+LIVE_KINDS = ("oak", "v4l2")  # cameras: frame i is whatever arrives, not a recorded frame
 
 
 class TaskError(EvalError):
@@ -75,8 +76,11 @@ def normalise_source(source: str, base: Path) -> str:
         raise TaskError("empty source; give a recording folder or a spec such as replay:DIR")
     head, q, query = text.partition("?")
     kind, sep, target = head.partition(":")
+    live = kind.lower() in LIVE_KINDS and (sep or not (base / head).exists())
     if not sep or len(kind) == 1:  # a bare path (a one-letter "kind" is a Windows drive)
         kind, target = "replay", head
+    if live:
+        raise TaskError(f"source {text!r} is a live camera; a batch measures recorded frames: `depthruler record` it first")
     if kind.lower() in FILE_KINDS and target:
         p = Path(target).expanduser()
         target = str(p if p.is_absolute() else (base / p).resolve())

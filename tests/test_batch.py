@@ -245,8 +245,9 @@ def test_bad_inputs_are_typed_errors(archive, tmp_path):
     bad.write_text("source,frame,p1_x,p1_y,p2_x,p2_y,window\nrec,0,1,2,3,4,4.5\n")
     res = CliRunner().invoke(cli, ["batch", str(bad), "--out", str(tmp_path / "r.parquet")])
     assert res.exit_code == 1 and "row 1" in res.output and "window" in res.output
-    res = CliRunner().invoke(cli, ["batch", str(bad), "--out", str(tmp_path / "r.csv")])
-    assert res.exit_code == 1
+    bad.write_text("source,frame,p1_x,p1_y,p2_x,p2_y\noak,0,1,2,3,4\n")
+    res = CliRunner().invoke(cli, ["batch", str(bad), "--out", str(tmp_path / "r.parquet")])
+    assert res.exit_code == 1 and "live camera" in res.output
     # a bad option value in a row is that row's error, the others are measured
     t = truth(archive / "rec_poster", 0)
     good = tmp_path / "opt.jsonl"
@@ -254,6 +255,8 @@ def test_bad_inputs_are_typed_errors(archive, tmp_path):
         "\n".join(json.dumps({"source": str(archive / "rec_poster"), "frame": 0, "p1_x": t["p1_px"][0], "p1_y": t["p1_px"][1],
                               "p2_x": t["p2_px"][0], "p2_y": t["p2_px"][1], "window": w}) for w in (5, 4))  # fmt: skip
     )
+    res = CliRunner().invoke(cli, ["batch", str(good), "--out", str(tmp_path / "r.csv")])
+    assert res.exit_code == 1 and "*.parquet" in res.output
     invoke(["batch", str(good), "--out", str(tmp_path / "o.parquet"), "--workers", "1"])
     rows = pq.read_table(tmp_path / "o.parquet").to_pylist()
     assert rows[0]["error"] is None and "window=4" in rows[1]["error"]
