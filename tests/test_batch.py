@@ -22,7 +22,7 @@ from device.recording import open_recording
 from evaluation.batch import close_readers, run_batch
 from evaluation.batch_diff import diff_results
 from evaluation.executors import InProcessExecutor, PoolExecutor, RayExecutor, make_executor
-from evaluation.tasks import read_tasks
+from evaluation.tasks import Task, read_tasks
 from service.cli import app as cli
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -296,3 +296,40 @@ def test_eval_middlebury_same_on_ray(ray_session, middlebury_dir):
     assert len(serial) >= 4 and answers(on_ray) == answers(serial)
     assert list(setup_b["scenes"]) == list(setup_a["scenes"]) == ["Pipes", "Recycle"]
     assert np.isclose(setup_b["scenes"]["Pipes"]["sgbm_valid_fraction"], setup_a["scenes"]["Pipes"]["sgbm_valid_fraction"], rtol=0, atol=0)
+
+
+def test_groups_read_each_frame_once_and_new_fields_flow_through(archive, tmp_path, monkeypatch):
+    import evaluation.batch as batch
+    from evaluation.tasks import group_tasks
+
+    tasks = read_tasks(write_tasks(tmp_path / "t.csv", archive, methods=("robust",), jitter=(0, 1, 2)))
+    for workers in (1, 2, 8):
+        groups = group_tasks(tasks, workers, {})
+        assert sorted(t.index for g in groups for t in g.tasks) == list(range(len(tasks)))
+        frames = [(g.source, t.frame) for g in groups for t in g.tasks]
+        # a frame's tasks are all in one group, consecutive: it is read once
+        assert sum(1 for i, f in enumerate(frames) if i == 0 or frames[i - 1] != f) == len(set(frames)) == 8
+        # at least 4 groups per worker where frames allow it (24 tasks on 8 frames)
+        assert len(groups) == {1: 4, 2: 8, 8: 8}[workers]
+    # a source read in order stays one group, or its frames would be decoded by several workers
+    seq = [Task(i, "depthpng:/archive/a", i % 5, (1.0, 1.0), (9.0, 9.0)) for i in range(40)]
+    (group,) = group_tasks(seq, 2, {})
+    assert [t.frame for t in group.tasks] == sorted(t.frame for t in seq)
+
+    # fields the Measurement gains later reach the Parquet file without a change here
+    real = batch.measure_distance
+
+    class Later:
+        def __init__(self, m):
+            self.m = m
+
+        def to_dict(self):
+            return {**self.m.to_dict(), "quality": "good", "interval_m": (0.5, float("nan")), "reasons": [], "detail": {"k": 1}}
+
+    monkeypatch.setattr(batch, "measure_distance", lambda *a, **k: Later(real(*a, **k)))
+    out = tmp_path / "r.parquet"
+    run_batch(tasks[:3], out, InProcessExecutor())
+    t = pq.read_table(out)
+    assert str(t.schema.field("interval_m").type) == "list<element: double>" and str(t.schema.field("reasons").type).startswith("list<")
+    row = t.to_pylist()[0]
+    assert row["quality"] == "good" and row["interval_m"] == [0.5, None] and row["reasons"] == [] and json.loads(row["detail"]) == {"k": 1}
