@@ -163,7 +163,7 @@ def read_tasks(path: Path) -> list[Task]:
     for i, row in enumerate(rows):
         where = f"{path} row {i + 1}"
         try:
-            frame = parse_option_like_int(row["frame"])
+            frame = parse_frame(row["frame"])
             pts = [float(row[c]) for c in REQUIRED[2:]]
             if not all(math.isfinite(v) for v in pts):
                 raise TaskError("p1_x, p1_y, p2_x, p2_y must be finite pixel coordinates")
@@ -171,6 +171,8 @@ def read_tasks(path: Path) -> list[Task]:
             source = normalise_source(str(row["source"] or ""), base)
         except TaskError as exc:
             raise TaskError(f"{where}: {exc}") from None
+        except KeyError as exc:
+            raise TaskError(f"{where} has no {exc.args[0]!r}; every row needs {', '.join(REQUIRED)}") from None
         except (TypeError, ValueError) as exc:
             raise TaskError(f"{where}: {exc}; frame must be a whole number and the points numbers") from None
         extra = {k: v for k, v in row.items() if k not in REQUIRED and k not in OPTION_FIELDS}
@@ -178,7 +180,8 @@ def read_tasks(path: Path) -> list[Task]:
     return tasks
 
 
-def parse_option_like_int(value: Any) -> int:
+def parse_frame(value: Any) -> int:
+    """A ``frame`` cell as a 0-based index (``3``, ``"3"`` and ``3.0`` are frame 3)."""
     f = float(value)
     if f != int(f) or f < 0:
         raise TaskError(f"frame={value!r} must be a frame index (a whole number >= 0)")
