@@ -8,23 +8,25 @@ on (the service's `service/store.py` writes it) and nothing more:
   stored result (``distance_m``, ``uncertainty_m``, ... as the service wrote them);
 - table ``frames`` with ``uid`` and ``file``: the saved frame, relative to the folder
   ``<DB stem>-frames/`` beside the database;
-- a saved frame file, recognised by its name: ``.npz`` (arrays ``image``, ``disparity``, optional
+- a saved frame file, recognised by its suffix: ``.npz`` (arrays ``image``, ``disparity``, optional
   ``confidence``, ``camera`` = [fx, fy, cx, cy, width, height], ``numbers`` = [baseline_m, doffs,
-  timestamp], ``meta`` = a JSON string). Another format (the service may move to PNG/JPEG files)
-  needs a loader in :data:`FRAME_LOADERS`; until then its rows come out as error rows naming the
-  file, and nothing is written to the database or its frames.
+  timestamp], ``meta`` = a JSON string), or ``.frame`` (an uncompressed zip of ``disparity.png`` in
+  the recording's 16-bit code or ``disparity.npy``, ``color.jpg``, optional ``confidence.png`` and
+  ``frame.json`` with camera, baseline_m, doffs, timestamp and meta). A frame whose ``file`` is
+  empty was deleted by the service's size cap; its measurements come out as error rows. Another
+  format needs a loader in :data:`FRAME_LOADERS`.
 
-The database is opened with SQLite's ``mode=ro``, so a running service keeps writing while a batch
-reads (WAL); a batch never changes the history.
+The database is read once, by the caller, with SQLite's ``mode=ro`` (a running service keeps
+writing meanwhile); workers read only the frame files. A batch never changes the history.
 """
 
 from __future__ import annotations
 
+import io
 import json
 import sqlite3
 from collections.abc import Callable
 from pathlib import Path
-from typing import Any
 
 import numpy as np
 
@@ -57,13 +59,20 @@ def connect(db: Path) -> sqlite3.Connection:
 
 
 def history_tasks(db: Path) -> list[Task]:
-    """One task per stored measurement, oldest first; the frame is the saved frame's uid."""
+    """One task per stored measurement, oldest first. The database is read here, once: a task's
+    frame is the absolute path of its saved frame file (workers only read that file, never the
+    database, which SQLite cannot share over a network filesystem), or ``missing:UID`` /
+    ``dropped:UID`` for a frame that was never saved or was deleted by the service's size cap."""
     db = db.resolve()
     con = connect(db)
     try:
-        rows = con.execute("SELECT id, frame_uid, source, p1_x, p1_y, p2_x, p2_y, options FROM measurements ORDER BY id").fetchall()
+        rows = con.execute(
+            "SELECT m.id, m.frame_uid, m.source, m.p1_x, m.p1_y, m.p2_x, m.p2_y, m.options, f.file "
+            "FROM measurements m LEFT JOIN frames f ON f.uid = m.frame_uid ORDER BY m.id"
+        ).fetchall()
     finally:
         con.close()
+    folder = frames_dir(db)
     tasks = []
     for i, r in enumerate(rows):
         try:
@@ -71,29 +80,11 @@ def history_tasks(db: Path) -> list[Task]:
         except json.JSONDecodeError as exc:
             raise HistoryError(f"{db}: measurement {r['id']} has unreadable options ({exc})") from exc
         options = {k: v for k, v in stored.items() if k in OPTION_FIELDS}
-        extra = {"history_id": int(r["id"]), "history_source": r["source"], "frame_uid": r["frame_uid"]}
-        tasks.append(Task(i, f"{HISTORY_KIND}:{db}", r["frame_uid"], (r["p1_x"], r["p1_y"]), (r["p2_x"], r["p2_y"]), options, extra))
+        uid = r["frame_uid"]
+        frame = str(folder / r["file"]) if r["file"] else f"{'missing' if r['file'] is None else 'dropped'}:{uid}"
+        extra = {"history_id": int(r["id"]), "history_source": r["source"], "frame_uid": uid}
+        tasks.append(Task(i, f"{HISTORY_KIND}:{db}", frame, (r["p1_x"], r["p1_y"]), (r["p2_x"], r["p2_y"]), options, extra))
     return tasks
-
-
-def stored_results(db: Path) -> dict[int, dict[str, Any]]:
-    """history id -> the measurement as stored (the columns of ``measurements``, JSON decoded)."""
-    con = connect(db)
-    try:
-        rows = con.execute("SELECT * FROM measurements ORDER BY id").fetchall()
-    finally:
-        con.close()
-    out = {}
-    for r in rows:
-        rec = {k: r[k] for k in r.keys() if k != "thumb"}
-        for k, v in rec.items():
-            if isinstance(v, str) and v[:1] in "[{":
-                try:
-                    rec[k] = json.loads(v)
-                except json.JSONDecodeError:
-                    pass
-        out[int(r["id"])] = rec
-    return out
 
 
 def _load_npz(path: Path) -> Frame:
@@ -112,29 +103,71 @@ def _load_npz(path: Path) -> Frame:
         )
 
 
+def _decode(data: bytes, flags: int) -> np.ndarray:
+    import cv2
+
+    img = cv2.imdecode(np.frombuffer(data, np.uint8), flags)
+    if img is None:
+        raise ValueError("an image inside the frame file cannot be decoded")
+    return img
+
+
+def _load_frame_zip(path: Path) -> Frame:
+    import zipfile
+
+    import cv2
+
+    from device.recording import decode_confidence, decode_disparity
+
+    try:
+        with zipfile.ZipFile(path) as zf:
+            names = set(zf.namelist())
+            info = json.loads(zf.read("frame.json"))
+            if "disparity.png" in names:
+                disparity = decode_disparity(_decode(zf.read("disparity.png"), cv2.IMREAD_UNCHANGED))
+            else:
+                disparity = np.load(io.BytesIO(zf.read("disparity.npy")), allow_pickle=False)
+            image = _decode(zf.read("color.jpg"), cv2.IMREAD_COLOR)
+            confidence = decode_confidence(_decode(zf.read("confidence.png"), cv2.IMREAD_UNCHANGED)) if "confidence.png" in names else None
+    except zipfile.BadZipFile as exc:
+        raise ValueError(f"not a frame file ({exc})") from exc
+    cam = info["camera"]
+    return Frame(
+        image=image,
+        disparity=disparity,
+        camera=PinholeCamera(fx=cam["fx"], fy=cam["fy"], cx=cam["cx"], cy=cam["cy"], width=int(cam["width"]), height=int(cam["height"])),
+        baseline_m=info["baseline_m"],
+        doffs=info["doffs"],
+        confidence=confidence,
+        timestamp=info["timestamp"],
+        meta=info["meta"],
+    )
+
+
 # saved-frame file suffix -> loader
-FRAME_LOADERS: dict[str, Callable[[Path], Frame]] = {".npz": _load_npz}
+FRAME_LOADERS: dict[str, Callable[[Path], Frame]] = {".npz": _load_npz, ".frame": _load_frame_zip}
 
 
 class HistoryFrames:
-    """Saved frames of a history database by uid (a batch worker opens one per database)."""
+    """Saved frames of a history database, by the keys :func:`history_tasks` gives (file paths)."""
 
     def __init__(self, db: Path) -> None:
         self.db = Path(db)
-        self._con = connect(self.db)
 
-    def frame(self, uid: int | str) -> Frame:
-        row = self._con.execute("SELECT file FROM frames WHERE uid=?", (str(uid),)).fetchone()
-        if row is None:
-            raise HistoryError(f"the frame {uid} is not saved in {self.db} (it was lost in a crash or is still being written)")
-        path = frames_dir(self.db) / row["file"]
+    def frame(self, key: int | str) -> Frame:
+        key = str(key)
+        if key.startswith("missing:"):
+            raise HistoryError(f"the frame {key[8:]} is not saved in {self.db} (it was lost in a crash or was still being written)")
+        if key.startswith("dropped:"):
+            raise HistoryError(f"the frame {key[8:]} was deleted from {self.db}'s history to keep it under its size cap; only its numbers are kept")
+        path = Path(key)
         loader = FRAME_LOADERS.get(path.suffix.lower())
         if loader is None:
             raise HistoryError(f"{path}: saved frames of type {path.suffix!r} are not readable by this version (it reads {', '.join(FRAME_LOADERS)})")
         try:
             return loader(path)
-        except (OSError, KeyError, ValueError) as exc:
+        except (OSError, KeyError, ValueError, TypeError) as exc:
             raise HistoryError(f"cannot read the saved frame {path}: {exc}") from exc
 
     def close(self) -> None:
-        self._con.close()
+        pass

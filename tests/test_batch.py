@@ -184,41 +184,107 @@ def test_resume_after_a_killed_run(archive, tmp_path):
 
 
 def test_from_history_reproduces_stored_measurements(archive, tmp_path):
-    from measure import MeasureOptions, measure_distance
-    from service.store import Store
+    from fastapi.testclient import TestClient
 
+    from device.recording import ReplayConfig, ReplaySource
+    from service.app import create_app
+
+    # a history made by the service itself, measuring on a replayed recording (its disparity is on
+    # the recording's 1/64 px grid, so any lossless-on-that-grid frame store keeps it exactly)
     db = tmp_path / "history.db"
-    store = Store(db)
-    rec = open_recording(archive / "rec_poster")
-    ids = []
-    for i, opts in ((0, {}), (1, {"method": "paper"}), (1, {"method": "basic", "window": 7}), (3, {"seed": 5, "support_fraction": 0.6})):
-        frame = rec.frame(i)
-        t = truth(archive / "rec_poster", i)
-        options = {**MeasureOptions().__dict__, **opts}
-        m = measure_distance(frame, tuple(t["p1_px"]), tuple(t["p2_px"]), MeasureOptions(**options))
-        rec_ = store.add(frame_id=i, frame_uid=f"uid{i}", source="sim", p1=tuple(t["p1_px"]), p2=tuple(t["p2_px"]),
-                         options=options, result=m.to_dict(), thumb=None)  # fmt: skip
-        store.ensure_frame(f"uid{i}", frame)
-        ids.append(rec_["id"])
-    store.flush()
-    stored = {mid: store.get(mid) for mid in ids}
-    store.close()
+    t = truth(archive / "rec_poster", 0)
+    p1, p2 = list(t["p1_px"]), list(t["p2_px"])
+    variants = ({}, {"method": "paper"}, {"method": "basic", "window": 7}, {"seed": 5, "support_fraction": 0.6}, {})
+    factory = lambda: ReplaySource(ReplayConfig(archive / "rec_poster", loop=True))  # noqa: E731
+    with TestClient(create_app(factory, db_path=db, capture_fps=50.0), base_url="http://127.0.0.1") as client:
+        after = 0
+        for opts in variants:
+            r = client.get("/api/frames/latest", params={"after": after, "wait": 5})
+            assert r.status_code == 200, r.text
+            after = r.json()["id"]
+            m = client.post("/api/measure", json={"frame_id": after, "p1": p1, "p2": p2, "options": opts})
+            assert m.status_code == 200, m.text
+        listed = [rec["id"] for rec in client.get("/api/measurements").json()]
+        stored = {mid: client.get(f"/api/measurements/{mid}").json() for mid in listed}
+    assert len(stored) == len(variants)
+    ids = sorted(stored)
 
     out = tmp_path / "h.parquet"
     invoke(["batch", "--from-history", str(db), "--out", str(out), "--workers", "2"])
     rows = pq.read_table(out).to_pylist()
     assert [r["history_id"] for r in rows] == ids
-    fields = set(stored[ids[0]]) - {"id", "created", "frame_id", "frame_uid", "source", "p1", "p2", "options", "elapsed_ms"}
-    assert {"distance_m", "uncertainty_m", "p1_m", "samples_px", "support", "warnings"} <= fields
+    fields = {"distance_m", "uncertainty_m", "basic_distance_m", "p1_m", "p2_m", "samples_px", "support", "warnings",
+              "method", "fit", "n_samples", "n_valid", "n_support", "gap_detected"}  # fmt: skip
     for r in rows:
         want = stored[r["history_id"]]
-        assert r["error"] is None
-        for f in fields:
-            assert r[f] == want[f], f  # exactly: same frame, same options, same method
+        assert r["error"] is None and r["frame_uid"] == want["frame_uid"]
+        assert {"distance_m", "uncertainty_m", "p1_m", "p2_m", "n_support", "warnings"} <= set(want)
+        for f in (fields | {"quality", "reasons", "interval_m"}) & set(want):
+            assert r[f] == want[f], f  # exactly: the same frame, options and method
         assert {k: r[f"opt_{k}"] for k in want["options"]} == want["options"]
-    # the history is read, never changed
-    assert len(Store(db).list()) == len(ids)
-    close_readers()
+    assert {r["opt_method"] for r in rows} == {"robust", "paper", "basic"}
+
+    # a saved frame that is gone is its measurements' error row; the history itself is never changed
+    victim = stored[ids[1]]["frame_uid"]
+    (saved,) = [p for p in (tmp_path / "history-frames").iterdir() if p.stem == victim]
+    saved.unlink()
+    before = db.read_bytes()
+    out2 = tmp_path / "h2.parquet"
+    invoke(["batch", "--from-history", str(db), "--out", str(out2), "--workers", "1"])
+    rows2 = {r["history_id"]: r for r in pq.read_table(out2).to_pylist()}
+    for mid in ids:
+        lost = stored[mid]["frame_uid"] == victim
+        assert (rows2[mid]["error"] is not None) == lost
+        assert not lost or ("cannot read the saved frame" in rows2[mid]["error"] and rows2[mid]["error_type"] == "HistoryError")
+    assert db.read_bytes() == before
+
+
+def _frame_file(frame) -> bytes:
+    """A ``.frame`` file as the service writes it (service/frame_file.py's documented layout)."""
+    import io
+    import zipfile
+
+    import cv2
+
+    from device.recording import encode_confidence, encode_disparity
+
+    code, _ = encode_disparity(frame.disparity)
+    info = {"camera": {k: getattr(frame.camera, k) for k in ("fx", "fy", "cx", "cy", "width", "height")},
+            "baseline_m": frame.baseline_m, "doffs": frame.doffs, "timestamp": frame.timestamp, "meta": {"source": "sim"}}  # fmt: skip
+    out = io.BytesIO()
+    with zipfile.ZipFile(out, "w", zipfile.ZIP_STORED) as zf:
+        zf.writestr("disparity.png", cv2.imencode(".png", code)[1].tobytes())
+        zf.writestr("color.jpg", cv2.imencode(".jpg", frame.image)[1].tobytes())
+        zf.writestr("confidence.png", cv2.imencode(".png", encode_confidence(frame.confidence))[1].tobytes())
+        zf.writestr("frame.json", json.dumps(info))
+    return out.getvalue()
+
+
+def test_history_reads_both_saved_frame_formats(archive, tmp_path):
+    from evaluation.history import HistoryFrames
+
+    frame = open_recording(archive / "rec_poster").frame(1)
+    (tmp_path / "a.frame").write_bytes(_frame_file(frame))
+    try:  # the service's own writer, where this tree has it
+        from service.frame_file import encode_frame
+
+        (tmp_path / "b.frame").write_bytes(encode_frame(frame))
+    except ImportError:
+        pass
+    np.savez(tmp_path / "c.npz", image=frame.image, disparity=frame.disparity, confidence=frame.confidence,
+             camera=np.array([frame.camera.fx, frame.camera.fy, frame.camera.cx, frame.camera.cy, frame.camera.width, frame.camera.height]),
+             numbers=np.array([frame.baseline_m, frame.doffs, frame.timestamp]), meta=np.array("{}"))  # fmt: skip
+    reader = HistoryFrames(tmp_path / "h.db")
+    for path in sorted(tmp_path.glob("[abc].*")):
+        got = reader.frame(str(path))
+        assert np.array_equal(got.disparity, frame.disparity, equal_nan=True), path.name  # on the 1/64 px grid: exact
+        assert np.array_equal(got.confidence, frame.confidence) and got.camera == frame.camera and got.baseline_m == frame.baseline_m
+        assert np.abs(got.image.astype(int) - frame.image).mean() < (3 if path.suffix == ".frame" else 1e-9)  # JPEG
+    (tmp_path / "bad.frame").write_bytes(b"not a zip")
+    with pytest.raises(Exception, match="cannot read the saved frame"):
+        reader.frame(str(tmp_path / "bad.frame"))
+    with pytest.raises(Exception, match="size cap"):
+        reader.frame("dropped:abc")
 
 
 def test_diff_counts_moves_beyond_uncertainty(archive, tmp_path):
