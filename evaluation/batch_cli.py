@@ -78,13 +78,13 @@ def run_command(
             progress.update(bar, total=todo)
             progress.console.print(f"{len(tasks)} tasks, {skipped} already done; running {todo} {executor.describe()}", soft_wrap=True)
 
-        def rows_done(rows: list[dict]) -> None:
+        def group_done(result) -> None:  # noqa: ANN001 — a batch.GroupResult
             nonlocal errors
-            errors += sum(1 for r in rows if r.get("error"))
-            progress.advance(bar, len(rows))
+            errors += result.errors
+            progress.advance(bar, result.rows)
 
         try:
-            summary = run_batch(tasks, out, executor, defaults=defaults, resume=resume, overwrite=overwrite, on_start=started, on_rows=rows_done)
+            summary = run_batch(tasks, out, executor, defaults=defaults, resume=resume, overwrite=overwrite, on_start=started, on_group=group_done)
         except TaskError as exc:
             raise _fail(str(exc)) from None
         finally:

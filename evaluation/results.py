@@ -13,7 +13,6 @@ from __future__ import annotations
 import os
 import shutil
 from pathlib import Path
-from typing import Any
 
 from .tasks import TaskError
 
@@ -76,15 +75,13 @@ class ResultStore:
             done.update(zip(t.column("task").to_pylist(), t.column("task_key").to_pylist()))
         return done
 
-    def write(self, rows: list[dict[str, Any]]) -> None:
-        if not rows:
-            return
-        pa, pq = _pa()
+    def write(self, parquet: bytes) -> None:
+        """Store one finished group (a whole Parquet file's bytes) durably as the next part."""
         path = self.parts / f"part-{self._next:06d}.parquet"
         self._next += 1
         tmp = path.with_suffix(".tmp")
         with open(tmp, "wb") as fh:
-            pq.write_table(pa.Table.from_pylist(rows), fh)
+            fh.write(parquet)
             fh.flush()
             os.fsync(fh.fileno())
         os.replace(tmp, path)
