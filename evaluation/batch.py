@@ -1,7 +1,7 @@
 """Batch re-measurement: run task groups on an executor, one result row per task.
 
-A worker (:func:`run_group`, :func:`measure_group`) opens the group's source once (kept open for the next group of the same
-source in that process), reads each frame once, and measures every task on it; a task that fails
+A worker (:func:`run_group`) opens the group's source once (kept open for the next group of the
+same source in that process), reads each frame once, and measures every task on it; a task that fails
 (a missing frame, a bad option, a measurement error) becomes a row with ``error`` set, so a run is
 never lost to one bad task. Result rows hold the task's columns, the options used, the full
 :class:`measure.Measurement` (every field of ``to_dict()``, so fields added later flow through),
