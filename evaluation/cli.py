@@ -10,6 +10,8 @@ import typer
 ROOT = Path(__file__).resolve().parents[1]
 DEFAULT_MIDDLEBURY = ROOT.parent / "shared" / "data" / "middlebury"
 
+RAY_HELP = "Run on Ray: 'auto' (the cluster running here or at RAY_ADDRESS), 'local' (start one here) or an address (HOST:6379, ray://HOST:10001)."
+
 app = typer.Typer(
     help="Measure depthruler's accuracy: the paper's study on the simulated rig, and real stereo (Middlebury).",
     no_args_is_help=True,
@@ -35,22 +37,25 @@ def sim_command(
     measurements: int = typer.Option(1800, "--measurements", "-n", min=1, help="Non-gap measurements, spread evenly over 36 (target, distance, lighting) cells."),
     seed: int = typer.Option(0, "--seed", help="Base seed; each measurement's scene, sensor noise and clicks derive from it."),
     gap_fraction: float = typer.Option(0.1, "--gap-fraction", min=0.0, max=1.0, help="Extra gap-scene measurements, as a fraction of --measurements."),
-    workers: int = typer.Option(2, "--workers", "-j", min=1, help="Worker processes."),
+    workers: int = typer.Option(2, "--workers", "-j", min=1, help="Worker processes (1 = in this process); with --ray local, Ray's CPUs."),
+    ray: str = typer.Option(None, "--ray", help=RAY_HELP),
     quantization: float | None = typer.Option(None, "--quantization", help="Disparity step of the simulated sensor in px (default: the profile's: 1/4 px stress, 1 px paper)."),
     profile: str = typer.Option("stress", "--profile", help="Simulator profile: 'stress' (harsh end points) or 'paper' (the paper's tablet; see sim/sensor.py)."),
 ) -> None:
     """The paper's protocol on the simulated rig: 3 targets x 4 distances x 3 lightings, 4 methods."""
+    from .executors import make_executor
     from .sim_study import plan_sim, run_sim, sim_protocol, summarize_sim, write_sim_report
     from .report import EvalError
 
     try:
         jobs = plan_sim(measurements, seed, gap_fraction, quantization, profile)
+        executor = make_executor(workers, ray)
     except EvalError as exc:
         raise typer.BadParameter(str(exc)) from exc
     t0 = time.perf_counter()
-    with _progress() as progress:
+    with _progress() as progress, executor:
         task = progress.add_task("simulating + measuring", total=len(jobs))
-        records = run_sim(jobs, workers=workers, on_result=lambda _r: progress.advance(task))
+        records = run_sim(jobs, on_result=lambda _r: progress.advance(task), executor=executor)
     protocol = sim_protocol(measurements, seed, workers, gap_fraction, quantization, profile)
     protocol["wall_time_s"] = time.perf_counter() - t0
     results = summarize_sim(records, protocol)
@@ -80,6 +85,8 @@ def middlebury_command(
     seed: int = typer.Option(0, "--seed", help="Seed of the click jitter and the contention outliers (segment selection is deterministic)."),
     jittered_clicks: int = typer.Option(2, "--jittered-clicks", min=0, help="Jittered click pairs per segment besides the exact end pixels."),
     protocol: str = typer.Option("edge", "--protocol", help="edge: edge-to-edge segments; stress: clicks as people make them (evaluation/stress_middlebury.py)."),
+    workers: int = typer.Option(1, "--workers", "-j", min=1, help="Worker processes, one scene each (1 = in this process); with --ray local, Ray's CPUs."),
+    ray: str = typer.Option(None, "--ray", help=RAY_HELP),
 ) -> None:
     """Real stereo: SGBM and contended ground-truth disparity, ground-truth segment lengths."""
     if protocol not in ("edge", "stress"):
@@ -98,15 +105,17 @@ def middlebury_command(
         paths = write_stress_middlebury(out, records, {"data": str(data), "seed": seed, "wall_time_s": time.perf_counter() - t0})
         print(f"{len(records)} stress measurements; report: {paths['report']}")
         return
+    from .executors import make_executor
     from .middlebury import ClickJitter, ContentionModel, run_middlebury, scene_dirs, summarize_middlebury, write_middlebury_report
     from .report import EvalError
 
     try:
         n_scenes = len(scene_dirs(data, scene or None))
+        executor = make_executor(workers, ray)
     except EvalError as exc:
         raise typer.BadParameter(str(exc)) from exc
     t0 = time.perf_counter()
-    with _progress() as progress:
+    with _progress() as progress, executor:
         task = progress.add_task("SGBM + measuring", total=n_scenes)
         setup, results = run_middlebury(
             data,
@@ -115,6 +124,7 @@ def middlebury_command(
             model=ContentionModel(seed=seed),
             clicks=ClickJitter(extra=jittered_clicks, seed=seed),
             on_progress=lambda _name: progress.advance(task),
+            executor=executor,
         )
     setup["wall_time_s"] = time.perf_counter() - t0
     summary = summarize_middlebury(setup, results)

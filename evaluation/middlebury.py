@@ -175,6 +175,48 @@ def _segments(scene: Any, max_segments: int | None) -> list[tuple[tuple[float, f
     ]
 
 
+@dataclass(frozen=True)
+class ScenePlan:
+    """One scene's work for a worker: its folder, the click pairs (drawn in the caller, in scene
+    order, so any executor gives the serial run's clicks) and the contention model."""
+
+    path: Path
+    clicks: tuple[tuple[tuple[float, float], tuple[float, float], float], ...]  # (c1, c2, true length m)
+    n_segments: int
+    model: ContentionModel
+
+
+def run_scene(plan: ScenePlan) -> tuple[str, dict[str, Any], list[SegmentResult]]:
+    """SGBM and the contended ground truth of one scene, and every click pair measured on both."""
+    from device.middlebury import load_scene, scene_frame, scene_sgbm_config
+    from device.sgbm import compute_disparity
+
+    scene = load_scene(plan.path)
+    config = scene_sgbm_config(scene)
+    t0 = time.perf_counter()
+    disp, conf = compute_disparity(scene.left, scene.right, config)
+    sgbm_s = time.perf_counter() - t0
+    degraded, outliers = contended_disparity(scene.gt_disparity, scene.left, plan.model)
+    frames = {"sgbm": scene_frame(scene, disp, conf), "gt_contended": scene_frame(scene, degraded)}
+    gt = scene.gt_disparity
+    both = np.isfinite(disp) & np.isfinite(gt)
+    setup = {
+        "size": [int(scene.camera.width), int(scene.camera.height)],
+        "sgbm_config": asdict(config),
+        "sgbm_seconds": sgbm_s,
+        "sgbm_valid_fraction": float(np.isfinite(disp).mean()),
+        "sgbm_within_1px": float(np.mean(np.abs(disp[both] - gt[both]) <= 1.0)) if both.any() else None,
+        "outlier_fraction": float(outliers.mean()),
+        "n_segments": plan.n_segments,
+    }
+    results = []
+    for c1, c2, truth in plan.clicks:
+        for cond in CONDITIONS:
+            warm_up(frames[cond], c1, c2)
+            results.append(SegmentResult(scene.name, cond, c1, c2, truth, measure_all(frames[cond], c1, c2)))
+    return scene.name, setup, results
+
+
 def run_middlebury(
     data_dir: Path,
     *,
@@ -183,13 +225,16 @@ def run_middlebury(
     model: ContentionModel = ContentionModel(),
     clicks: ClickJitter = ClickJitter(),
     on_progress: Callable[[str], None] | None = None,
+    executor: Any = None,
 ) -> tuple[dict[str, Any], list[SegmentResult]]:
-    """Measure every selected segment of every scene under both conditions; (setup, results)."""
-    from .gt_segments import SegmentRules
-    from device.middlebury import load_scene, scene_frame, scene_sgbm_config
-    from device.sgbm import compute_disparity
+    """Measure every selected segment of every scene under both conditions; (setup, results).
 
-    results: list[SegmentResult] = []
+    Scenes run on ``executor`` (evaluation/executors.py; default: in this process), one scene per
+    worker call; the results are the serial run's whatever the executor."""
+    from .executors import InProcessExecutor
+    from .gt_segments import SegmentRules
+    from device.middlebury import load_scene
+
     rng = np.random.default_rng(clicks.seed)
     setup: dict[str, Any] = {
         "data": str(data_dir),
@@ -198,33 +243,26 @@ def run_middlebury(
         "segment_rules": asdict(SegmentRules()),
         "clicks": asdict(clicks),
     }
+    plans = []
     for path in scene_dirs(data_dir, scenes):
         scene = load_scene(path)
-        config = scene_sgbm_config(scene)
-        t0 = time.perf_counter()
-        disp, conf = compute_disparity(scene.left, scene.right, config)
-        sgbm_s = time.perf_counter() - t0
-        degraded, outliers = contended_disparity(scene.gt_disparity, scene.left, model)
-        frames = {"sgbm": scene_frame(scene, disp, conf), "gt_contended": scene_frame(scene, degraded)}
         segs = _segments(scene, max_segments)
-        gt = scene.gt_disparity
-        both = np.isfinite(disp) & np.isfinite(gt)
-        setup["scenes"][scene.name] = {
-            "size": [int(scene.camera.width), int(scene.camera.height)],
-            "sgbm_config": asdict(config),
-            "sgbm_seconds": sgbm_s,
-            "sgbm_valid_fraction": float(np.isfinite(disp).mean()),
-            "sgbm_within_1px": float(np.mean(np.abs(disp[both] - gt[both]) <= 1.0)) if both.any() else None,
-            "outlier_fraction": float(outliers.mean()),
-            "n_segments": len(segs),
-        }
-        for p1, p2, truth in segs:
-            for c1, c2 in clicks_for(p1, p2, clicks, rng, scene.camera.width, scene.camera.height):
-                for cond in CONDITIONS:
-                    warm_up(frames[cond], c1, c2)
-                    results.append(SegmentResult(scene.name, cond, c1, c2, truth, measure_all(frames[cond], c1, c2)))
+        pairs = tuple(
+            (c1, c2, truth)
+            for p1, p2, truth in segs
+            for c1, c2 in clicks_for(p1, p2, clicks, rng, scene.camera.width, scene.camera.height)
+        )
+        plans.append(ScenePlan(path, pairs, len(segs), model))
+    done: dict[int, tuple[str, dict[str, Any], list[SegmentResult]]] = {}
+    for i, (name, scene_setup, scene_results) in (executor or InProcessExecutor()).imap(run_scene, plans):
+        done[i] = (name, scene_setup, scene_results)
         if on_progress:
-            on_progress(scene.name)
+            on_progress(name)
+    results: list[SegmentResult] = []
+    for i in range(len(plans)):
+        name, scene_setup, scene_results = done[i]
+        setup["scenes"][name] = scene_setup
+        results.extend(scene_results)
     return setup, results
 
 

@@ -214,36 +214,32 @@ def run_group(jobs: Sequence[SimJob]) -> list[SimRecord]:
     return [run_job(job) for job in jobs]
 
 
-def run_sim(jobs: Sequence[SimJob], *, workers: int = 2, on_result: Callable[[SimRecord], None] | None = None) -> list[SimRecord]:
-    """Run ``jobs`` on a pool of ``workers`` processes (1 = in this process); results in job order.
+def run_sim(
+    jobs: Sequence[SimJob], *, workers: int = 2, on_result: Callable[[SimRecord], None] | None = None, executor: Any = None
+) -> list[SimRecord]:
+    """Run ``jobs`` on ``executor`` (evaluation/executors.py; default: a pool of ``workers``
+    processes, 1 = in this process); results in job order, the same whatever the executor.
 
     Jobs are dispatched in groups sharing one simulated view, largest first, so that each worker
     renders a view's geometry once (about a second) and then only draws noise and clicks.
     """
+    from .executors import make_executor
+
     groups: dict[tuple, list[SimJob]] = {}
     for job in jobs:
         groups.setdefault(job.view_key, []).append(job)
     ordered = sorted(groups.values(), key=len, reverse=True)
     records: list[SimRecord] = []
-
-    def collect(batch: list[SimRecord]) -> None:
-        for rec in batch:
-            records.append(rec)
-            if on_result:
-                on_result(rec)
-
-    if workers <= 1 or len(ordered) < 2:
-        for group in ordered:
-            collect(run_group(group))
-    else:
-        import multiprocessing as mp
-        from concurrent.futures import ProcessPoolExecutor, as_completed
-
-        # spawn, not fork: the caller may run a progress-bar thread, and forked threads deadlock.
-        with ProcessPoolExecutor(max_workers=workers, mp_context=mp.get_context("spawn")) as pool:
-            futures = [pool.submit(run_group, group) for group in ordered]
-            for fut in as_completed(futures):
-                collect(fut.result())
+    ex = executor or make_executor(workers if len(ordered) >= 2 else 1)
+    try:
+        for _, batch in ex.imap(run_group, ordered):
+            for rec in batch:
+                records.append(rec)
+                if on_result:
+                    on_result(rec)
+    finally:
+        if executor is None:
+            ex.close()
     return sorted(records, key=lambda r: r.job.index)
 
 

@@ -31,6 +31,7 @@ COMMANDS: dict[str, str] = {
     "calibrate": "device.cli:calibrate",
     "eval": "evaluation.cli:app",
     "check": "evaluation.check_cli:check",
+    "batch": "evaluation.batch_cli:app",
     "bench": "service.bench_cli:bench",
 }
 

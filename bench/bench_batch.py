@@ -1,0 +1,220 @@
+"""Throughput of `depthruler batch`: tasks per second on 1 and 2 workers, process pool and Ray.
+
+Run: ``.venv/bin/python bench/bench_batch.py`` or ``depthruler bench batch`` (``--write`` records the
+table in bench/RESULTS.md; needs ``pip install 'depthruler[ray]'`` for the Ray rows, else they are
+left out). The archive is made first: ``--recordings`` recordings of the simulated rig at 1280x720
+(``--frames`` frames each, recorded with the recorder), and ``--clicks`` robust measurements per
+frame. Every run is the whole batch through :func:`evaluation.batch.run_batch` (read the frames,
+measure, stream the Parquet parts, merge), timed from the first group submitted to the file
+written, on workers that have already run one batch (process start-up and imports are reported
+separately, not in the rate). The reference is the same batch in this process; runs of the
+configurations being compared alternate, so all see the same load of this shared host.
+"""
+
+from __future__ import annotations
+
+import argparse
+import csv
+import os
+import shutil
+import statistics
+import tempfile
+import time
+from datetime import datetime, timezone
+from pathlib import Path
+
+from results_file import machine, replace_section
+
+SECTION = "## Batch re-measurement"
+
+
+def make_archive(root: Path, recordings: int, frames: int, clicks: int) -> Path:
+    """``recordings`` simulated recordings and a task table of ``clicks`` measurements per frame."""
+    from device import open_source
+    from device.recording import RecordingWriter
+
+    rows = []
+    for r in range(recordings):
+        spec = f"sim:poster?fps=0&distance={2.5 + r}&seed={r}&yaw={(-10, 10)[r % 2]}"
+        out = root / f"rec{r}"
+        with open_source(spec) as src, RecordingWriter(out, src.info) as w:
+            for i in range(frames):
+                f = src.read()
+                w.write(f)
+                t = f.meta["truth"]
+                (x1, y1), (x2, y2) = t.p1_px, t.p2_px
+                for k in range(clicks):  # clicks a few pixels apart along the target
+                    rows.append([out.name, i, x1 + 2 * k, y1 + k % 3, x2 - 2 * k, y2 - k % 3])
+    table = root / "tasks.csv"
+    with table.open("w", newline="") as fh:
+        w = csv.writer(fh)
+        w.writerow(["source", "frame", "p1_x", "p1_y", "p2_x", "p2_y"])
+        w.writerows(rows)
+    return table
+
+
+def cpu_s(pid: int) -> float | None:
+    """CPU seconds (user + system) a local process has used so far, from /proc; None once it is gone."""
+    try:
+        fields = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()
+    except OSError:
+        return None
+    return (int(fields[11]) + int(fields[12])) / os.sysconf("SC_CLK_TCK")
+
+
+def timed_run(tasks, executor, out: Path, pids: set[int]) -> tuple[float, float, set[int]]:
+    """One whole batch on ``executor``: (tasks per second, CPU seconds of this process and of the
+    workers, the worker pids). ``pids``: the workers seen before, whose CPU is read before the run
+    (a worker first seen in this run counts from its start)."""
+    import pyarrow.parquet as pq
+
+    from evaluation.batch import run_batch
+
+    before = {p: cpu_s(p) or 0.0 for p in pids | {os.getpid()}}
+    t0 = time.perf_counter()
+    s = run_batch(tasks, out, executor, overwrite=True)
+    wall = time.perf_counter() - t0
+    assert s["rows"] == len(tasks)
+    workers = {int(w.rsplit(":", 1)[1]) for w in pq.read_table(out, columns=["worker"]).column("worker").to_pylist()}
+    cpu = sum((cpu_s(p) or 0.0) - before.get(p, 0.0) for p in workers | {os.getpid()})
+    return len(tasks) / wall, cpu, workers
+
+
+def run(recordings: int, frames: int, clicks: int, repeat: int) -> tuple[dict[str, dict], dict]:
+    from evaluation.batch import close_readers
+    from evaluation.executors import InProcessExecutor, PoolExecutor, RayExecutor
+    from evaluation.tasks import read_tasks
+
+    tmp = Path(tempfile.mkdtemp(prefix="bench_batch_"))
+    executors: dict = {}
+    try:
+        t0 = time.perf_counter()
+        tasks = read_tasks(make_archive(tmp, recordings, frames, clicks))
+        info = {"tasks": len(tasks), "archive_s": time.perf_counter() - t0}
+        out = tmp / "results.parquet"
+        executors = {"in-process": InProcessExecutor(), "pool 1": PoolExecutor(1), "pool 2": PoolExecutor(2)}
+        startup: dict[str, float] = {}
+        try:
+            import ray  # noqa: F401
+        except ImportError:
+            pass
+        else:
+            # One local Ray instance with 2 CPUs; "1 worker" = groups that reserve both CPUs, so one
+            # runs at a time with the same Ray processes around it as for 2 workers.
+            t1 = time.perf_counter()
+            executors["ray 2"] = RayExecutor("local", num_cpus=2)
+            info["ray_init_s"] = time.perf_counter() - t1
+            executors["ray 1"] = RayExecutor("local", task_cpus=2)
+        pids: dict[str, set[int]] = {}
+        for name, ex in executors.items():  # start the workers: a first, untimed batch
+            t1 = time.perf_counter()
+            pids[name] = timed_run(tasks, ex, out, set())[2]
+            startup[name] = time.perf_counter() - t1
+        rates: dict[str, list[float]] = {k: [] for k in executors}
+        cpus: dict[str, list[float]] = {k: [] for k in executors}
+        for _ in range(repeat):  # alternate, so every configuration sees the same load of this shared host
+            for name, ex in executors.items():
+                rate, cpu, seen = timed_run(tasks, ex, out, pids[name])
+                pids[name] |= seen
+                rates[name].append(rate)
+                cpus[name].append(cpu)
+    finally:
+        for ex in reversed(list(executors.values())):
+            ex.close()
+        close_readers()
+        shutil.rmtree(tmp, ignore_errors=True)
+    summary = {
+        k: {
+            "median": statistics.median(v),
+            "best": max(v),
+            "min": min(v),
+            "startup_s": startup.get(k),
+            "cpu_ms_per_task": 1e3 * statistics.median(cpus[k]) / info["tasks"],
+            # cores this run had on average: CPU seconds over wall seconds
+            "cores": statistics.median(c * r / info["tasks"] for c, r in zip(cpus[k], v)),
+        }
+        for k, v in rates.items()
+    }
+    return summary, info
+
+
+def main(argv: list[str] | None = None) -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--recordings", type=int, default=4, help="simulated recordings in the archive (default 4)")
+    ap.add_argument("--frames", type=int, default=6, help="frames per recording (default 6)")
+    ap.add_argument("--clicks", type=int, default=6, help="measurements per frame (default 6)")
+    ap.add_argument("--repeat", type=int, default=7, help="timed runs per configuration (default 7)")
+    ap.add_argument("--write", action="store_true", help=f"record the table in bench/RESULTS.md ({SECTION!r})")
+    args = ap.parse_args(argv)
+    if min(args.recordings, args.frames, args.clicks, args.repeat) < 1:
+        ap.error("--recordings, --frames, --clicks and --repeat must be at least 1")
+    load_before = os.getloadavg()
+    started = datetime.now(timezone.utc)
+    s, info = run(args.recordings, args.frames, args.clicks, args.repeat)
+    load_after = os.getloadavg()
+    ref = s["in-process"]["median"]
+
+    def row(name: str, note: str = "") -> str:
+        x = s[name]
+        start = f"{x['startup_s']:.1f} s" if x["startup_s"] is not None else ""
+        return (
+            f"| {name} | {x['median']:.1f} | {x['best']:.1f} | {x['min']:.1f}-{x['best']:.1f} | {x['median'] / ref:.2f} | "
+            f"{x['cpu_ms_per_task']:.1f} | {x['cores']:.2f} | {start} | {note} |"
+        )
+
+    def ratio(a: str, b: str, key: str) -> float:
+        return s[a][key] / s[b][key]
+
+    lines = [
+        SECTION,
+        "",
+        f"`bench/bench_batch.py` (`depthruler bench batch --write`): {info['tasks']} tasks = {args.recordings} recordings of the "
+        f"simulated rig (1280x720, {args.frames} frames each, made by the recorder) x {args.clicks} robust measurements per frame; "
+        "one whole `run_batch` per run (read each frame once, measure, stream Parquet parts, merge), on workers that already ran "
+        f"one batch; {args.repeat} runs per configuration, the configurations alternating run by run. Reference: the same batch "
+        "in this process. Ray: one local instance with 2 CPUs; its 1-worker row runs groups that reserve both CPUs. CPU: user + "
+        "system time of this process and the worker processes (/proc; Ray's own raylet and GCS not counted); cores = CPU "
+        "seconds per wall second, i.e. how much of the machine the run actually got.",
+        "",
+        "| executor | tasks/s median | best | range | median / in-process | CPU ms per task | cores used | first batch incl. start-up | note |",
+        "| --- | --- | --- | --- | --- | --- | --- | --- | --- |",
+        row("in-process"),
+        row("pool 1"),
+        row("pool 2", f"{ratio('pool 2', 'pool 1', 'median'):.2f}x pool 1 (best {ratio('pool 2', 'pool 1', 'best'):.2f}x)"),
+    ]
+    summary_line = (
+        f"2 workers over 1, median (best) runs: pool {ratio('pool 2', 'pool 1', 'median'):.2f}x "
+        f"({ratio('pool 2', 'pool 1', 'best'):.2f}x)"
+    )
+    if "ray 1" in s:
+        lines.append(row("ray 1", f"{ratio('ray 1', 'pool 1', 'median'):.2f}x pool 1"))
+        lines.append(row("ray 2", f"{ratio('ray 2', 'ray 1', 'median'):.2f}x ray 1; {ratio('ray 2', 'pool 2', 'median'):.2f}x pool 2"))
+        summary_line += (
+            f", Ray {ratio('ray 2', 'ray 1', 'median'):.2f}x ({ratio('ray 2', 'ray 1', 'best'):.2f}x) (target >= 1.6x). "
+            f"Ray's overhead over the pool in CPU per task: {100 * (ratio('ray 1', 'pool 1', 'cpu_ms_per_task') - 1):+.0f} % at 1 worker, "
+            f"{100 * (ratio('ray 2', 'pool 2', 'cpu_ms_per_task') - 1):+.0f} % at 2 workers; in median rate: "
+            f"{100 * (1 - ratio('ray 1', 'pool 1', 'median')):.0f} % at 1 worker, {100 * (1 - ratio('ray 2', 'pool 2', 'median')):.0f} % "
+            f"at 2 workers. Starting Ray took {info['ray_init_s']:.1f} s."
+        )
+    else:
+        summary_line += " (target >= 1.6x). Ray not installed: no Ray rows."
+    summary_line += (
+        f" On two idle cores the CPU per task would allow at most 2 x {s['pool 1']['cpu_ms_per_task']:.1f} / "
+        f"{s['pool 2']['cpu_ms_per_task']:.1f} = {2 * ratio('pool 1', 'pool 2', 'cpu_ms_per_task'):.2f}x for the pool "
+        "(an upper bound from CPU times, not a measured rate)."
+    )
+    lines += ["", summary_line]
+    lines += [
+        "",
+        f"Machine: {machine()}; {started:%Y-%m-%d %H:%M} UTC; load average (1, 5, 15 min) "
+        f"{', '.join(f'{v:.2f}' for v in load_before)} before, {', '.join(f'{v:.2f}' for v in load_after)} after.",
+    ]
+    text = "\n".join(lines) + "\n"
+    print(text)
+    if args.write:
+        replace_section(SECTION, text)
+        print("written to bench/RESULTS.md")
+
+
+if __name__ == "__main__":
+    main()
