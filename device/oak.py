@@ -574,7 +574,3 @@ def config_from_spec(spec: SourceSpec) -> OakConfig:
             raise SourceError(f"OAK option {key}={value!r} in {str(spec)!r} is not valid") from exc
     return OakConfig(**kwargs)
 
-
-def from_spec(spec: SourceSpec) -> OakSource:
-    """An unopened OakSource for ``oak`` or ``oak:<mxid>?preset=...&fps=...``."""
-    return OakSource(config_from_spec(spec))

@@ -71,7 +71,7 @@ def serve(
 
     from .app import create_app
     from .guard import allowed_hosts_for
-    from .config import ConfigError, ServeConfig, ServerConfig, load_config, source_spec
+    from .config import ConfigError, ServeConfig, ServerConfig, load_config
 
     try:
         cfg = load_config(config) if config else ServeConfig()
@@ -91,7 +91,7 @@ def serve(
         _fail(str(exc))
     except ValueError as exc:  # a flag out of range (pydantic)
         _fail(f"bad option: {exc}")
-    spec = source or (source_spec(cfg.source) if cfg.source is not None else auto_source())
+    spec = source or cfg.source or auto_source()
     check_listen(server.host, server.port)
     if server.host not in LOOPBACK and not server.token:
         if not server.insecure_no_token:
