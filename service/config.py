@@ -16,6 +16,8 @@ from typing import Any
 
 from pydantic import BaseModel, ConfigDict, Field, ValidationError
 
+from .guard import MAX_BODY_BYTES
+
 
 class ConfigError(ValueError):
     """A config file is missing, unparsable or has a wrong key or value; the message names them."""
@@ -26,10 +28,13 @@ class _Model(BaseModel):
 
 
 class ServerConfig(_Model):
+    """How the service runs: the ``[server]`` table of a config file, ``depthruler serve``'s flags,
+    and the one settings object ``service.app.create_app`` takes (these defaults are the only ones)."""
+
     host: str = "127.0.0.1"
     port: int = Field(8000, ge=1, le=65535)
     db: str = "depthruler.db"
-    recordings: str = "recordings"  # the only folder the API records into
+    recordings: str | None = None  # the only folder the API records into; None: recordings/ next to db
     history_max_gb: float | None = Field(None, gt=0, le=1e6)  # cap on saved frames; oldest unpinned deleted first
     token: str = ""
     insecure_no_token: bool = False  # serve on a non-loopback host without a token (anyone there can use it)
@@ -39,6 +44,17 @@ class ServerConfig(_Model):
     capture_fps: float = Field(15.0, gt=0, le=1000)
     reconnect_initial_s: float = Field(0.5, gt=0, le=60)
     reconnect_max_s: float = Field(10.0, gt=0, le=600)
+    keep_viewed: int = Field(8, ge=0, le=1024)  # frames handed to the page kept beyond the ring (it may freeze them)
+    max_waiters: int = Field(64, ge=1, le=100_000)  # concurrent long-polls; 429 beyond
+    max_body_bytes: int = Field(MAX_BODY_BYTES, ge=1024, le=1 << 30)
+
+    @property
+    def history_max_bytes(self) -> int | None:
+        return int(round(self.history_max_gb * 1e9)) if self.history_max_gb else None
+
+    @property
+    def recordings_dir(self) -> Path:
+        return Path(self.recordings) if self.recordings else Path(self.db).resolve().parent / "recordings"
 
 
 class ServeConfig(_Model):
