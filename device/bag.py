@@ -51,7 +51,7 @@ decoded when their frame is asked for, so a large bag opens in the time its inde
 0.11 s (sqlite3), 0.26-0.29 s (MCAP), 0.28-0.36 s (ROS 1) on the shared 2-core dev machine, 2026-12-01;
 reading and aligning one of its frames took 0.2-0.3 s.
 
-Disparity. Frames carry disparity (ARCHITECTURE.md): ``d = fx * B / Z`` with the colour camera's ``fx``
+Disparity. Frames carry disparity (docs/design.md): ``d = fx * B / Z`` with the colour camera's ``fx``
 and a baseline ``B``: the recorded stereo baseline when the bag holds it (the Viewer), else the nominal
 ``DEFAULT_BASELINE_M`` (0.075 m) or ``?baseline=``. Any ``B`` gives back ``Z`` exactly, so lengths do not
 depend on it. A depth camera quantizes depth, in steps of its depth unit, not disparity as a stereo

@@ -14,7 +14,7 @@ Intrinsics JSON: ``camera_intrinsic.json``, ``intrinsic.json``, ``intrinsics.jso
 ``fx, fy, cx, cy`` (``ppx``/``ppy`` accepted). Optional keys: ``depth_scale`` (PNG units per metre,
 Open3D's convention; default 1000 = millimetres), ``baseline_m``, ``doffs``, ``fps``.
 
-Depth to disparity: frames carry disparity (ARCHITECTURE.md), ``d = fx * B / Z - doffs``. A depth
+Depth to disparity: frames carry disparity (docs/design.md), ``d = fx * B / Z - doffs``. A depth
 camera's baseline is rarely in these files, so ``B`` defaults to a nominal ``DEFAULT_BASELINE_M``
 (0.075 m) unless the JSON or the spec (``?baseline=0.12``) gives it. Any ``B`` reproduces ``Z``
 exactly (``Z = fx * B / (d + doffs)``), so measured lengths do not depend on it. PNG value 0 = no depth.

@@ -1,4 +1,4 @@
-"""Recording and replay of frames in depthruler's directory format (ARCHITECTURE.md "Recording format").
+"""Recording and replay of frames in depthruler's directory format (docs/design.md "Recording format").
 
 Layout of one recording directory::
 
