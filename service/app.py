@@ -1,6 +1,7 @@
 """The measuring service: FastAPI app over a live source, a frame ring buffer and SQLite history.
 
-``create_app(source, db_path=...)`` builds the app; ``depthruler serve`` runs it with uvicorn.
+``create_app(source, settings)`` builds the app (settings: one ``service.config.ServerConfig``);
+``depthruler serve`` runs it with uvicorn.
 The routes live in ``service.routers`` (one module per resource) and share one
 :class:`service.state.ServiceState`. The web page in ``static/`` uses only the API.
 Errors carry a ``detail`` message saying what to change: 410 for a frame evicted from the ring,
@@ -56,7 +57,7 @@ def _warm_up_measurement() -> None:
 
 
 # create_app's keyword names that differ from ServerConfig's, with the conversion
-_LEGACY = {
+_LEGACY: dict[str, tuple[str, Callable[[Any], Any]]] = {
     "db_path": ("db", str),
     "recordings_dir": ("recordings", str),
     "history_max_bytes": ("history_max_gb", lambda b: None if b is None else b / 1e9),
