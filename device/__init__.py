@@ -1,14 +1,16 @@
 """Sources of frames: real devices, recordings, imported datasets and the simulator.
 
-``open_source(spec)`` imports a backend only when its spec asks for it, so ``import device``
-stays fast and works without any SDK or hardware.
+``open_source(spec_or_config)`` imports a backend only when it is asked for, so ``import device``
+stays fast and works without any SDK or hardware. The kinds, their config dataclasses and
+Source classes are listed once, in :data:`device.base.BACKENDS`.
 """
 
 from __future__ import annotations
 
 import importlib
+from collections.abc import Mapping
 
-from .base import Source, SourceBase, SourceInfo, SourceSpec
+from .base import BACKENDS, Backend, Source, SourceBase, SourceInfo, SourceSpec, backend, spec_from_table
 from .errors import (
     CalibrationError,
     RecordingError,
@@ -19,34 +21,42 @@ from .errors import (
     SourceTimeout,
 )
 
-# kind -> "module:factory"; the factory takes a SourceSpec and returns an unopened Source.
-BACKENDS: dict[str, str] = {
-    "sim": "sim.source:from_spec",
-    "oak": "device.oak:from_spec",
-    "v4l2": "device.stereo_pair:from_spec",
-    "video": "device.video:from_spec",
-    "replay": "device.recording:from_spec",
-    "middlebury": "device.middlebury:from_spec",
-    "depthpng": "device.depth_folder:from_spec",
-    "bag": "device.bag:from_spec",
-}
+
+def _module(kind: str, shown: str = ""):
+    return importlib.import_module(backend(kind, shown).module)
 
 
-def make_source(spec: str | SourceSpec) -> Source:
-    """The source a spec names, not yet opened."""
-    parsed = spec if isinstance(spec, SourceSpec) else SourceSpec.parse(spec)
-    target = BACKENDS.get(parsed.kind)
-    if target is None:
-        raise SourceNotFound(
-            f"unknown source kind {parsed.kind!r} in {str(parsed)!r}; use one of: {', '.join(sorted(BACKENDS))}"
-        )
-    module_name, _, factory = target.partition(":")
-    module = importlib.import_module(module_name)
-    return getattr(module, factory)(parsed)
+def source_config(spec: str | SourceSpec | Mapping[str, object]) -> object:
+    """The config dataclass of a source: from a spec string (``"v4l2:/dev/video0?ndisp=64"``), a parsed
+    SourceSpec or a TOML ``[source]`` table (``{"kind": "v4l2", "device": "/dev/video0", "ndisp": 64}``).
+    Both spellings go through the kind's one parser, so they give equal configs with equal defaults;
+    an unknown key or a bad value raises SourceError naming the kind and what is allowed."""
+    if isinstance(spec, Mapping):
+        parsed = spec_from_table(spec)
+    else:
+        parsed = spec if isinstance(spec, SourceSpec) else SourceSpec.parse(spec)
+    return _module(parsed.kind, str(parsed)).config_from_spec(parsed)
 
 
-def open_source(spec: str | SourceSpec) -> Source:
-    """Open the source a spec names: ``with open_source("sim") as src: frame = src.read()``."""
+def kind_of(config: object) -> str:
+    """The registered kind whose config dataclass ``config`` is (SourceError if none is)."""
+    cls = type(config)
+    for kind, entry in BACKENDS.items():
+        if entry.module == cls.__module__ and entry.config == cls.__qualname__:
+            return kind
+    raise SourceError(f"{cls.__qualname__} is not the config of a registered source kind ({', '.join(BACKENDS)})")
+
+
+def make_source(spec: str | SourceSpec | object) -> Source:
+    """The source a spec string, a SourceSpec or a config dataclass (e.g. ``SimConfig(distance_m=6)``)
+    describes, not yet opened."""
+    config = spec if not isinstance(spec, (str, SourceSpec)) else source_config(spec)
+    kind = kind_of(config)
+    return getattr(_module(kind), BACKENDS[kind].source)(config)
+
+
+def open_source(spec: str | SourceSpec | object) -> Source:
+    """Open the source a spec or config names: ``with open_source("sim") as src: frame = src.read()``."""
     src = make_source(spec)
     src.open()
     return src
@@ -61,6 +71,7 @@ def list_devices() -> list[SourceInfo]:
 
 __all__ = [
     "BACKENDS",
+    "Backend",
     "CalibrationError",
     "RecordingError",
     "Source",
@@ -72,7 +83,10 @@ __all__ = [
     "SourceNotFound",
     "SourceSpec",
     "SourceTimeout",
+    "kind_of",
     "list_devices",
     "make_source",
     "open_source",
+    "source_config",
+    "spec_from_table",
 ]

@@ -51,7 +51,7 @@ decoded when their frame is asked for, so a large bag opens in the time its inde
 0.11 s (sqlite3), 0.26-0.29 s (MCAP), 0.28-0.36 s (ROS 1) on the shared 2-core dev machine, 2026-12-01;
 reading and aligning one of its frames took 0.2-0.3 s.
 
-Disparity. Frames carry disparity (ARCHITECTURE.md): ``d = fx * B / Z`` with the colour camera's ``fx``
+Disparity. Frames carry disparity (docs/design.md): ``d = fx * B / Z`` with the colour camera's ``fx``
 and a baseline ``B``: the recorded stereo baseline when the bag holds it (the Viewer), else the nominal
 ``DEFAULT_BASELINE_M`` (0.075 m) or ``?baseline=``. Any ``B`` gives back ``Z`` exactly, so lengths do not
 depend on it. A depth camera quantizes depth, in steps of its depth unit, not disparity as a stereo
@@ -495,6 +495,14 @@ class BagOptions:
 
 
 @dataclass(frozen=True)
+class BagConfig:
+    """A bag source: the bag (ROS 1 .bag, ROS 2 folder or .mcap) and its options."""
+
+    path: Path
+    options: BagOptions = BagOptions()
+
+
+@dataclass(frozen=True)
 class BagContents:
     """What a bag holds for depthruler: found at open from the index and the small static messages."""
 
@@ -535,9 +543,10 @@ def _occurrence(times: np.ndarray, i: int) -> int:
 class BagReader:
     """An opened bag: its contents (index only) and random access to frame ``i``."""
 
-    def __init__(self, path: str | Path, options: BagOptions = BagOptions()) -> None:
-        self.path = Path(path)
-        self.options = options
+    def __init__(self, config: BagConfig | str | Path, options: BagOptions = BagOptions()) -> None:
+        self.config = config if isinstance(config, BagConfig) else BagConfig(Path(config), options)
+        self.path = Path(self.config.path)
+        self.options = self.config.options
         self._reader = _open_reader(self.path)
         try:
             self.contents = self._index()
@@ -858,9 +867,10 @@ def summarize_bag(path: str | Path, options: BagOptions = BagOptions()) -> dict[
 class BagSource(SourceBase):
     """The colour/depth pairs of a bag as frames, in order; random access with ``frame(i)`` and ``seek(i)``."""
 
-    def __init__(self, path: str | Path, options: BagOptions = BagOptions()) -> None:
-        self.path = Path(path)
-        self.options = options
+    def __init__(self, config: BagConfig | str | Path, options: BagOptions = BagOptions()) -> None:
+        self.config = config if isinstance(config, BagConfig) else BagConfig(Path(config), options)
+        self.path = Path(self.config.path)
+        self.options = self.config.options
         self.info = SourceInfo(kind="bag", name=self.path.name)
         self.bag: BagReader | None = None
         self._pos = 0
@@ -968,14 +978,15 @@ def options_from_spec(spec: SourceSpec) -> BagOptions:
     )
 
 
-def from_spec(spec: SourceSpec) -> BagSource:
-    """``bag:PATH?depth=TOPIC&color=TOPIC&baseline=0.05&depth_unit=0.001&skew_ms=20&loop=1`` -> an unopened BagSource."""
+def config_from_spec(spec: SourceSpec) -> BagConfig:
+    """BagConfig from ``bag:PATH?depth=TOPIC&color=TOPIC&baseline=0.05&depth_unit=0.001&skew_ms=20&loop=1``."""
     if not spec.target:
         raise BagNotFound("bag needs a path: bag:path/to/file.bag, bag:path/to/ros2_bag_folder or bag:path/to/file.mcap")
-    return BagSource(Path(spec.target), options_from_spec(spec))
+    return BagConfig(Path(spec.target), options_from_spec(spec))
 
 
 __all__ = [
+    "BagConfig",
     "BagContents",
     "BagError",
     "BagLayoutError",
@@ -989,8 +1000,8 @@ __all__ = [
     "camera_from_info",
     "decode_color",
     "decode_depth",
+    "config_from_spec",
     "detect_layout",
-    "from_spec",
     "is_bag_path",
     "pair_by_time",
     "summarize_bag",

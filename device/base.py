@@ -1,7 +1,14 @@
-"""The one protocol every source implements, and source specs (ARCHITECTURE.md "Sources")."""
+"""The one protocol every source implements, source specs, and the registry of source kinds.
+
+:data:`BACKENDS` is the one list of source kinds. Each kind has one config dataclass (the one
+description of its options, defaults and checks) and one Source class built from it; a spec
+string (``kind:target?key=value``) and a TOML ``[source]`` table are two spellings of the same
+options, both parsed by the kind's ``config_from_spec`` (docs/design.md "Sources").
+"""
 
 from __future__ import annotations
 
+from collections.abc import Mapping
 from dataclasses import dataclass, field
 from types import TracebackType
 from typing import Protocol, runtime_checkable
@@ -14,7 +21,7 @@ from .errors import SourceError
 
 @dataclass(frozen=True)
 class SourceInfo:
-    """What a source is: kind ("sim", "oak", "v4l2", "replay", "middlebury", "usb"), name, serial, size, fps."""
+    """What a source is: kind (a :data:`BACKENDS` kind, or "usb" for an unrecognised USB camera), name, serial, size, fps."""
 
     kind: str
     name: str
@@ -108,7 +115,7 @@ class SourceSpec:
         except ValueError as exc:
             raise SourceError(f"cannot parse the options {query!r} of source spec {spec!r}; write key=value&key=value") from exc
         if not kind.strip():
-            raise SourceError(f"source spec {spec!r} names no kind; start it with one of sim, oak, v4l2, replay, middlebury, depthpng")
+            raise SourceError(f"source spec {spec!r} names no kind; start it with one of {', '.join(BACKENDS)}")
         return cls(kind=kind.lower(), target=unquote(target), params=params)
 
     def check_keys(self, allowed: tuple[str, ...]) -> None:
@@ -134,3 +141,66 @@ class SourceSpec:
             # Percent-encoded where parse_qsl would read something else (&, =, +, %, #, spaces, ...).
             s += "?" + "&".join(f"{quote(k, safe=_SAFE)}={quote(v, safe=_SAFE)}" for k, v in self.params.items())
         return s
+
+
+@dataclass(frozen=True)
+class Backend:
+    """Where a source kind lives: ``module`` defines the config dataclass ``config``, the Source class
+    ``source`` (built from one config) and ``config_from_spec(SourceSpec) -> config``. ``target`` is the
+    TOML key that holds what a spec string names after the colon (a scene, a device, a path)."""
+
+    module: str
+    config: str
+    source: str
+    target: str
+
+
+# The only list of source kinds. Modules are imported when a kind is used, so ``import device``
+# needs no SDK (depthai, rosbags) and no camera.
+BACKENDS: dict[str, Backend] = {
+    "sim": Backend("sim.source", "SimConfig", "SimSource", "scene"),
+    "oak": Backend("device.oak", "OakConfig", "OakSource", "mxid"),
+    "v4l2": Backend("device.stereo_pair", "StereoPairConfig", "StereoPairSource", "device"),
+    "video": Backend("device.video", "VideoConfig", "VideoSource", "path"),
+    "replay": Backend("device.recording.replay", "ReplayConfig", "ReplaySource", "path"),
+    "middlebury": Backend("device.middlebury", "MiddleburyConfig", "MiddleburySource", "path"),
+    "depthpng": Backend("device.depth_folder", "DepthFolderConfig", "DepthFolderSource", "path"),
+    "bag": Backend("device.bag", "BagConfig", "BagSource", "path"),
+}
+
+
+def backend(kind: str, shown: str = "") -> Backend:
+    """The registry entry of ``kind``; SourceNotFound lists the kinds there are."""
+    from .errors import SourceNotFound
+
+    found = BACKENDS.get(kind)
+    if found is None:
+        where = f" in {shown!r}" if shown else ""
+        raise SourceNotFound(f"unknown source kind {kind!r}{where}; use one of: {', '.join(sorted(BACKENDS))}")
+    return found
+
+
+def _spec_value(kind: str, key: str, value: object) -> str:
+    if isinstance(value, bool):
+        return "1" if value else "0"
+    if isinstance(value, float) and value.is_integer():
+        return str(int(value))  # 6.0 from TOML is the integer option 6 too
+    if isinstance(value, (int, float, str)):
+        return str(value)
+    if isinstance(value, list) and all(isinstance(v, (str, int, float)) and not isinstance(v, bool) for v in value):
+        return ",".join(str(v) for v in value)  # two device nodes, two files, ROS left,right calibration
+    raise SourceError(f"{kind} option {key} = {value!r} must be a number, a string, a true/false "
+                      "or a list of strings (write the options of a kind flat in its [source] table)")
+
+
+def spec_from_table(table: Mapping[str, object]) -> SourceSpec:
+    """The spec a TOML ``[source]`` table means: ``kind`` picks the kind, the kind's target key
+    (:attr:`Backend.target`: scene, mxid, device or path) is the spec target, every other key is
+    the spec option of the same name. ``{kind = "sim", scene = "boxes", distance = 6}`` is ``sim:boxes?distance=6``."""
+    kind = table.get("kind")
+    if not isinstance(kind, str) or not kind:
+        raise SourceError(f"the source table needs kind = one of {', '.join(repr(k) for k in BACKENDS)}")
+    entry = backend(kind.lower())
+    target = table.get(entry.target, "")
+    params = {k: _spec_value(kind, k, v) for k, v in table.items() if k not in ("kind", entry.target)}
+    return SourceSpec(kind.lower(), _spec_value(kind, entry.target, target), params)

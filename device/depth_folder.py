@@ -14,7 +14,7 @@ Intrinsics JSON: ``camera_intrinsic.json``, ``intrinsic.json``, ``intrinsics.jso
 ``fx, fy, cx, cy`` (``ppx``/``ppy`` accepted). Optional keys: ``depth_scale`` (PNG units per metre,
 Open3D's convention; default 1000 = millimetres), ``baseline_m``, ``doffs``, ``fps``.
 
-Depth to disparity: frames carry disparity (ARCHITECTURE.md), ``d = fx * B / Z - doffs``. A depth
+Depth to disparity: frames carry disparity (docs/design.md), ``d = fx * B / Z - doffs``. A depth
 camera's baseline is rarely in these files, so ``B`` defaults to a nominal ``DEFAULT_BASELINE_M``
 (0.075 m) unless the JSON or the spec (``?baseline=0.12``) gives it. Any ``B`` reproduces ``Z``
 exactly (``Z = fx * B / (d + doffs)``), so measured lengths do not depend on it. PNG value 0 = no depth.
@@ -268,8 +268,8 @@ class DepthFolderSource(SourceBase):
 _PARAMS = ("baseline", "depth_scale", "fps", "loop")
 
 
-def from_spec(spec: SourceSpec) -> DepthFolderSource:
-    """``depthpng:DIR?baseline=0.075&depth_scale=1000&fps=30&loop=1`` -> an unopened DepthFolderSource."""
+def config_from_spec(spec: SourceSpec) -> DepthFolderConfig:
+    """DepthFolderConfig from ``depthpng:DIR?baseline=0.075&depth_scale=1000&fps=30&loop=1``."""
     if not spec.target:
         raise SourceNotFound("depthpng needs a folder: depthpng:path/to/folder")
     spec.check_keys(_PARAMS)
@@ -282,15 +282,13 @@ def from_spec(spec: SourceSpec) -> DepthFolderSource:
         except ValueError as exc:
             raise SourceError(f"depthpng option {key}={spec.params[key]!r} must be a number") from exc
 
-    return DepthFolderSource(
-        DepthFolderConfig(
-            path=Path(spec.target),
-            baseline_m=num("baseline"),
-            depth_scale=num("depth_scale"),
-            fps=num("fps"),
-            loop=spec.flag("loop", False),
-        )
+    return DepthFolderConfig(
+        path=Path(spec.target),
+        baseline_m=num("baseline"),
+        depth_scale=num("depth_scale"),
+        fps=num("fps"),
+        loop=spec.flag("loop", False),
     )
 
 
-__all__ = ["DEFAULT_BASELINE_M", "DepthFolderConfig", "DepthFolderSource", "depth_to_disparity", "from_spec", "read_intrinsics"]
+__all__ = ["DEFAULT_BASELINE_M", "DepthFolderConfig", "DepthFolderSource", "config_from_spec", "depth_to_disparity", "read_intrinsics"]

@@ -1,4 +1,4 @@
-"""Which cameras are attached: DepthAI devices, V4L2 nodes and USB ids (ARCHITECTURE.md "Sources").
+"""Which cameras are attached: DepthAI devices, V4L2 nodes and USB ids (docs/design.md "Sources").
 
 Three independent probes, each failing soft: a machine without libusb, without ``/dev/video*``
 or without DepthAI gets an empty list from that probe, never an exception, so ``depthruler

@@ -132,14 +132,26 @@ def scene_frame(scene: MiddleburyScene, disparity: np.ndarray, confidence: np.nd
 DISPARITY_KINDS = ("sgbm", "gt", "gt-int")
 
 
+@dataclass(frozen=True)
+class MiddleburyConfig:
+    """``path``: a scene folder (im0.png, im1.png, calib.txt, disp0.pfm); ``disparity``: "sgbm"
+    (computed from the pair), "gt" (the ground truth) or "gt-int" (the ground truth rounded)."""
+
+    path: Path
+    disparity: str = "sgbm"
+
+    def __post_init__(self) -> None:
+        if self.disparity not in DISPARITY_KINDS:
+            raise SourceError(f"middlebury disparity={self.disparity!r} is unknown; use one of {', '.join(DISPARITY_KINDS)}")
+
+
 class MiddleburySource(SourceBase):
     """One Middlebury scene as a still source: every read returns the same frame."""
 
-    def __init__(self, path: str | Path, disparity: str = "sgbm") -> None:
-        if disparity not in DISPARITY_KINDS:
-            raise SourceError(f"disparity={disparity!r} is unknown; use one of {', '.join(DISPARITY_KINDS)}")
-        self.path = Path(path)
-        self.disparity_kind = disparity
+    def __init__(self, config: MiddleburyConfig | str | Path, disparity: str = "sgbm") -> None:
+        self.config = config if isinstance(config, MiddleburyConfig) else MiddleburyConfig(Path(config), disparity)
+        self.path = Path(self.config.path)
+        self.disparity_kind = self.config.disparity
         self.info = SourceInfo(kind="middlebury", name=self.path.name)
         self._frame: Frame | None = None
 
@@ -161,8 +173,9 @@ class MiddleburySource(SourceBase):
         return Frame(**{**self._frame.__dict__, "timestamp": time.time()})
 
 
-def from_spec(spec: SourceSpec) -> MiddleburySource:
+def config_from_spec(spec: SourceSpec) -> MiddleburyConfig:
+    """MiddleburyConfig from ``middlebury:path/to/Teddy?disparity=gt``."""
     if not spec.target:
         raise SourceNotFound("middlebury needs a scene folder: middlebury:path/to/Adirondack")
     spec.check_keys(("disparity",))
-    return MiddleburySource(spec.target, disparity=spec.params.get("disparity", "sgbm"))
+    return MiddleburyConfig(Path(spec.target), spec.params.get("disparity", "sgbm"))

@@ -2,7 +2,7 @@
 
 The device computes depth on board and aligns it to the output image; this module turns each
 synchronised image + depth pair into a :class:`measure.Frame` whose disparity is expressed at the
-output camera's focal length (ARCHITECTURE.md "Shared types": ``d = fx * B / Z - doffs``, doffs = 0).
+output camera's focal length (docs/design.md "Shared types": ``d = fx * B / Z - doffs``, doffs = 0).
 
 DepthAI v3 semantics this module relies on (checked against the 3.12 stubs and depthai-core's v3
 examples; verified without hardware only):
@@ -197,7 +197,7 @@ def baseline_m_from_calibration(calib: dai.CalibrationHandler) -> float:
 def depth_to_disparity(depth_mm: np.ndarray, fx: float, baseline_m: float) -> np.ndarray:
     """Disparity (float32 pixels, NaN invalid) at focal length ``fx`` (pixels) from depth in mm.
 
-    ``d = fx * B / Z`` (ARCHITECTURE.md, doffs = 0) with B in metres and Z = depth_mm / 1000;
+    ``d = fx * B / Z`` (docs/design.md, doffs = 0) with B in metres and Z = depth_mm / 1000;
     depth 0 is DepthAI's "no data".
     """
     z = np.asarray(depth_mm)
@@ -574,7 +574,3 @@ def config_from_spec(spec: SourceSpec) -> OakConfig:
             raise SourceError(f"OAK option {key}={value!r} in {str(spec)!r} is not valid") from exc
     return OakConfig(**kwargs)
 
-
-def from_spec(spec: SourceSpec) -> OakSource:
-    """An unopened OakSource for ``oak`` or ``oak:<mxid>?preset=...&fps=...``."""
-    return OakSource(config_from_spec(spec))

@@ -1,6 +1,6 @@
 """Disparity from a rectified stereo pair with OpenCV's semi-global matching.
 
-Output convention (ARCHITECTURE.md): float32 disparity in pixels of the left image, NaN where
+Output convention (docs/design.md): float32 disparity in pixels of the left image, NaN where
 SGBM found no match; confidence in [0, 1].
 
 The left border band. OpenCV's SGBM leaves the first ``min_disparity + num_disparities``

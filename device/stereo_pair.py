@@ -604,7 +604,3 @@ def config_from_spec(spec: SourceSpec) -> StereoPairConfig:
     kwargs["calibration"] = calibration_from_params(spec.params)
     return StereoPairConfig(**kwargs)
 
-
-def from_spec(spec: SourceSpec) -> StereoPairSource:
-    """An unopened stereo-pair source for ``v4l2:/dev/videoN[,/dev/videoM]?calib=...``."""
-    return StereoPairSource(config_from_spec(spec))

@@ -240,7 +240,3 @@ def config_from_spec(spec: SourceSpec) -> VideoConfig:
         scale=scale,
     )
 
-
-def from_spec(spec: SourceSpec) -> VideoSource:
-    """An unopened VideoSource for ``video:PATH?...`` or ``video:LEFT,RIGHT?...``."""
-    return VideoSource(config_from_spec(spec))

@@ -1,4 +1,4 @@
-"""Accuracy on real stereo: the Middlebury 2014 scenes in shared/data/middlebury.
+"""Accuracy on real stereo: the Middlebury 2014 scenes ($DEPTHRULER_SHARED/data/middlebury).
 
 For each scene two disparity conditions are measured with the same segments:
 
@@ -123,7 +123,7 @@ class SegmentResult:
 def scene_dirs(data_dir: Path, names: Sequence[str] | None = None) -> list[Path]:
     """The scene folders under ``data_dir`` (those with im0.png), optionally only ``names``."""
     if not data_dir.is_dir():
-        raise EvalError(f"{data_dir} does not exist; pass --data pointing at the Middlebury folder (shared/data/middlebury)")
+        raise EvalError(f"{data_dir} does not exist; pass --data pointing at the Middlebury folder ($DEPTHRULER_SHARED/data/middlebury)")
     dirs = sorted(p for p in data_dir.iterdir() if (p / "im0.png").is_file() and (p / "disp0GT.pfm").is_file())
     if names:
         wanted = set(names)

@@ -1,6 +1,7 @@
 """The measuring service: FastAPI app over a live source, a frame ring buffer and SQLite history.
 
-``create_app(source, db_path=...)`` builds the app; ``depthruler serve`` runs it with uvicorn.
+``create_app(source, settings)`` builds the app (settings: one ``service.config.ServerConfig``);
+``depthruler serve`` runs it with uvicorn.
 The routes live in ``service.routers`` (one module per resource) and share one
 :class:`service.state.ServiceState`. The web page in ``static/`` uses only the API.
 Errors carry a ``detail`` message saying what to change: 410 for a frame evicted from the ring,
@@ -25,7 +26,8 @@ from device import Source, make_source
 from measure import Frame, MeasureOptions, PinholeCamera, measure_distance
 
 from .frames import Capture, FrameRing
-from .guard import LOOPBACK_HOSTS, MAX_BODY_BYTES, RequestGuard
+from .config import ServerConfig
+from .guard import RequestGuard, allowed_hosts_for
 from .recorder import Recorder
 from .routers import checks, frames, health, measurements, recordings
 from .state import ServiceState
@@ -54,38 +56,38 @@ def _warm_up_measurement() -> None:
         measure_distance(frame, (5.0, 20.0), (58.0, 28.0), MeasureOptions(method=method))
 
 
-def create_app(
-    source: str | Callable[[], Source],
-    *,
-    db_path: str | Path = "depthruler.db",
-    token: str = "",
-    ring_size: int = 32,
-    max_frozen: int = 16,
-    keep_viewed: int = 8,
-    capture_fps: float = 15.0,
-    reconnect_initial_s: float = 0.5,
-    reconnect_max_s: float = 10.0,
-    recordings_dir: str | Path | None = None,
-    allowed_hosts: tuple[str, ...] | list[str] = LOOPBACK_HOSTS,
-    max_body_bytes: int = MAX_BODY_BYTES,
-    max_waiters: int = 64,
-    history_max_bytes: int | None = None,
-) -> FastAPI:
-    """The service app on ``source`` (a spec string or a factory of unopened sources).
+# create_app's keyword names that differ from ServerConfig's, with the conversion
+_LEGACY: dict[str, tuple[str, Callable[[Any], Any]]] = {
+    "db_path": ("db", str),
+    "recordings_dir": ("recordings", str),
+    "history_max_bytes": ("history_max_gb", lambda b: None if b is None else b / 1e9),
+}
 
-    ``recordings_dir`` (default: ``recordings/`` next to the database) is the only folder the API
-    records into; ``allowed_hosts`` the ``Host`` names it answers (``("*",)``: any);
-    ``max_waiters`` bounds concurrent long-polls (429 beyond); ``history_max_bytes`` caps the saved
-    frames (oldest unpinned deleted first)."""
+
+def create_app(source: str | Callable[[], Source], settings: ServerConfig | None = None, **overrides: Any) -> FastAPI:
+    """The service app on ``source`` (a spec string or a factory of unopened sources), run as
+    ``settings`` say (:class:`service.config.ServerConfig`: history, ring, capture rate, token,
+    Host names, limits). Keyword ``overrides`` replace single settings, by ServerConfig name
+    (``ring_size=8``; also ``db_path``, ``recordings_dir`` and ``history_max_bytes``); a wrong
+    name or value raises pydantic's ValidationError. The app answers ``Host`` names of
+    ``guard.allowed_hosts_for(settings.host, settings.allowed_hosts)``."""
+    settings = settings or ServerConfig()
+    if overrides:
+        for old, (new, convert) in _LEGACY.items():
+            if old in overrides:
+                overrides[new] = convert(overrides.pop(old))
+        settings = ServerConfig.model_validate({**settings.model_dump(), **overrides})
     spec = source if isinstance(source, str) else getattr(source, "__name__", "custom")
     factory: Callable[[], Source] = (lambda: make_source(source)) if isinstance(source, str) else source  # type: ignore[arg-type]
-    ring = FrameRing(ring_size, max_frozen, keep_viewed, max_waiters)
+    ring = FrameRing(settings.ring_size, settings.max_frozen, settings.keep_viewed, settings.max_waiters)
     capture = Capture(
-        factory, ring, spec=spec, fps=capture_fps, backoff_initial_s=reconnect_initial_s, backoff_max_s=reconnect_max_s
-    )
-    store = Store(db_path, max_bytes=history_max_bytes)
-    recorder = Recorder(capture, Path(recordings_dir) if recordings_dir else Path(db_path).resolve().parent / "recordings")
+        factory, ring, spec=spec, fps=settings.capture_fps,
+        backoff_initial_s=settings.reconnect_initial_s, backoff_max_s=settings.reconnect_max_s,
+    )  # fmt: skip
+    store = Store(settings.db, max_bytes=settings.history_max_bytes)
+    recorder = Recorder(capture, settings.recordings_dir)
     state = ServiceState(ring=ring, capture=capture, store=store, recorder=recorder)
+    token = settings.token
 
     @asynccontextmanager
     async def lifespan(_: FastAPI) -> AsyncIterator[None]:
@@ -127,5 +129,6 @@ def create_app(
     for module in (health, frames, measurements, recordings, checks):
         app.include_router(module.router)
     app.mount("/", StaticFiles(directory=STATIC_DIR, html=True), name="static")
-    app.add_middleware(RequestGuard, allowed_hosts=allowed_hosts, max_body_bytes=max_body_bytes)  # outermost
+    hosts = allowed_hosts_for(settings.host, settings.allowed_hosts)
+    app.add_middleware(RequestGuard, allowed_hosts=hosts, max_body_bytes=settings.max_body_bytes)  # outermost
     return app

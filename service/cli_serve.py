@@ -60,18 +60,17 @@ def serve(
     port: Optional[int] = typer.Option(None, help="TCP port (default 8000)."),
     token: Optional[str] = typer.Option(None, envvar="DEPTHRULER_TOKEN", help="Require this token on /api (Bearer header or ?token=)."),
     db: Optional[Path] = typer.Option(None, help="SQLite history file (default depthruler.db); frames go to <db>-frames/."),
-    recordings: Optional[Path] = typer.Option(None, help="The only folder recordings started from the API go into (default ./recordings)."),
+    recordings: Optional[Path] = typer.Option(None, help="The only folder recordings started from the API go into (default: recordings/ next to the --db file)."),
     history_max_gb: Optional[float] = typer.Option(None, "--history-max-gb", help="Keep the saved frames under this many GB: the oldest unpinned frames are deleted first (their measurements stay). Default: no cap."),
     insecure_no_token: bool = typer.Option(False, "--insecure-no-token", help="Serve on a non-loopback --host without a token: anyone who reaches the port can use the API."),
     allowed_host: Optional[list[str]] = typer.Option(None, "--allowed-host", help="Another Host name to answer (a DNS name of this machine); repeatable."),
-    ring_size: Optional[int] = typer.Option(None, help="Frames kept in the ring buffer (default 64)."),
+    ring_size: Optional[int] = typer.Option(None, help="Frames kept in the ring buffer (default 32)."),
 ) -> None:
     """Serve the measuring web page and HTTP API on a live source."""
     import uvicorn
 
     from .app import create_app
-    from .guard import allowed_hosts_for
-    from .config import ConfigError, ServeConfig, ServerConfig, load_config, source_spec
+    from .config import ConfigError, ServeConfig, ServerConfig, load_config
 
     try:
         cfg = load_config(config) if config else ServeConfig()
@@ -91,7 +90,7 @@ def serve(
         _fail(str(exc))
     except ValueError as exc:  # a flag out of range (pydantic)
         _fail(f"bad option: {exc}")
-    spec = source or (source_spec(cfg.source) if cfg.source is not None else auto_source())
+    spec = source or cfg.source or auto_source()
     check_listen(server.host, server.port)
     if server.host not in LOOPBACK and not server.token:
         if not server.insecure_no_token:
@@ -107,16 +106,7 @@ def serve(
     try:
         app = create_app(
             spec,
-            db_path=server.db,
-            token=server.token,
-            ring_size=server.ring_size,
-            max_frozen=server.max_frozen,
-            capture_fps=server.capture_fps,
-            reconnect_initial_s=server.reconnect_initial_s,
-            reconnect_max_s=server.reconnect_max_s,
-            recordings_dir=Path(server.recordings),
-            history_max_bytes=int(server.history_max_gb * 1e9) if server.history_max_gb else None,
-            allowed_hosts=allowed_hosts_for(server.host, server.allowed_hosts),
+            server,
         )
     except Exception as exc:  # noqa: BLE001 — StoreError etc.: say what, don't dump a trace
         _fail(str(exc))

@@ -1,4 +1,4 @@
-"""Request bodies of the HTTP API (pydantic models; every field bounded and typed)."""
+"""Request and response bodies of the HTTP API (pydantic models; every request field bounded and typed)."""
 
 from __future__ import annotations
 
@@ -68,3 +68,183 @@ class AnnotationIn(BaseModel):
     model_config = ConfigDict(extra="forbid")
     name: Annotated[str, Field(max_length=200)] | None = None
     note: Annotated[str, Field(max_length=4000)] | None = None
+
+
+# ---------------------------------------------------------------------------------------------
+# Response bodies. The routes build plain dicts (encoded off the event loop where it matters) and
+# declare these for /docs; tests/test_api_schemas.py checks that real answers validate against them.
+
+
+class _Out(BaseModel):
+    model_config = ConfigDict(extra="forbid")
+
+
+class TruthOut(_Out):
+    """The simulator's ground truth of a frame (None for real sources): pixels, metres, what it is."""
+
+    p1_px: list[float] | None
+    p2_px: list[float] | None
+    p1_m: list[float] | None
+    p2_m: list[float] | None
+    length_m: float | None
+    target: str | None
+    is_gap: bool | None
+
+
+class FrameOut(_Out):
+    """A frame of the ring: ``id`` for this service run, ``uid`` for the history; size in pixels,
+    times in seconds since the epoch; ``replay_index`` the frame's index in a replayed recording."""
+
+    id: int
+    uid: str
+    width: int
+    height: int
+    timestamp: float
+    received: float
+    frozen: bool
+    source: str
+    meta: dict[str, str | int | float | bool | None]
+    truth: TruthOut | None
+    replay_index: int | None
+
+
+class DepthOut(_Out):
+    """Depth (m) and disparity (px) at pixel (``x``, ``y``); None where the disparity has no data."""
+
+    frame_id: int
+    x: int
+    y: int
+    disparity_px: float | None
+    depth_m: float | None
+
+
+class DepthScaleOut(_Out):
+    """The disparity range (px) at the ends of ``disparity.png``'s colour map, the same as depth (m,
+    near first), ``fx_baseline`` (px·m) and ``doffs`` (px) to place any depth, and the map's colours."""
+
+    frame_id: int
+    disparity_px: list[float] | None
+    depth_m: list[float | None] | None
+    fx_baseline: float
+    doffs: float
+    colors: list[str]
+
+
+class HealthOut(_Out):
+    status: Literal["ok", "degraded"]
+    reason: str
+    source_state: str
+    frames: int
+    uptime_s: float
+
+
+class ReplayStatusOut(_Out):
+    paused: bool
+    index: int | None
+    frames: int
+    recording: str
+    recorded_source: str
+
+
+class RecordingStatusOut(_Out):
+    active: bool
+    path: str | None
+    frames: int
+    error: str
+
+
+class SourceStatusOut(_Out):
+    """What the capture is doing: ``state`` (starting, streaming, reconnecting, ended, ...), the source's
+    description, measured rate, reconnect counters, the replay's and the recording's status."""
+
+    state: str
+    message: str
+    spec: str
+    kind: str
+    name: str
+    serial: str
+    width: int
+    height: int
+    fps: float
+    measured_fps: float
+    frames: int
+    retries: int
+    retry_in_s: float | None
+    replay: ReplayStatusOut | None
+    timeouts: int
+    warnings: list[str]
+    recording: RecordingStatusOut
+
+
+class MeasurementOut(BaseModel):
+    """A stored measurement: where it was clicked (``p1``, ``p2``, px), with which options, and the
+    result (metres; None where not finite). ``samples_px`` and ``support`` (the per-sample arrays)
+    are left out of history lists. Fields the measuring core adds later are kept as they come."""
+
+    model_config = ConfigDict(extra="allow")
+    id: int
+    created: float
+    name: str
+    note: str
+    frame_id: int
+    frame_uid: str
+    source: str
+    p1: list[float]
+    p2: list[float]
+    options: OptionsIn
+    distance_m: float | None
+    method: str
+    fit: str
+    p1_m: list[float | None]
+    p2_m: list[float | None]
+    basic_distance_m: float | None
+    uncertainty_m: float | None
+    n_samples: int
+    n_valid: int
+    n_support: int
+    samples_px: list[list[float]] | None = None
+    support: list[bool] | None = None
+    gap_detected: bool
+    warnings: list[str]
+    elapsed_ms: float
+    pinned: bool
+    interval_m: list[float | None] | None = None
+    quality: str | None = None
+    reasons: list[str] | None = None
+    frame_index: int | None = None
+
+
+class MeasurementsOut(_Out):
+    measurements: list[MeasurementOut]
+
+
+class ReopenOut(_Out):
+    frame: FrameOut
+    measurement: MeasurementOut
+
+
+class DeletedOut(_Out):
+    deleted: int
+
+
+def json_doc(model: type[BaseModel] | object, csv: bool = False) -> dict[str, object]:
+    """Route arguments that document ``model`` as the 200 answer (and a CSV alternative with ``csv``)
+    while the route returns its dict or a pre-encoded Response as it is (no validation pass on the
+    hot paths)."""
+    answer: dict[str, object] = {"model": model}
+    if csv:
+        answer["content"] = {"text/csv": {"schema": {"type": "string"}}}
+    return {"response_model": None, "responses": {200: answer}}
+
+
+def media_doc(*media_types: str, text: bool = False) -> dict[str, object]:
+    """Route arguments that document a binary (image) or text (CSV) 200 answer of ``media_types``
+    (the plain Response class, so no JSON body is listed beside them)."""
+    from fastapi.responses import Response
+
+    schema = {"type": "string"} if text else {"type": "string", "format": "binary"}
+    return {
+        "response_model": None,
+        "response_class": Response,
+        "responses": {200: {"content": {m: {"schema": schema} for m in media_types}}},
+    }

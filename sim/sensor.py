@@ -1,4 +1,4 @@
-"""Sensor model of the paper's three-camera rig (a Dell Venue 8 with RealSense Snapshot, METHOD.md "Results").
+"""Sensor model of the paper's three-camera rig (a Dell Venue 8 with RealSense Snapshot, docs/method.md "Results to beat").
 
 The rig: one high-resolution reference (colour) camera and two lower-resolution auxiliary cameras.
 Each auxiliary camera forms a stereo pair with the reference camera: the *wide* pair (aux camera

@@ -229,7 +229,3 @@ class SimSource(SourceBase):
 def _with_state(info: SourceInfo, state: str) -> SourceInfo:
     return replace(info, state=state)
 
-
-def from_spec(spec: SourceSpec) -> SimSource:
-    """The (unopened) sim source a spec names, e.g. ``sim:doorway?distance=6&lighting=mixed``."""
-    return SimSource(config_from_spec(spec))

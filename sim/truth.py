@@ -10,7 +10,7 @@ import numpy as np
 
 @dataclass(frozen=True)
 class Truth:
-    """What the simulator knows exactly about a frame (ARCHITECTURE.md "Simulated rig").
+    """What the simulator knows exactly about a frame (docs/design.md "Simulated rig").
 
     depth_m: H x W true depth Z (m, reference camera), NaN where no surface; p1_m, p2_m: the
     measured target's end points (m, reference camera frame: x right, y down, z forward); p1_px, p2_px:

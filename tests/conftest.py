@@ -47,5 +47,5 @@ def pytest_collection_modifyitems(config: pytest.Config, items: list[pytest.Item
 @pytest.fixture(scope="session")
 def middlebury_dir() -> Path:
     if not MIDDLEBURY.is_dir():
-        pytest.fail(f"Middlebury scenes not found at {MIDDLEBURY}; set DEPTHRULER_SHARED to the shared/ folder")
+        pytest.fail(f"Middlebury scenes not found at {MIDDLEBURY}; set DEPTHRULER_SHARED to the folder that holds data/middlebury")
     return MIDDLEBURY

@@ -1,4 +1,4 @@
-"""Recording and replay of frames in depthruler's directory format (ARCHITECTURE.md "Recording format").
+"""Recording and replay of frames in depthruler's directory format (docs/design.md "Recording format").
 
 Layout of one recording directory::
 
@@ -52,12 +52,12 @@ from .format import (
     jsonable,
 )
 from .reader import FrameEntry, Recording, open_recording, summarize
-from .replay import ReplayConfig, ReplaySource, from_spec
+from .replay import ReplayConfig, ReplaySource, config_from_spec
 from .writer import RecordingWriter
 
 __all__ = [
     "DISPARITY_SCALE", "FORMAT", "FORMAT_VERSION", "FRAMES", "MANIFEST", "MAX_DISPARITY_CODE", "RAW_KEYS",
     "EndOfRecording", "FrameEntry", "Recording", "RecordingNotFound", "RecordingWriter", "ReplayConfig", "ReplaySource",
-    "decode_confidence", "decode_disparity", "encode_confidence", "encode_disparity", "from_spec", "jsonable",
+    "decode_confidence", "decode_disparity", "encode_confidence", "encode_disparity", "config_from_spec", "jsonable",
     "open_recording", "summarize",
 ]  # fmt: skip

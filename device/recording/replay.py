@@ -120,8 +120,8 @@ class ReplaySource(SourceBase):
 _REPLAY_PARAMS = ("loop", "realtime", "speed", "start")
 
 
-def from_spec(spec: SourceSpec) -> ReplaySource:
-    """``replay:DIR?loop=1&realtime=1&speed=2&start=10`` -> an unopened ReplaySource."""
+def config_from_spec(spec: SourceSpec) -> ReplayConfig:
+    """ReplayConfig from ``replay:DIR?loop=1&realtime=1&speed=2&start=10``."""
     if not spec.target:
         raise RecordingNotFound("replay needs a recording directory: replay:path/to/recording")
     spec.check_keys(_REPLAY_PARAMS)
@@ -130,12 +130,10 @@ def from_spec(spec: SourceSpec) -> ReplaySource:
         start = int(spec.params.get("start", "0"))
     except ValueError as exc:
         raise SourceError(f"replay options speed/start must be numbers: {exc}") from exc
-    return ReplaySource(
-        ReplayConfig(
-            path=Path(spec.target),
-            loop=spec.flag("loop", False),
-            realtime=spec.flag("realtime", False),
-            speed=speed,
-            start=start,
-        )
+    return ReplayConfig(
+        path=Path(spec.target),
+        loop=spec.flag("loop", False),
+        realtime=spec.flag("realtime", False),
+        speed=speed,
+        start=start,
     )

@@ -10,14 +10,14 @@ from fastapi.responses import Response
 
 from ..frames import TooManyWaiters
 from ..render import colorize_disparity, disparity_range, encode_jpeg, encode_png, frame_json, turbo_colors
-from ..schemas import MAX_ID
+from ..schemas import MAX_ID, DepthOut, DepthScaleOut, FrameOut, json_doc, media_doc
 from ..state import State
 
 router = APIRouter(prefix="/api/frames", tags=["frames"])
 FrameId = Annotated[int, Path(ge=0, le=MAX_ID)]
 
 
-@router.get("/latest")
+@router.get("/latest", **json_doc(FrameOut))
 async def latest(
     state: State, after: Annotated[int, Query(ge=0, le=MAX_ID)] = 0, wait: Annotated[float, Query(ge=0, le=10)] = 0.0
 ) -> dict[str, Any]:
@@ -37,31 +37,31 @@ async def latest(
     return frame_json(entry)
 
 
-@router.get("/{frame_id}")
+@router.get("/{frame_id}", **json_doc(FrameOut))
 def frame_info(state: State, frame_id: FrameId) -> dict[str, Any]:
     return frame_json(state.entry(frame_id))
 
 
-@router.get("/{frame_id}/color.png")
+@router.get("/{frame_id}/color.png", **media_doc("image/png"))
 def color_png(state: State, frame_id: FrameId) -> Response:
     data = state.entry(frame_id).encoded("color.png", lambda f: encode_png(f.image))
     return Response(data, media_type="image/png", headers={"Cache-Control": "private, max-age=3600"})
 
 
-@router.get("/{frame_id}/color.jpg")
+@router.get("/{frame_id}/color.jpg", **media_doc("image/jpeg"))
 def color_jpg(state: State, frame_id: FrameId) -> Response:
     """The colour image for the live view: JPEG quality 85 (color.png has the exact pixels)."""
     data = state.entry(frame_id).encoded("color.jpg", lambda f: encode_jpeg(f.image))
     return Response(data, media_type="image/jpeg", headers={"Cache-Control": "private, max-age=3600"})
 
 
-@router.get("/{frame_id}/disparity.png")
+@router.get("/{frame_id}/disparity.png", **media_doc("image/png"))
 def disparity_png(state: State, frame_id: FrameId) -> Response:
     data = state.entry(frame_id).encoded("disparity.png", lambda f: encode_png(colorize_disparity(f.disparity)))
     return Response(data, media_type="image/png", headers={"Cache-Control": "private, max-age=3600"})
 
 
-@router.get("/{frame_id}/depth")
+@router.get("/{frame_id}/depth", **json_doc(DepthOut))
 def depth_at(
     state: State, frame_id: int, x: Annotated[float, Query(allow_inf_nan=False)], y: Annotated[float, Query(allow_inf_nan=False)]
 ) -> dict[str, Any]:
@@ -86,7 +86,7 @@ def depth_at(
     }
 
 
-@router.get("/{frame_id}/depth-scale")
+@router.get("/{frame_id}/depth-scale", **json_doc(DepthScaleOut))
 def depth_scale(state: State, frame_id: int) -> dict[str, Any]:
     """What the colours of ``disparity.png`` mean: the disparity range (px) at the ends of the colour
     map, the same range as depth (m), and ``fx_baseline`` and ``doffs`` to place any depth on it."""
@@ -107,14 +107,14 @@ def depth_scale(state: State, frame_id: int) -> dict[str, Any]:
     }
 
 
-@router.post("/{frame_id}/freeze")
+@router.post("/{frame_id}/freeze", **json_doc(FrameOut))
 def freeze(state: State, frame_id: FrameId) -> dict[str, Any]:
     entry = state.entry(frame_id)
     state.store.presave(entry.uid, entry.frame)  # a frozen frame is about to be measured: save it meanwhile
     return frame_json(state.ring.freeze(frame_id, True))
 
 
-@router.delete("/{frame_id}/freeze")
+@router.delete("/{frame_id}/freeze", **json_doc(FrameOut))
 def unfreeze(state: State, frame_id: FrameId) -> dict[str, Any]:
     state.entry(frame_id)
     return frame_json(state.ring.freeze(frame_id, False))

@@ -9,13 +9,13 @@ from fastapi import APIRouter, HTTPException
 from starlette.concurrency import run_in_threadpool
 
 from ..frames import ReplayControlError
-from ..schemas import ReplayIn
+from ..schemas import HealthOut, ReplayIn, ReplayStatusOut, SourceStatusOut, json_doc
 from ..state import State
 
 router = APIRouter(prefix="/api", tags=["health"])
 
 
-@router.get("/health")
+@router.get("/health", **json_doc(HealthOut))
 async def health(state: State) -> dict[str, Any]:
     """``status`` is "ok", or "degraded" with a ``reason`` (the history's disk is full: measurements
     answer 507 until space comes back, checked on every call)."""
@@ -30,12 +30,12 @@ async def health(state: State) -> dict[str, Any]:
     }
 
 
-@router.get("/source")
+@router.get("/source", **json_doc(SourceStatusOut))
 def source_status(state: State) -> dict[str, Any]:
     return {**state.capture.status(), "recording": state.recorder.status()}
 
 
-@router.post("/source/replay")
+@router.post("/source/replay", **json_doc(ReplayStatusOut))
 def replay_control(state: State, body: ReplayIn) -> dict[str, Any]:
     """Pause, play, step or seek a replay; answers the replay status (``paused``, ``index``, ``frames``)."""
     try:

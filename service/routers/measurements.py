@@ -11,7 +11,17 @@ from fastapi.responses import JSONResponse, PlainTextResponse, Response
 from measure import MeasureError, MeasureOptions, measure_distance
 
 from ..render import encode_png, frame_json, make_thumb, png_from_jpeg
-from ..schemas import MAX_ID, AnnotationIn, MeasureIn
+from ..schemas import (
+    MAX_ID,
+    AnnotationIn,
+    DeletedOut,
+    MeasureIn,
+    MeasurementOut,
+    MeasurementsOut,
+    ReopenOut,
+    json_doc,
+    media_doc,
+)
 from ..state import ServiceState, State
 from ..store import FrameDropped, StoreError, StoreFull
 
@@ -25,7 +35,7 @@ def _json(obj: Any) -> Response:
     return Response(json.dumps(obj, separators=(",", ":"), allow_nan=False).encode(), media_type="application/json")
 
 
-@router.post("/measure", response_model=None)
+@router.post("/measure", **json_doc(MeasurementOut))
 def measure(state: State, body: MeasureIn) -> Response:
     entry = state.entry(body.frame_id)
     frame = entry.frame
@@ -70,13 +80,13 @@ def _csv(state: ServiceState, units: str, request: Request) -> PlainTextResponse
     )
 
 
-@router.get("/measurements.csv")
+@router.get("/measurements.csv", **media_doc("text/csv", text=True))
 def measurements_csv(state: State, request: Request, units: Units = "m") -> PlainTextResponse:
     """All measurements as CSV: lengths in ``units``, rounded to what each measurement supports."""
     return _csv(state, units, request)
 
 
-@router.get("/measurements.json")
+@router.get("/measurements.json", **json_doc(MeasurementsOut))
 def measurements_json(state: State) -> JSONResponse:
     """All measurements, oldest first, as ``{"measurements": [...]}``: every stored field, including the
     per-sample arrays and, for a replay, ``frame_index``. ``depthruler export REC --mcap OUT
@@ -87,7 +97,7 @@ def measurements_json(state: State) -> JSONResponse:
     )
 
 
-@router.get("/measurements", response_model=None)
+@router.get("/measurements", **json_doc(list[MeasurementOut], csv=True))
 def measurements(
     state: State,
     request: Request,
@@ -111,13 +121,13 @@ def _record(state: ServiceState, mid: int) -> dict[str, Any]:
     return record
 
 
-@router.get("/measurements/{mid}", response_model=None)
+@router.get("/measurements/{mid}", **json_doc(MeasurementOut))
 def measurement(state: State, mid: MeasurementId) -> Response:
     """The full record, with the per-sample arrays."""
     return _json(_record(state, mid))
 
 
-@router.patch("/measurements/{mid}")
+@router.patch("/measurements/{mid}", **json_doc(MeasurementOut))
 def annotate(state: State, mid: MeasurementId, body: AnnotationIn) -> dict[str, Any]:
     """Name and/or note a measurement."""
     record = state.store.annotate(mid, body.name, body.note)
@@ -126,7 +136,7 @@ def annotate(state: State, mid: MeasurementId, body: AnnotationIn) -> dict[str, 
     return record
 
 
-@router.delete("/measurements/{mid}")
+@router.delete("/measurements/{mid}", **json_doc(DeletedOut))
 def delete_measurement(state: State, mid: MeasurementId) -> dict[str, Any]:
     if not state.store.delete(mid):
         raise HTTPException(404, f"no measurement {mid}; GET /api/measurements lists them")
@@ -147,21 +157,21 @@ def _thumb(state: ServiceState, mid: int) -> bytes:
     return data
 
 
-@router.get("/measurements/{mid}/thumb.jpg")
+@router.get("/measurements/{mid}/thumb.jpg", **media_doc("image/jpeg", "image/png"))
 def thumb_jpg(state: State, mid: MeasurementId) -> Response:
     data = _thumb(state, mid)
     media = "image/png" if data.startswith(b"\x89PNG") else "image/jpeg"  # histories from before kept PNG
     return Response(data, media_type=media, headers={"Cache-Control": "private, max-age=86400"})
 
 
-@router.get("/measurements/{mid}/thumb.png")
+@router.get("/measurements/{mid}/thumb.png", **media_doc("image/png"))
 def thumb(state: State, mid: MeasurementId) -> Response:
     data = _thumb(state, mid)
     png = data if data.startswith(b"\x89PNG") else png_from_jpeg(data)
     return Response(png, media_type="image/png", headers={"Cache-Control": "private, max-age=86400"})
 
 
-@router.get("/measurements/{mid}/color.png")
+@router.get("/measurements/{mid}/color.png", **media_doc("image/png"))
 def measured_color(state: State, mid: MeasurementId) -> Response:
     """The colour image of the saved frame a measurement was made on (the CSV's ``frame_url``)."""
     record = _record(state, mid)
@@ -172,7 +182,7 @@ def measured_color(state: State, mid: MeasurementId) -> Response:
     return Response(encode_png(saved.image), media_type="image/png", headers={"Cache-Control": "private, max-age=86400"})
 
 
-@router.post("/measurements/{mid}/open")
+@router.post("/measurements/{mid}/open", **json_doc(ReopenOut))
 def reopen(state: State, mid: MeasurementId) -> dict[str, Any]:
     """Put the saved frame of a measurement back into the ring (frozen) to view or re-measure it."""
     record = _record(state, mid)
@@ -186,14 +196,14 @@ def reopen(state: State, mid: MeasurementId) -> dict[str, Any]:
     return {"frame": frame_json(entry), "measurement": record}
 
 
-@router.post("/measurements/{mid}/pin")
+@router.post("/measurements/{mid}/pin", **json_doc(MeasurementOut))
 def pin(state: State, mid: MeasurementId) -> dict[str, Any]:
     """Keep this measurement's frame whatever the history cap (``--history-max-gb``)."""
     _record(state, mid)
     return state.store.pin(mid, True) or _record(state, mid)
 
 
-@router.delete("/measurements/{mid}/pin")
+@router.delete("/measurements/{mid}/pin", **json_doc(MeasurementOut))
 def unpin(state: State, mid: MeasurementId) -> dict[str, Any]:
     _record(state, mid)
     return state.store.pin(mid, False) or _record(state, mid)

@@ -6,17 +6,17 @@ from typing import Any
 
 from fastapi import APIRouter
 
-from ..schemas import RecordingIn
+from ..schemas import RecordingIn, RecordingStatusOut, json_doc
 from ..state import State
 
 router = APIRouter(prefix="/api/recordings", tags=["recordings"])
 
 
-@router.get("")
+@router.get("", **json_doc(RecordingStatusOut))
 def recording_status(state: State) -> dict[str, Any]:
     return state.recorder.status()
 
 
-@router.post("")
+@router.post("", **json_doc(RecordingStatusOut))
 def recording(state: State, body: RecordingIn) -> dict[str, Any]:
     return state.recorder.start(body.out) if body.action == "start" else state.recorder.stop()
