@@ -9,9 +9,10 @@ from one camera (same size, intrinsics in px, baseline in m); clicked pixels (x,
    image around each click and around the segment's middle has not shifted (phase correlation of
    ``PATCH_PX`` grey patches, shift at most ``MOTION_PX``), and (b) the segment's robust disparity
    level has not changed by more than ``MOTION_DEPTH_REL`` of itself and four standard errors.
-   Only the unbroken run of still frames ending at the newest is pooled; a moved frame is reported
-   ("scene moved: k of N frames pooled"), and with no older still frame the answer is the newest
-   frame's alone. A moving scene is never averaged.
+   Only the unbroken run of still frames ending at the newest is pooled, and only when the move
+   before it was a step (the first moved frame differs from its newer neighbour as well); a gradual
+   move (every frame a little) pools nothing. Either way the reasons say "scene moved (...): k of N
+   frames pooled"; with k = 1 the answer is the newest frame's alone. A moving scene is never averaged.
 3. **Pooling** (``pool``): "samples" puts the segment samples of all still frames into one robust
    fit (METHOD.md steps 1-6 on the pooled samples; the end windows, edges and gap extensions of the
    newest frame); "fits" combines the per-frame end depths on the clicks' rays by Tukey's bisquare
@@ -31,7 +32,7 @@ from one camera (same size, intrinsics in px, baseline in m); clicked pixels (x,
    i.e. sigma_N² = sigma_1² - (1 - 1/N) sigma_random²: pooling removes only what was seen to vary.
    s from N frames is itself uncertain; its upper 84 % bound (chi-square, N - 1 degrees of freedom)
    is taken for the s²/N term (and its lower bound for what is removed), so that three frames do not
-   claim what ten would.
+   claim what ten would; the newest frame's own sigma caps the result.
 
 Figures (``depthruler eval frames``; poster width/length at 2-7 m, indoor, 24 trials per cell,
 simulated human clicks): see README "Several frames" and the table below (filled in from the run).
@@ -135,29 +136,35 @@ def depth_change(ref: Frame, other: Frame, p1: tuple[float, float], p2: tuple[fl
     return change / level, max(MOTION_DEPTH_REL, MOTION_SIGMAS * se / level)
 
 
+def _moved(ref: Frame, other: Frame, p1, p2, mid) -> str | None:
+    """Why ``other`` counts as moved against ``ref`` (image shift or depth change), or None."""
+    shift = image_shift(ref, other, (p1, mid, p2))
+    if shift > MOTION_PX:
+        return f"image moved by {shift:.1f} px"
+    change, limit = depth_change(ref, other, p1, p2)
+    if abs(change) > limit:  # NaN compares False: no common pixels, no evidence of motion
+        return f"depth moved by {100 * abs(change):.1f} %"
+    return None
+
+
 def still_frames(frames: Sequence[Frame], p1: tuple[float, float], p2: tuple[float, float]) -> tuple[int, list[str]]:
     """How many of the newest frames form an unbroken still run (module docstring, step 2), and why
-    it ends. A change seen j frames back is taken as motion at 1/j of it per frame: when that rate
-    would move the kept run by more than half its limit the scene is moving, and only the newest
-    frame is used (a slow drift below one frame's noise must not be averaged either)."""
+    it ends. The first moved frame (walking back from the newest) is also compared with its newer
+    neighbour, the run's oldest frame: a step between those two is a move that ended, and the run
+    after it is pooled; no step there means the scene moves gradually, each frame by less than the
+    test sees, so the run drifts too and only the newest frame is used."""
     frames = list(frames)
     ref = frames[-1]
     mid = (0.5 * (p1[0] + p2[0]), 0.5 * (p1[1] + p2[1]))
-    run = 1
-    for j, f in enumerate(reversed(frames[:-1]), start=1):
-        shift = image_shift(ref, f, (p1, mid, p2))
-        change, limit = depth_change(ref, f, p1, p2)
-        if shift > MOTION_PX:
-            why, rate, lim = f"image moved by {shift:.1f} px", shift / j, MOTION_PX
-        elif abs(change) > limit:  # NaN compares False: no common pixels, no evidence of motion
-            why, rate, lim = f"depth moved by {100 * abs(change):.1f} %", abs(change) / j, limit
-        else:
-            run += 1
+    for j in range(1, len(frames)):
+        older = frames[-1 - j]
+        why = _moved(ref, older, p1, p2, mid)
+        if why is None:
             continue
-        if rate * (run - 1) > 0.5 * lim:
-            return 1, [f"{why} over {j} frames"]
-        return run, [f"{why} over {j} frames"]
-    return run, []
+        if j > 1 and _moved(frames[-j], older, p1, p2, mid) is not None:
+            return j, [f"{why} {j} frames back"]
+        return 1, [f"{why} {j} frames back; the scene is moving"]
+    return len(frames), []
 
 
 def _pooled_samples(frames: Sequence[Frame], p1, p2) -> SegmentSamples:
@@ -204,13 +211,14 @@ def measure_sequence(
     reasons = [f"scene moved ({why[0]}): {run} of {len(frames)} frames pooled"] if why else []
     if run == 1:
         return _with_frames(single, single, 1, reasons)
-    per = []
-    for f in still[:-1]:
+    per = [single]
+    for f in reversed(still[:-1]):
         try:
             per.append(robust_with_terms(f, p1, p2, options)[0])
         except MeasureError:
-            continue  # a frame without data along the segment adds nothing
-    per.append(single)
+            break  # a frame without data along the segment ends the run: the pooled frames stay the newest ones
+    per.reverse()
+    still = still[len(still) - len(per) :]
     dists = np.array([m.distance_m for m in per])
     n = len(per)
     if pool == "samples":
@@ -250,7 +258,9 @@ def pooled_sigma(single_sigma: float, terms: dict[str, float], dists: np.ndarray
     removable = model1 * model1 - floor2  # fit and structure: fresh per frame only as far as seen to vary
     static2 = model1 * model1 - min(var_lo, removable)
     random2 = min(var_hi, removable)
-    return calibrated_sigma(math.sqrt(static2 + random2 / n), dist)
+    # A wide spread from few frames can bound sigma_random above what was removed; the mean of still
+    # frames is never less precise than one of them, so the newest frame's sigma caps it.
+    return min(calibrated_sigma(math.sqrt(static2 + random2 / n), dist), max(single_sigma, calibrated_sigma(0.0, dist)))
 
 
 def _with_frames(out: Measurement, single: Measurement, n: int, reasons: list[str], q1=None, q2=None,

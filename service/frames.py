@@ -73,6 +73,8 @@ class FrameRing:
         self._ids = itertools.count(1)
         self._next = 1
         self._viewed: deque[int] = deque(maxlen=keep_viewed)
+        self.hold_before = hold_before
+        self._held: tuple[int, list[RingFrame]] = (0, [])  # (frozen id, the frames just before it)
         self._cond = threading.Condition()
 
     def push(self, frame: Frame, *, frozen: bool = False, uid: str | None = None) -> RingFrame:
@@ -142,10 +144,32 @@ class FrameRing:
             entry = self.get(fid)
             entry.frozen = frozen
             if frozen:
+                self._held = (fid, self._before(fid, self.hold_before))
                 self._limit_frozen(keep=fid)
             else:
+                if self._held[0] == fid:
+                    self._held = (0, [])
                 self._evict()
             return entry
+
+    def _before(self, fid: int, n: int) -> list[RingFrame]:
+        held = self._held[1] if self._held[0] == fid else []
+        older = {e.id: e for e in held} | {i: e for i, e in self._frames.items() if i < fid}
+        return [older[i] for i in sorted(older, reverse=True)[:n]]
+
+    def before(self, fid: int, n: int) -> list[RingFrame]:
+        """Up to ``n`` frames received just before frame ``fid`` that show the same camera (size,
+        intrinsics, baseline, source): newest first, stopping at the first that does not."""
+        with self._cond:
+            ref = self.get(fid).frame
+            out = []
+            for e in self._before(fid, n):
+                f = e.frame
+                if (f.shape != ref.shape or f.camera != ref.camera or f.baseline_m != ref.baseline_m or f.doffs != ref.doffs
+                        or f.meta.get("source") != ref.meta.get("source")):
+                    break
+                out.append(e)
+            return out
 
     def __len__(self) -> int:
         with self._cond:

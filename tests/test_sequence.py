@@ -1,0 +1,93 @@
+"""Several frames of a still scene (measure.sequence, issue #17): pooling gain, coverage, motion refusal, API."""
+
+from __future__ import annotations
+
+from dataclasses import replace
+
+import numpy as np
+import pytest
+
+from evaluation.frames_study import FramesJob, trial_frames
+from evaluation.report import accuracy
+from measure import MeasureError, MeasureOptions
+from measure.sequence import MAX_FRAMES, measure_sequence, still_frames
+
+SMALL = dict(width=640, height=360)  # a quarter of the pixels: the same geometry, a faster test
+
+
+@pytest.fixture(scope="module")
+def still_trials():
+    """Eight still 10-frame scenes of the poster's width at 7 m (fresh noise and contention per frame)."""
+    return [trial_frames(FramesJob(7.0, "poster-width", "fresh", 500 + k, **SMALL)) for k in range(8)]
+
+
+def test_ten_frames_cut_the_spread_at_7m_with_mean_no_worse(still_trials):
+    one, ten = [], []
+    for frames, truth, clicks in still_trials:
+        p1, p2 = clicks["exact"]
+        one.append(accuracy(truth.length_m, measure_sequence(frames[-1:], p1, p2).distance_m))
+        m = measure_sequence(frames, p1, p2)
+        assert m.frames_used == 10 and not any(r.startswith("scene moved") for r in m.reasons)
+        ten.append(accuracy(truth.length_m, m.distance_m))
+    one, ten = np.array(one), np.array(ten)
+    assert np.std(ten, ddof=1) * 2 <= np.std(one, ddof=1), (one, ten)
+    assert ten.mean() >= one.mean() - 0.1
+
+
+@pytest.mark.parametrize("kind", ["exact", "human"])
+def test_pooled_interval_covers_the_truth_and_never_widens(still_trials, kind):
+    covered = 0
+    for frames, truth, clicks in still_trials:
+        p1, p2 = clicks[kind]
+        for n in (3, 10):
+            m = measure_sequence(frames[-n:], p1, p2)
+            lo, hi = m.interval_m
+            covered += lo <= truth.length_m <= hi
+            # what pooling removes is only the part seen to vary from frame to frame
+            assert m.uncertainty_m <= m.single_frame_uncertainty_m * (1 + 1e-9)
+            assert m.uncertainty_m >= 0.3 * m.single_frame_uncertainty_m  # the clicks' share stays
+    assert covered >= 0.9 * 2 * len(still_trials)  # the 95 % interval, on 16 answers
+
+
+@pytest.mark.parametrize("motion", ["pan", "push"])
+def test_moving_camera_is_refused(motion):
+    frames, truth, clicks = trial_frames(FramesJob(7.0, "poster-width", "fresh", 900, motion=motion, **SMALL))
+    p1, p2 = clicks["exact"]
+    m = measure_sequence(frames, p1, p2)
+    assert m.frames_used == 1
+    assert any(r.startswith("scene moved") and "1 of 10 frames pooled" in r for r in m.reasons), m.reasons
+    assert m.quality != "good"  # a scene-moved reason demotes the answer
+    single = measure_sequence(frames[-1:], p1, p2)
+    assert m.distance_m == pytest.approx(single.distance_m) and m.uncertainty_m == pytest.approx(single.uncertainty_m)
+
+
+def test_a_move_that_ended_keeps_the_still_frames_after_it():
+    moved, _, _ = trial_frames(FramesJob(7.3, "poster-width", "fresh", 901, **SMALL), n=4)
+    still, truth, clicks = trial_frames(FramesJob(7.0, "poster-width", "fresh", 902, **SMALL), n=6)
+    p1, p2 = clicks["exact"]
+    assert still_frames(moved + still, p1, p2)[0] == 6
+    m = measure_sequence(moved + still, p1, p2)
+    assert m.frames_used == 6 and any("6 of 10 frames pooled" in r for r in m.reasons), m.reasons
+    assert m.distance_m == pytest.approx(measure_sequence(still, p1, p2).distance_m)
+
+
+def test_static_contention_repeats_and_fresh_does_not():
+    a, _, clicks = trial_frames(FramesJob(4.0, "poster-width", "static", 7, **SMALL), n=2)
+    b, _, _ = trial_frames(FramesJob(4.0, "poster-width", "fresh", 7, **SMALL), n=2)
+    big = lambda f, g: np.nan_to_num(np.abs(f.disparity - g.disparity)) > 1.5  # noqa: E731 — a wrong match moves 2-8 px
+    # fresh contention: outliers in different places frame to frame; static: only where noise/holes differ
+    assert big(a[0], a[1]).sum() * 5 < big(b[0], b[1]).sum()
+
+
+def test_bad_sequences_raise():
+    frames, _, clicks = trial_frames(FramesJob(4.0, "poster-width", "fresh", 3, **SMALL), n=2)
+    p1, p2 = clicks["exact"]
+    with pytest.raises(MeasureError, match="no frames"):
+        measure_sequence([], p1, p2)
+    with pytest.raises(MeasureError, match="at most"):
+        measure_sequence(frames * (MAX_FRAMES // 2 + 1), p1, p2)
+    with pytest.raises(MeasureError, match="robust"):
+        measure_sequence(frames, p1, p2, MeasureOptions(method="basic"))
+    other = replace(frames[0], baseline_m=frames[0].baseline_m * 2)
+    with pytest.raises(MeasureError, match="another camera"):
+        measure_sequence([other, frames[1]], p1, p2)
