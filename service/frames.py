@@ -61,10 +61,13 @@ class FrameRing:
     Eviction passes over the last ``keep_viewed`` frames handed out as "latest": a page shows such a
     frame and may freeze it a moment later, when a fast source with a small ring would have evicted
     it already (30 fps into 4 frames leaves 0.13 s, less than a click). At most ``capacity +
-    keep_viewed`` unfrozen frames are held.
+    keep_viewed`` unfrozen frames are held in the ring. Freezing a frame also keeps up to
+    ``hold_before`` frames received just before it (the newest freeze's only; ``before`` hands them
+    out, ``get`` does not), so that a measurement over several frames of a still scene can use them
+    after the stream moved on.
     """
 
-    def __init__(self, capacity: int = 32, max_frozen: int = 16, keep_viewed: int = 8) -> None:
+    def __init__(self, capacity: int = 32, max_frozen: int = 16, keep_viewed: int = 8, hold_before: int = 29) -> None:
         if capacity < 1 or max_frozen < 1:
             raise ValueError(f"ring capacity ({capacity}) and max_frozen ({max_frozen}) must be at least 1")
         self.capacity = capacity
