@@ -10,29 +10,29 @@ from one camera (same size, intrinsics in px, baseline in m); clicked pixels (x,
    ``PATCH_PX`` grey patches, shift at most ``MOTION_PX``), and (b) the segment's robust disparity
    level has not changed by more than ``MOTION_DEPTH_REL`` of itself and four standard errors.
    Only the unbroken run of still frames ending at the newest is pooled, and only when the move
-   before it was a step (the first moved frame differs from its newer neighbour as well); a gradual
-   move (every frame a little) pools nothing. Either way the reasons say "scene moved (...): k of N
+   before it was a step (the first moved frame differs from its newer neighbour by most of the move,
+   and the run's frames are quiet against it); a gradual move (every frame a little) pools nothing. Either way the reasons say "scene moved (...): k of N
    frames pooled"; with k = 1 the answer is the newest frame's alone. A moving scene is never averaged.
 3. **Pooling** (``pool``): "samples" puts the segment samples of all still frames into one robust
    fit (METHOD.md steps 1-6 on the pooled samples; the end windows, edges and gap extensions of the
    newest frame); "fits" combines the per-frame end depths on the clicks' rays by Tukey's bisquare
    (``robust_range.tukey_location``). Chosen by measurement (``evaluation/frames_study.py``, below).
-4. **Uncertainty**: the single-frame model (``measure.uncertainty``) splits into a part that a new
-   frame draws afresh and a part every frame shares. The clicks, the quantization's shared rounding,
-   the model choice and the residual structure next to the ends are shared (they are properties of
-   the clicks and of the scene's geometry: fattening, a contention pattern that repeats). The fit
-   term is partly shared too: only the frame-to-frame spread s of the per-frame distances shows how
-   much of it is fresh per frame. So, with N still frames and sigma_fit, sigma_other the single
-   frame's terms (before calibration),
+4. **Uncertainty**: the single-frame model (``measure.uncertainty``, before its calibration scale)
+   splits into a part every frame shares and a part a new frame may draw afresh. Shared, never
+   averaged: the click term (the same clicks in every frame), the quantization term (the same
+   rounding levels) and the model-choice term. Possibly fresh: the fit and the residual-structure
+   terms, which hold both per-frame noise and static errors (edge fattening, a contention pattern
+   that repeats, calibration); only the frame-to-frame spread s of the per-frame distances tells
+   how much of them is fresh. With sigma_1 the newest frame's model sigma, F² = fit² + structure²:
 
-       sigma_random² = min(s², sigma_fit²)          (s: the sample std of the per-frame distances)
-       sigma_static² = sigma_other² + sigma_fit² - sigma_random²
+       sigma_random² = min(s², F²)
+       sigma_static² = sigma_1² - sigma_random²
        sigma_N       = SIGMA_SCALE * sqrt(sigma_static² + sigma_random² / N)
 
-   i.e. sigma_N² = sigma_1² - (1 - 1/N) sigma_random²: pooling removes only what was seen to vary.
-   s from N frames is itself uncertain; its upper 84 % bound (chi-square, N - 1 degrees of freedom)
-   is taken for the s²/N term (and its lower bound for what is removed), so that three frames do not
-   claim what ten would; the newest frame's own sigma caps the result.
+   i.e. pooling removes (1 - 1/N) of only what was seen to vary. s from N frames is uncertain: its
+   lower one-sigma bound (chi-square, N - 1 degrees of freedom) sets what is removed from sigma_1,
+   its upper bound what is added back over N, so three frames do not claim what ten would; the
+   newest frame's own sigma caps the result. The 95 % interval is ``measure.uncertainty.interval``.
 
 Figures (``depthruler eval frames``; poster width/length at 2-7 m, indoor, 24 trials per cell,
 simulated human clicks): see README "Several frames" and the table below (filled in from the run).
@@ -60,7 +60,10 @@ PATCH_PX = 64  # side of the grey patches compared for image motion
 BLUR_PX = 2.0  # Gaussian blur (px) of those patches: widens the shift test's reach, damps pixel noise
 MOTION_PX = 0.5  # image shift (px) beyond which a frame counts as moved: a third of a click's error
 BAND_PX = 6  # rows (columns) either side of the segment compared for depth motion
-MOTION_DEPTH_REL = 0.005  # relative change of the segment's disparity level beyond which it moved
+BLOCK_PX = 2.0  # side of the blocks in which disparity errors come (the sim's aux cameras: 2x2 px)
+STEP_SHARE = 0.75  # share of a move that one frame step must hold to count as a move that ended
+QUIET_SHARE = 1 / 3  # ... while the frames after it stay below this share of it
+MOTION_DEPTH_REL = 0.01  # relative change of the segment's disparity level beyond which it moved
 MOTION_SIGMAS = 4.0
 # chi-square quantiles / dof for 1..29 degrees of freedom at 16 % and 84 % (one-sigma bounds of s²).
 _CHI2_DOF = {k: v for k, v in enumerate((
@@ -131,55 +134,66 @@ def image_shift(a: Frame, b: Frame, points: Sequence[tuple[float, float]]) -> fl
 
 
 def depth_change(ref: Frame, other: Frame, p1: tuple[float, float], p2: tuple[float, float]) -> tuple[float, float]:
-    """Relative change of the segment's disparity from ``ref`` to ``other`` (robust location of the
-    paired per-pixel differences over the reference level) and its limit: ``MOTION_DEPTH_REL`` or
-    ``MOTION_SIGMAS`` standard errors, whichever is larger. NaN when fewer than 5 pixels pair up."""
+    """Largest relative change of the disparity from ``ref`` to ``other`` over the two halves of a band
+    around the segment (robust location of the paired per-pixel differences over the reference level;
+    a turning object moves one end nearer and the other farther), and its limit: ``MOTION_DEPTH_REL``
+    or ``MOTION_SIGMAS`` standard errors, whichever is larger. NaN when a half has < 5 pixel pairs."""
     seg = segment_pixels(p1[0], p1[1], p2[0], p2[1])
     # A band of BAND_PX rows (or columns) either side of the segment: more pixels, a finer test.
     across = np.array([0, 1]) if abs(p2[0] - p1[0]) >= abs(p2[1] - p1[1]) else np.array([1, 0])
     offs = np.arange(-BAND_PX, BAND_PX + 1)
+    half = np.arange(len(seg)) < len(seg) / 2
     px = (seg[None, :, :] + offs[:, None, None] * across).reshape(-1, 2)
+    first = np.broadcast_to(half, (len(offs), len(seg))).ravel()
     h, w = ref.shape
-    px = px[(px[:, 0] >= 0) & (px[:, 0] < w) & (px[:, 1] >= 0) & (px[:, 1] < h)]
+    inside = (px[:, 0] >= 0) & (px[:, 0] < w) & (px[:, 1] >= 0) & (px[:, 1] < h)
+    px, first = px[inside], first[inside]
     a = ref.disparity[px[:, 1], px[:, 0]].astype(np.float64)
     b = other.disparity[px[:, 1], px[:, 0]].astype(np.float64)
     ok = ref.valid(a) & other.valid(b)
-    if ok.sum() < 5:
-        return math.nan, math.nan
-    diff = b[ok] - a[ok]
-    level = float(median(a[ok]))
-    # Bisquare location, not the median: on quantized disparity the median jumps a whole step.
-    change, se = tukey_location(diff)
-    se *= math.sqrt(2.0)  # neighbouring pixels share matching windows: every second one is independent
-    return change / level, max(MOTION_DEPTH_REL, MOTION_SIGMAS * se / level)
+    worst, worst_limit = math.nan, math.nan
+    for part in (first, ~first):
+        sel = ok & part
+        if sel.sum() < 5:
+            return math.nan, math.nan
+        level = float(median(a[sel]))
+        # Bisquare location, not the median: on quantized disparity the median jumps a whole step.
+        change, se = tukey_location(b[sel] - a[sel])
+        se *= BLOCK_PX  # sensors and matchers decide in blocks: one pixel in BLOCK_PX² is independent
+        rel, limit = change / level, max(MOTION_DEPTH_REL, MOTION_SIGMAS * se / level)
+        if not abs(rel) / limit <= abs(worst) / worst_limit:  # NaN on the first half: take it
+            worst, worst_limit = rel, limit
+    return worst, worst_limit
 
 
-def _moved(ref: Frame, other: Frame, p1, p2, mid) -> str | None:
-    """Why ``other`` counts as moved against ``ref`` (image shift or depth change), or None."""
+def _motion(ref: Frame, other: Frame, p1, p2, mid) -> tuple[float, str]:
+    """How far ``other`` moved against ``ref`` in units of its limit (> 1: moved), and the words for it."""
     shift = image_shift(ref, other, (p1, mid, p2))
-    if shift > MOTION_PX:
-        return f"image moved by {shift:.1f} px"
     change, limit = depth_change(ref, other, p1, p2)
-    if abs(change) > limit:  # NaN compares False: no common pixels, no evidence of motion
-        return f"depth moved by {100 * abs(change):.1f} %"
-    return None
+    depth = abs(change) / limit if math.isfinite(change) else 0.0  # no common pixels: no evidence of motion
+    if shift / MOTION_PX >= depth:
+        return shift / MOTION_PX, f"image moved by {shift:.1f} px"
+    return depth, f"depth moved by {100 * abs(change):.1f} %"
 
 
 def still_frames(frames: Sequence[Frame], p1: tuple[float, float], p2: tuple[float, float]) -> tuple[int, list[str]]:
     """How many of the newest frames form an unbroken still run (module docstring, step 2), and why
-    it ends. The first moved frame (walking back from the newest) is also compared with its newer
-    neighbour, the run's oldest frame: a step between those two is a move that ended, and the run
-    after it is pooled; no step there means the scene moves gradually, each frame by less than the
-    test sees, so the run drifts too and only the newest frame is used."""
+    it ends. A move that ended (a step) keeps the run after it: the first moved frame (walking back
+    from the newest) must differ from its newer neighbour, the run's oldest frame, by at least
+    ``STEP_SHARE`` of its motion score, and no frame of the run may score above ``QUIET_SHARE`` of it.
+    Otherwise the scene moves gradually, each frame by less than the test sees, the run drifts too,
+    and only the newest frame is used."""
     frames = list(frames)
     ref = frames[-1]
     mid = (0.5 * (p1[0] + p2[0]), 0.5 * (p1[1] + p2[1]))
+    quiet = 0.0
     for j in range(1, len(frames)):
         older = frames[-1 - j]
-        why = _moved(ref, older, p1, p2, mid)
-        if why is None:
+        score, why = _motion(ref, older, p1, p2, mid)
+        if score <= 1.0:
+            quiet = max(quiet, score)
             continue
-        if j > 1 and _moved(frames[-j], older, p1, p2, mid) is not None:
+        if j > 1 and quiet <= QUIET_SHARE * score and _motion(frames[-j], older, p1, p2, mid)[0] >= STEP_SHARE * score:
             return j, [f"{why} {j} frames back"]
         return 1, [f"{why} {j} frames back; the scene is moving"]
     return len(frames), []
