@@ -136,7 +136,7 @@ def summarize(records: list[dict[str, Any]]) -> dict[str, Any]:
                         rows = [r for r in still if r["contention"] == c and r["clicks"] == k and r["job_distance"] in ds
                                 and r["n"] == n and (r["pool"] == pool or n == 1)]
                         cells[f"{c}|{k}|{band}|{n}|{pool}"] = _cell(rows)
-    moving = [r for r in records if r["motion"] is not None]
+    moving = [r for r in records if r["motion"] is not None and r["pool"] == "samples"]  # one per (sequence, clicks)
     refused = [r for r in moving if r.get("frames_used") == 1 and any(x.startswith("scene moved") for x in r.get("reasons", []))]
     return {"cells": cells, "moving": {"n": len(moving), "refused": len(refused),
                                        "pooled_frames": [r.get("frames_used") for r in moving]}}
@@ -168,8 +168,9 @@ def write_report(out: Path, records: list[dict[str, Any]], protocol: dict[str, A
                                      f"{100 * s['coverage95']:.0f} % | {100 * s['coverage1']:.0f} % | {s['sigma_pct']:.2f} | {s['frames_used']:.1f} | {s['n']} |")
             lines.append("")
     mv = summary["moving"]
-    lines += ["## moving camera", "", f"{mv['refused']} of {mv['n']} moving 10-frame sequences refused (answer from the newest frame alone, "
-              f"with a \"scene moved\" reason); frames pooled: {mv['pooled_frames']}.", ""]
+    lines += ["## moving scenes", "", f"{mv['refused']} of {mv['n']} moving 10-frame cases ({mv['n'] // len(CLICKS)} sequences x "
+              f"{len(CLICKS)} click kinds) refused (answer from the newest frame alone, with a \"scene moved\" reason); "
+              f"frames pooled: {mv['pooled_frames']}.", ""]
     (out / "report.md").write_text("\n".join(lines))
     (out / "results.json").write_text(json.dumps({"protocol": protocol, "summary": summary}, indent=1))
     fig, axes = plt.subplots(1, 2, figsize=(10, 4), sharey=True)

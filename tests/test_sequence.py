@@ -122,3 +122,16 @@ def test_api_measures_over_frames_held_since_the_freeze(tmp_path):
         assert c.post("/api/measure", json={**body, "frames": 31}).status_code == 422
         bad = c.post("/api/measure", json={**body, "frames": 3, "options": {"method": "basic"}})
         assert bad.status_code == 422 and "robust" in bad.json()["detail"]
+
+
+def test_frames_study_writes_table_and_plot(tmp_path):
+    from evaluation.frames_study import run, summarize, write_report
+
+    jobs = [FramesJob(4.0, "poster-width", "static", 11, **SMALL), FramesJob(4.0, "poster-width", "fresh", 12, motion="pan", **SMALL)]
+    records = run(jobs)
+    paths = write_report(tmp_path, records, {"trials": 1})
+    assert paths["plot"].read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+    text = paths["report"].read_text()
+    assert "| 4 m | 10 | samples |" in text and "2 of 2 moving 10-frame cases (1 sequences x 2 click kinds) refused" in text
+    cell = summarize(records)["cells"]["static|exact|4 m|10|samples"]
+    assert cell["n"] == 1 and cell["frames_used"] == 10 and cell["mean_A"] > 99.0
