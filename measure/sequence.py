@@ -43,8 +43,9 @@ simulated human clicks, fresh 1.77 -> 1.67 / 97.22 -> 97.53 / 94 -> 97 %, static
 at N = 10 (exact clicks, fresh / static): std of A 0.08 / 0.12 vs 0.15 / 0.13, hence "samples".
 Moving scenes (camera turning 1 px a frame, walking 3 cm a frame, board turning 1 degree a frame):
 12 of 12 sequences (24 of 24 with both click kinds) answered from the newest frame alone; still
-scenes at 6-7 m: every frame pooled. Phase correlation for the image test locked onto sensor noise on patches of little texture (4-12 px
-between still frames at 2 m): replaced by the Lucas-Kanade step with its standard error.
+scenes at 6-7 m: every frame pooled. Phase correlation for the image test locked onto sensor noise
+on patches of little texture (4-12 px between still frames at 2 m): replaced by the Lucas-Kanade
+step with its standard error.
 """
 
 from __future__ import annotations
