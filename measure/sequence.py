@@ -6,17 +6,19 @@ from one camera (same size, intrinsics in px, baseline in m); clicked pixels (x,
 
 1. **Per frame**: the robust answer of every frame (``distance.robust_with_terms``).
 2. **Motion check** (``still_frames``): an older frame joins only if, against the newest, (a) the
-   image around each click and around the segment's middle has not shifted (phase correlation of
-   ``PATCH_PX`` grey patches, shift at most ``MOTION_PX``), and (b) the segment's robust disparity
-   level has not changed by more than ``MOTION_DEPTH_REL`` of itself and four standard errors.
-   Only the unbroken run of still frames ending at the newest is pooled, and only when the move
-   before it was a step (the first moved frame differs from its newer neighbour by most of the move,
-   and the run's frames are quiet against it); a gradual move (every frame a little) pools nothing. Either way the reasons say "scene moved (...): k of N
-   frames pooled"; with k = 1 the answer is the newest frame's alone. A moving scene is never averaged.
+   image around each click and around the segment's middle has not shifted (a Lucas-Kanade step on
+   blurred ``PATCH_PX`` grey patches: shift at most ``MOTION_PX`` or within four standard errors),
+   and (b) the disparity in a band around each half of the segment has not changed by more than
+   ``MOTION_DEPTH_REL`` of itself or four standard errors. Only the unbroken run of still frames
+   ending at the newest is pooled, and only when the move before it was a step (the first moved
+   frame differs from its newer neighbour by most of the move, and the run's frames are quiet
+   against it); a gradual move (every frame a little) pools nothing. Either way the reasons say
+   "scene moved (...): k of N frames pooled"; with k = 1 the answer is the newest frame's alone. A
+   moving scene is never averaged.
 3. **Pooling** (``pool``): "samples" puts the segment samples of all still frames into one robust
    fit (METHOD.md steps 1-6 on the pooled samples; the end windows, edges and gap extensions of the
    newest frame); "fits" combines the per-frame end depths on the clicks' rays by Tukey's bisquare
-   (``robust_range.tukey_location``). Chosen by measurement (``evaluation/frames_study.py``, below).
+   (``robust_range.tukey_location``). Chosen by measurement: "samples" (figures below).
 4. **Uncertainty**: the single-frame model (``measure.uncertainty``, before its calibration scale)
    splits into a part every frame shares and a part a new frame may draw afresh. Shared, never
    averaged: the click term (the same clicks in every frame), the quantization term (the same
