@@ -63,6 +63,22 @@ def sim_command(
     _print_summary(results["methods"], f"{out / 'report.md'}", protocol["wall_time_s"], results["gap"])
 
 
+@app.command("frames")
+def frames_command(
+    out: Path = typer.Option(..., "--out", help="Output folder for report.md, results.json and frames.png."),
+    trials: int = typer.Option(8, "--trials", "-n", min=2, help="Still scenes per (distance, target, contention) cell."),
+    seed: int = typer.Option(0, "--seed", help="Base seed of the scenes' noise and clicks."),
+    workers: int = typer.Option(2, "--workers", "-j", min=1, help="Worker processes."),
+) -> None:
+    """Several frames of a still scene (evaluation/frames_study.py): N = 1, 3, 5, 10 at 2-7 m, and moving scenes that must be refused."""
+    from .frames_study import plan, run, write_report
+
+    t0 = time.perf_counter()
+    records = run(plan(trials, seed), workers=workers)
+    paths = write_report(out, records, {"trials": trials, "seed": seed, "wall_time_s": time.perf_counter() - t0})
+    print(f"{len(records)} measurements; report: {paths['report']}, plot: {paths['plot']}")
+
+
 @app.command("stress-sim")
 def stress_sim_command(
     out: Path = typer.Option(..., "--out", help="Output folder for report.md, results.json and plots."),

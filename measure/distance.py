@@ -238,7 +238,25 @@ def _paper(frame, xy1, xy2, options, basic: BasicEnds, samples, model: LineModel
     return _measurement(q1, q2, "paper", model.kind, basic, sigma, samples, model.support, False, warnings, t0, reasons)
 
 
-def _robust(frame, xy1, xy2, options, basic: BasicEnds, samples: SegmentSamples, t0) -> Measurement:
+def robust_with_terms(frame: Frame, xy1, xy2, options: MeasureOptions, samples: SegmentSamples | None = None) -> tuple[Measurement, dict[str, float]]:
+    """The robust answer on ``frame`` with the model-sigma terms it was built from (m, before
+    ``calibrated_sigma``): "fit" (the line's, correlation-inflated, or a gap's extension depths), and
+    "click", "quant", "model", "structure". ``samples`` replaces the segment's own (e.g. samples
+    pooled from several frames of one viewpoint, ``measure.sequence``); the end windows, edges and
+    gap extensions are read from ``frame``. The terms are empty for a window (basic) answer."""
+    xy1, xy2 = validate_request(frame, xy1, xy2, options)
+    samples = sample_segment(frame, xy1, xy2) if samples is None else samples
+    if samples.n_samples < MIN_FIT_SAMPLES or len(samples.points) < MIN_FIT_SAMPLES:
+        raise MeasureError(
+            f"only {len(samples.points)} valid samples along the segment from p1 to p2 ({MIN_FIT_SAMPLES} needed); "
+            "measure where the depth map has data, or use method='basic'"
+        )
+    terms: dict[str, float] = {}
+    out = _robust(frame, xy1, xy2, options, basic_ends(frame, xy1, xy2, options.window), samples, time.perf_counter(), terms)
+    return out, terms
+
+
+def _robust(frame, xy1, xy2, options, basic: BasicEnds, samples: SegmentSamples, t0, terms: dict[str, float] | None = None) -> Measurement:
     dx, dy = xy2[0] - xy1[0], xy2[1] - xy1[1]
     length = math.hypot(dx, dy)
     t = (samples.pixels - np.array(xy1)) @ np.array([dx / length, dy / length])
@@ -277,6 +295,7 @@ def _robust(frame, xy1, xy2, options, basic: BasicEnds, samples: SegmentSamples,
             model = MODEL_SHARE * abs(float(np.linalg.norm(r2 * z1[1] - r1 * z1[0])) - dist)
     structure = math.hypot(grad[0] * ends.offsets[0], grad[1] * ends.offsets[1])
     sigma = calibrated_sigma(math.sqrt(fit_sigma**2 + quant**2 + click**2 + model**2 + structure**2), dist)
+    parts = {"fit": fit_sigma, "click": click, "quant": quant, "model": model, "structure": structure}
     q1f, q2f, gap = q1, q2, False
     if options.gap_detection:
         ext = (extension_depth(frame, xy1, xy2, options.extension_px), extension_depth(frame, xy2, xy1, options.extension_px))
@@ -291,6 +310,7 @@ def _robust(frame, xy1, xy2, options, basic: BasicEnds, samples: SegmentSamples,
             gd = float(np.linalg.norm(g2 - g1))
             ext_sigma = endpoint_depth_sigma(g1, g2, ext[0].se_m * inflate, ext[1].se_m * inflate)
             sigma = calibrated_sigma(math.sqrt(ext_sigma**2 + quant**2 + click**2 + (MODEL_SHARE * abs(gd - dist)) ** 2), gd)
+            parts = {"fit": ext_sigma, "click": click, "quant": quant, "model": MODEL_SHARE * abs(gd - dist), "structure": 0.0}
             warnings.append("gap detected: both extensions are in front of the end points; measured at the extensions' depths")
             reasons.append("gap detected")
             q1f, q2f, gap = g1, g2, True
@@ -313,6 +333,8 @@ def _robust(frame, xy1, xy2, options, basic: BasicEnds, samples: SegmentSamples,
         if not edge and math.isfinite(bs) and bs < sigma:
             return _basic_measurement(basic, "robust", t0, samples, tuple(warnings) + ("imprecise line; basic answer",), support=line.support,
                                       reasons=[r for r in reasons if not r.startswith("methods disagree")], window_sigma=bs)
+    if terms is not None:
+        terms.update(parts)
     return _measurement(q1f, q2f, "robust", "none" if gap else fit, basic, sigma, samples, line.support, gap, warnings, t0, reasons)
 
 

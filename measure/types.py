@@ -241,6 +241,10 @@ class Measurement:
     interval_m: tuple[float, float] = (math.nan, math.nan)
     quality: str = "check"
     reasons: tuple[str, ...] = ()
+    # Several frames of a still scene (measure.sequence): how many were pooled, and the one-sigma
+    # the newest frame alone would have had (the gain is its ratio to uncertainty_m).
+    frames_used: int = 1
+    single_frame_uncertainty_m: float = math.nan
 
     def to_dict(self) -> dict[str, Any]:
         """JSON-ready dict with the same field names (NaN becomes None)."""
@@ -267,4 +271,6 @@ class Measurement:
             "interval_m": [num(v) for v in self.interval_m],
             "quality": self.quality,
             "reasons": list(self.reasons),
+            "frames_used": int(self.frames_used),
+            "single_frame_uncertainty_m": num(self.single_frame_uncertainty_m),
         }

@@ -64,10 +64,15 @@ class FrameRing:
     Eviction passes over the last ``keep_viewed`` frames handed out as "latest": a page shows such a
     frame and may freeze it a moment later, when a fast source with a small ring would have evicted
     it already (30 fps into 4 frames leaves 0.13 s, less than a click). At most ``capacity +
-    keep_viewed`` unfrozen frames are held.
+    keep_viewed`` unfrozen frames are held in the ring. Freezing a frame also keeps up to
+    ``hold_before`` frames received just before it (the newest freeze's only; ``before`` hands them
+    out, ``get`` does not), so that a measurement over several frames of a still scene can use them
+    after the stream moved on.
     """
 
-    def __init__(self, capacity: int = 32, max_frozen: int = 16, keep_viewed: int = 8, max_waiters: int = 64) -> None:
+    def __init__(
+        self, capacity: int = 32, max_frozen: int = 16, keep_viewed: int = 8, max_waiters: int = 64, hold_before: int = 29
+    ) -> None:
         if capacity < 1 or max_frozen < 1 or max_waiters < 1:
             raise ValueError(
                 f"ring capacity ({capacity}), max_frozen ({max_frozen}) and max_waiters ({max_waiters}) must be at least 1"
@@ -80,6 +85,8 @@ class FrameRing:
         self._ids = itertools.count(1)
         self._next = 1
         self._viewed: deque[int] = deque(maxlen=keep_viewed)
+        self.hold_before = hold_before
+        self._held: tuple[int, list[RingFrame]] = (0, [])  # (frozen id, the frames just before it)
         self._cond = threading.Condition()
 
     def push(self, frame: Frame, *, frozen: bool = False, uid: str | None = None) -> RingFrame:
@@ -191,10 +198,32 @@ class FrameRing:
             entry = self.get(fid)
             entry.frozen = frozen
             if frozen:
+                self._held = (fid, self._before(fid, self.hold_before))
                 self._limit_frozen(keep=fid)
             else:
+                if self._held[0] == fid:
+                    self._held = (0, [])
                 self._evict()
             return entry
+
+    def _before(self, fid: int, n: int) -> list[RingFrame]:
+        held = self._held[1] if self._held[0] == fid else []
+        older = {e.id: e for e in held} | {i: e for i, e in self._frames.items() if i < fid}
+        return [older[i] for i in sorted(older, reverse=True)[:n]]
+
+    def before(self, fid: int, n: int) -> list[RingFrame]:
+        """Up to ``n`` frames received just before frame ``fid`` that show the same camera (size,
+        intrinsics, baseline, source): newest first, stopping at the first that does not."""
+        with self._cond:
+            ref = self.get(fid).frame
+            out = []
+            for e in self._before(fid, n):
+                f = e.frame
+                if (f.shape != ref.shape or f.camera != ref.camera or f.baseline_m != ref.baseline_m or f.doffs != ref.doffs
+                        or f.meta.get("source") != ref.meta.get("source")):
+                    break
+                out.append(e)
+            return out
 
     def __len__(self) -> int:
         with self._cond:

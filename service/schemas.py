@@ -34,6 +34,9 @@ class MeasureIn(BaseModel):
     p1: tuple[FiniteNumber, FiniteNumber]
     p2: tuple[FiniteNumber, FiniteNumber]
     options: OptionsIn = OptionsIn()
+    # Measure over this many frames of a still scene: the frame and the ones received just before it
+    # (measure.sequence; robust method only).
+    frames: Annotated[int, Strict(), Field(ge=1, le=30)] = 1
 
 
 class RecordingIn(BaseModel):

@@ -35,6 +35,8 @@ Effects, each a field of :class:`SensorModel` (the effect disappears at 0 / Fals
 - holes (NaN): ``hole_fraction`` of low-texture pixels (blocks of ``hole_block_px``), occlusions, and
   ``stray_hole_fraction`` everywhere; ``stray_outlier_fraction`` of random disparities everywhere;
 - quantization of the output to multiples of ``quantization`` px (1 = integer disparity, 0 = none);
+- ``static_contention``: the contention outliers repeat frame after frame (seeded by ``static_seed``),
+  as a still scene's wrong matches do; otherwise they are drawn afresh per frame like the noise;
 - an optional confidence map that is lower in contended and low-texture regions and lower still on
   outliers (correlated with the errors, but not a perfect oracle).
 
@@ -199,6 +201,8 @@ class SensorModel:
     occlusion_holes: bool = True  # pixels neither aux camera sees are holes
     min_disparity_px: float = 0.25  # smaller disparities (beyond range) are holes
     confidence: bool = True  # also produce a confidence map
+    static_contention: bool = False  # the contention outliers (which pixels, how far) repeat in every frame
+    static_seed: int = 0  # the seed of that fixed pattern (a still scene under one light keeps its wrong matches)
 
     def __post_init__(self) -> None:
         if self.lighting not in LIGHTING:
@@ -242,7 +246,7 @@ class SensorModel:
         return replace(self, contention=0.0, noise_px=0.0, hole_fraction=0.0, quantization=0.0,
                        stray_hole_fraction=0.0, stray_outlier_fraction=0.0, mismatch_min_px=0.0,
                        mismatch_max_px=0.0, outlier_model="mismatch", noise_window_px=0, calibration_px=0.0,
-                       confidence=False)
+                       confidence=False, static_contention=False, static_seed=0)
 
 
 @dataclass(frozen=True)
@@ -417,6 +421,9 @@ def sense(view: View, model: SensorModel, rng: np.random.Generator) -> SensorOut
     b = model.aux_block
     hb, wb = -(-h // b), -(-w // b)
     u = rng.random((5, hb, wb), dtype=np.float32)
+    if model.static_contention:
+        # Which pixels carry a wrong match and how far it is off: the same in every frame of the scene.
+        u[:3] = np.random.default_rng([model.static_seed, 0x5EED]).random((3, hb, wb), dtype=np.float32)
     ratio = np.float32(model.baseline_wide_m / model.baseline_narrow_m)
     noise = rng.standard_normal((hb, wb), dtype=np.float32)
     k = int(round(model.noise_window_px / b))

@@ -9,6 +9,7 @@ from fastapi import APIRouter, HTTPException, Path, Query, Request
 from fastapi.responses import JSONResponse, PlainTextResponse, Response
 
 from measure import MeasureError, MeasureOptions, measure_distance
+from measure.sequence import measure_sequence
 
 from ..render import encode_png, frame_json, make_thumb, png_from_jpeg
 from ..schemas import (
@@ -46,10 +47,22 @@ def measure(state: State, body: MeasureIn) -> Response:
                 422, f"{name}=({x:g}, {y:g}) is outside the {w}x{h} image of frame {entry.id}; use 0<=x<={w - 1}, 0<=y<={h - 1}"
             )
     options = body.options.model_dump()
+    used = [entry]
+    if body.frames > 1:
+        if body.options.method != "robust":
+            raise HTTPException(422, f"frames={body.frames} needs the robust method (got {body.options.method!r}); use method 'robust' or frames=1")
+        used = list(reversed(state.ring.before(entry.id, body.frames - 1))) + [entry]
     try:
-        result = measure_distance(frame, body.p1, body.p2, MeasureOptions(**options))
+        if body.frames > 1:
+            result = measure_sequence([e.frame for e in used], body.p1, body.p2, MeasureOptions(**options))
+        else:
+            result = measure_distance(frame, body.p1, body.p2, MeasureOptions(**options))
     except MeasureError as exc:
         raise HTTPException(422, str(exc)) from None
+    context = {"frame_index": replay["index"]} if isinstance(replay := frame.meta.get("replay"), dict) else {}
+    if body.frames > 1:
+        # The ids of the frames pooled, oldest first (the motion check may keep fewer than offered).
+        context |= {"frames_requested": body.frames, "frame_ids": [e.id for e in used[len(used) - result.frames_used :]]}
     try:
         record = state.store.add(
             frame_id=entry.id,
@@ -60,7 +73,7 @@ def measure(state: State, body: MeasureIn) -> Response:
             p2=body.p2,
             options=options,
             result=result.to_dict(),
-            context={"frame_index": replay["index"]} if isinstance(replay := frame.meta.get("replay"), dict) else None,
+            context=context or None,
         )  # returns once the measurement and its frame are on disk; the thumbnail is drawn on request
     except StoreFull as exc:
         raise HTTPException(507, str(exc)) from None

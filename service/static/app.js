@@ -581,6 +581,7 @@ async function measure(adjusting) {
   const seq = ++state.seq;
   const previous = adjusting && state.result ? state.result.id : null;
   const body = { frame_id: state.frame.id, p1: state.points[0], p2: state.points[1], options: { method: state.method } };
+  if (state.frames > 1 && state.method === "robust") body.frames = state.frames; // pooling is the robust method's
   $("hint").textContent = "Measuring…";
   let res;
   try {
@@ -673,7 +674,7 @@ function showResult(res) {
     verdict.className = "verdict hidden";
     $("why").classList.add("hidden");
     $("ends").replaceChildren();
-    for (const id of ["r-method", "r-fit", "r-samples", "r-basic", "r-sigma", "r-time"]) $(id).textContent = "—";
+    for (const id of ["r-method", "r-fit", "r-samples", "r-basic", "r-sigma", "r-frames", "r-time"]) $(id).textContent = "—";
     $("warnings").replaceChildren();
     return;
   }
@@ -722,6 +723,12 @@ function showResult(res) {
   $("r-basic").textContent = fmt(res.basic_distance_m);
   $("r-sigma").textContent = res.uncertainty_m === null ? "—" : fmtSmall(res.uncertainty_m);
   $("r-time").textContent = `${res.elapsed_ms.toFixed(1)} ms`;
+  // several frames: how many were pooled, and how much narrower than the newest frame alone
+  const used = res.frames_used || 1;
+  const gain = res.single_frame_uncertainty_m && res.uncertainty_m ? res.single_frame_uncertainty_m / res.uncertainty_m : null;
+  $("r-frames").textContent = res.frames_requested > 1
+    ? `${used} of ${res.frames_requested} used` + (gain ? ` · 1σ ${gain.toFixed(2)}× narrower than one frame` : "")
+    : "1";
   const warnings = [...res.warnings];
   if (res.gap_detected && !warnings.some((w) => /gap/i.test(w))) warnings.unshift("gap detected between the end points");
   $("warnings").replaceChildren(...warnings.map((w) => Object.assign(document.createElement("li"), { textContent: w })));
@@ -1051,6 +1058,13 @@ function setMethod(m) {
 
 $("units").addEventListener("change", (e) => setUnits(e.target.value));
 $("method").addEventListener("change", (e) => setMethod(e.target.value));
+state.frames = Number(localStorage.getItem("depthruler-frames")) || 1;
+$("frames").value = String(state.frames);
+$("frames").addEventListener("change", (e) => {
+  state.frames = Number(e.target.value) || 1;
+  localStorage.setItem("depthruler-frames", String(state.frames));
+  if (state.points.length === 2) measure(true);
+});
 $("freeze").addEventListener("click", () => (state.mode === "live" ? freeze() : goLive()));
 $("view-color").addEventListener("click", () => setView("color"));
 $("view-disparity").addEventListener("click", () => setView("disparity"));
