@@ -21,10 +21,10 @@ pixels (x, y) of its colour image. Output: a :class:`Measurement` in metres.
   uncertainty). One line is a model, not a fact: ``measure.surfaces`` checks the samples next to
   each end against the line and gives an end that lies on a surface of its own (a piece of at
   least 15 px, 10 % or more off the line) that surface's robust line, still on the clicked
-  pixel's ray (fit "surfaces"). Gap detection (``measure.gap.is_clear_gap``) asks for at least
-  10 valid pixels in each extension, each at least 20 % nearer than the segment's own surface
-  and three correlation-inflated depth sigmas, and a detected gap is measured between the
-  clicks' rays at the extensions' robust depths. Every answer carries a calibrated one-sigma,
+  pixel's ray (fit "surfaces"). Gap detection (``measure.gap.is_clear_gap``) asks, at each end, for a
+  surface of at least 10 samples (the extension and the segment's samples in front of its line
+  next to the click) 15 % nearer than the segment's own surface and by two correlation-inflated
+  standard errors; a detected gap is measured between the clicks' rays at those surfaces' depths. Every answer carries a calibrated one-sigma,
   a 95 % interval (``measure.uncertainty``) and a verdict with reasons (``measure.verdict``);
   ``basic`` and ``paper`` answers get a verdict too.
 
@@ -93,7 +93,7 @@ import time
 import numpy as np
 
 from .basic import BasicEnds, basic_ends
-from .gap import extension_depth, is_clear_gap, is_gap, robust_margins
+from .gap import end_surface, extension_depth, is_clear_gap, is_gap, leading_run
 from .geometry import project_on_line, project_on_plane
 from .dline import fit_disparity_line
 from .linefit import LineModel, fit_line
@@ -279,20 +279,30 @@ def _robust(frame, xy1, xy2, options, basic: BasicEnds, samples: SegmentSamples,
     sigma = calibrated_sigma(math.sqrt(fit_sigma**2 + quant**2 + click**2 + model**2 + structure**2), dist)
     q1f, q2f, gap = q1, q2, False
     if options.gap_detection:
-        ext = (extension_depth(frame, xy1, xy2, options.extension_px), extension_depth(frame, xy2, xy1, options.extension_px))
-        # The gap question is about the segment's own surface (the global line), whatever an end's piece says.
-        dg = np.array([line.at(0.0), line.at(length)]) + frame.doffs
-        zg = fb / dg if (dg > 0).all() else z
-        zz = (float(zg[0]), float(zg[1]))
-        zm = float(zg.mean())
-        margins = robust_margins(zz, zm * zm / fb * line.sigma_d * inflate, zm, fb, quantum)
-        if is_clear_gap(ext, zz, margins):
-            g1, g2 = r1 * ext[0].depth_m, r2 * ext[1].depth_m
+        # The gap question is about the segment's own surface (the global line), whatever an end's
+        # piece says; each end's surface is its extension and the segment's samples in front of the line next to it.
+        res = samples.disparity - line.at(t)
+        k1 = leading_run(res, line.support)
+        k2 = leading_run(res[::-1], line.support[::-1])
+        ends_s = (
+            end_surface(frame, xy1, xy2, options.extension_px, samples.disparity[:k1]),
+            end_surface(frame, xy2, xy1, options.extension_px, samples.disparity[::-1][:k2]),
+        )
+        cov_g = line.cov_at(0.0, length)
+        se_g = (inflate * math.sqrt(max(0.0, float(cov_g[0, 0]))), inflate * math.sqrt(max(0.0, float(cov_g[1, 1]))))
+        if is_clear_gap(ends_s, (line.at(0.0), line.at(length)), se_g, frame.doffs):
+            zg1, zg2 = (fb / (e.disparity + frame.doffs) for e in ends_s)
+            g1, g2 = r1 * zg1, r2 * zg2
             gd = float(np.linalg.norm(g2 - g1))
-            ext_sigma = endpoint_depth_sigma(g1, g2, ext[0].se_m * inflate, ext[1].se_m * inflate)
-            sigma = calibrated_sigma(math.sqrt(ext_sigma**2 + quant**2 + click**2 + (MODEL_SHARE * abs(gd - dist)) ** 2), gd)
-            warnings.append("gap detected: both extensions are in front of the end points; measured at the extensions' depths")
-            reasons.append("gap detected")
+            ext_sigma = endpoint_depth_sigma(g1, g2, zg1 * zg1 / fb * ends_s[0].se, zg2 * zg2 / fb * ends_s[1].se)
+            # The alternative is the segment's own surface at both clicks (no gap); a click off by a pixel
+            # stays on its end's surface.
+            zl = fb / (np.array([line.at(0.0), line.at(length)]) + frame.doffs)
+            alt = float(np.linalg.norm(r2 * zl[1] - r1 * zl[0])) if (zl > 0).all() else dist
+            click_g = _click_term(frame, xy1, xy2, np.array([e.disparity for e in ends_s]), np.zeros(2), gd)
+            sigma = calibrated_sigma(math.sqrt(ext_sigma**2 + quant**2 + click_g**2 + (MODEL_SHARE * abs(gd - alt)) ** 2), gd)
+            warnings.append("gap detected: both ends' surfaces are in front of the segment's; measured at their depths")
+            reasons = [r for r in reasons if r != "segment crosses several surfaces"] + ["gap detected"]
             q1f, q2f, gap = g1, g2, True
     out = float(np.linalg.norm(q2f - q1f))
     if len(samples.points) < FEW_SAMPLES or len(samples.points) < FEW_SHARE * samples.n_samples:
