@@ -128,6 +128,11 @@ BASIC_CLICK_SHARE = 1.5  # px: the basic answer's click error, as a share of the
 IMPRECISE = 0.08  # relative one-sigma above which the robust line yields to clean click windows
 MIN_FIT_SAMPLES = 5  # fewer valid samples than this cannot support a robust 3-D fit
 NO_DEPTH = "endpoint has no depth within window"
+BEYOND_RANGE = (
+    "depth beyond the measurable range: an end point's disparity is not distinguishable from zero "
+    "(infinite depth) for this camera; click on nearer surfaces or check the disparity map's scale"
+)
+RESOLVED_SIGMAS = 2.0  # an end's disparity must lie this many of its standard errors above zero
 
 
 def validate_request(frame: Frame, p1: object, p2: object, options: MeasureOptions) -> tuple[tuple[float, float], tuple[float, float]]:
@@ -158,6 +163,10 @@ def measure_distance(
     t0 = time.perf_counter()
     xy1, xy2 = validate_request(frame, p1, p2, options)
     basic = basic_ends(frame, xy1, xy2, options.window)
+    # Relative depth error = relative disparity error: at or above 1/RESOLVED_SIGMAS the depth is unbounded.
+    unresolved = basic.ok and any(not _resolved(1.0, s / float(p[2])) for s, p in zip(basic.z_sigma, (basic.p1_m, basic.p2_m)))
+    if unresolved and options.method in ("basic", "paper"):
+        raise MeasureError(BEYOND_RANGE)
     if options.method == "basic":
         if not basic.ok:
             raise MeasureError(f"{NO_DEPTH}: the basic method needs depth at both clicks; click on a surface with depth or use method='robust'")
@@ -256,6 +265,10 @@ def _robust(frame, xy1, xy2, options, basic: BasicEnds, samples: SegmentSamples,
             raise MeasureError("the robust line runs to infinite depth at an end point that has no depth; click elsewhere")
         warnings.append("the robust line runs to infinite depth at an end point; basic answer")
         return _basic_measurement(basic, "robust", t0, samples, tuple(warnings), support=line.support, reasons=["end point extrapolated"])
+    inflate = correlation_inflation(samples.disparity[line.support] - line.at(t[line.support]))
+    floor = quantum / math.sqrt(12.0)
+    if not all(_resolved(float(d_end[e]) + frame.doffs, max(inflate * math.sqrt(max(0.0, float(ends.cov[e, e]))), floor)) for e in (0, 1)):
+        raise MeasureError(BEYOND_RANGE)
     fb = _fb(frame)
     r1, r2 = ray(frame, *xy1), ray(frame, *xy2)
     z = fb / (d_end + frame.doffs)
@@ -263,7 +276,6 @@ def _robust(frame, xy1, xy2, options, basic: BasicEnds, samples: SegmentSamples,
     dist = float(np.linalg.norm(q2 - q1))
     # dD/dd_i = dD/dZ_i * dZ_i/dd_i with dZ/dd = -Z²/(fB); the two fitted disparities are correlated.
     grad = np.array([r1 @ (q1 - q2), r2 @ (q2 - q1)]) / dist * (-(z**2) / fb)
-    inflate = correlation_inflation(samples.disparity[line.support] - line.at(t[line.support]))
     fit_sigma = inflate * math.sqrt(max(0.0, float(grad @ ends.cov @ grad)))
     levels = int(np.unique(samples.disparity[line.support]).size)
     quant = quantization_sigma(dist, float(z.mean()), fb, quantum, levels, line.sigma_d)
@@ -346,9 +358,23 @@ def _clean_ends(frame: Frame, xy1, xy2, window: int, ends: EndModels) -> EndMode
     return EndModels(d_end, ends.slope, cov, (own[0], own[1]), ends.offsets)
 
 
+def _check_range(dist: float, sigma: float) -> None:
+    """Every answer has a finite distance and a finite, positive sigma (m)."""
+    if not (math.isfinite(dist) and math.isfinite(sigma) and sigma > 0):
+        raise MeasureError(BEYOND_RANGE)
+
+
+def _resolved(d: float, se: float) -> bool:
+    """A disparity ``d`` (px, doffs included) a depth can be taken from: more than ``RESOLVED_SIGMAS``
+    of its standard error ``se`` (px) above zero. Closer to zero, depth = fB/d is unbounded within
+    the error (its relative error is above 1/RESOLVED_SIGMAS)."""
+    return d > RESOLVED_SIGMAS * se
+
+
 def _measurement(q1, q2, method, fit, basic: BasicEnds, sigma, samples, support, gap, warnings, t0, reasons=()) -> Measurement:
     dist = float(np.linalg.norm(q2 - q1))
     sigma = calibrated_sigma(float(sigma), dist) if method != "robust" else float(sigma)
+    _check_range(dist, sigma)
     lo, hi = interval(dist, sigma)
     quality, why = judge(list(reasons), len(samples.points), dist, 0.5 * (hi - lo))
     return Measurement(
@@ -395,6 +421,7 @@ def _basic_measurement(
     # The window medians' standard errors leave out the click and edge effects the robust answer models.
     base = basic.uncertainty_m if window_sigma is None else window_sigma
     sigma = calibrated_sigma(math.hypot(base, BASIC_CLICK_SHARE * dist * 2.0 / max(1.0, math.dist(basic.click1, basic.click2))), dist)
+    _check_range(dist, sigma)
     lo, hi = interval(dist, sigma)
     why = list(reasons) + (["gap detected"] if gap and "gap detected" not in reasons else [])
     quality, why = judge(why, None if samples is None else len(samples.points), dist, 0.5 * (hi - lo))
