@@ -9,8 +9,14 @@ For each ground-truth segment of ``evaluation.gt_segments`` (one straight surfac
 - ``piece``: three 15-40 px pieces inside the segment; truth from the ground truth at the clicked pixels.
 - ``long``: segments of at least ``LONG_PX`` px (same rules), exact ends.
 - ``nogap``: segments found without the "far side is farther at both ends" rule, keeping only those
-  that break it (a nearer surface, or nothing, beyond an end): no-gap geometry the gap rule must not
-  fire on; truth from the ground truth at the end pixels.
+  that break it (a nearer surface, or nothing, beyond an end) but not at both ends: no-gap geometry
+  the gap rule must not fire on; truth from the ground truth at the end pixels.
+- ``recess``: the same kind of segment with a nearer surface beyond *both* ends in the ground truth
+  (the median of the valid ground truth over the 25 px beyond each end, the extension the gap rule
+  looks at, nearer by more than the segments' 1-px jump): the geometry
+  of a gap (the space between two boxes) whose truth here is the recessed surface itself. Clicks
+  at the edges of such a surface are ambiguous; the gap rule answering across the gap is reported
+  as its own rate, not as a false positive.
 
 Disparities: ``sgbm`` (device/sgbm.py, as in the edge protocol), ``bm`` (OpenCV StereoBM, block 15,
 left band filled the same way), ``gt_out50`` (the ground truth with 50 % of all pixels replaced by a
@@ -36,6 +42,7 @@ DISPARITIES: tuple[str, ...] = ("sgbm", "bm", "gt_out50")
 DEV_SCENES: tuple[str, ...] = ("Adirondack", "Piano", "Playroom", "Shelves")
 HELD_OUT_SCENES: tuple[str, ...] = ("Motorcycle", "Pipes", "Recycle", "Teddy")
 LONG_PX = 100
+EXTENSION_PX = 25  # the gap rule's extension (MeasureOptions.extension_px)
 JITTER_PX = 3.0
 
 
@@ -120,8 +127,26 @@ def stress_cases(scene: Any, rng: np.random.Generator, max_segments: int | None 
     ruled = {(s.p1_px, s.p2_px) for s in scene_segments(scene, replace(rules, max_segments=48))}
     loose = scene_segments(scene, replace(rules, far_ends=False, max_segments=24))
     for s in [s for s in loose if (s.p1_px, s.p2_px) not in ruled][: (max_segments or 12)]:
-        add("nogap", s.p1_px, s.p2_px, s.length_m)
+        add("recess" if nearer_beyond_both_ends(scene, s.p1_px, s.p2_px, rules) else "nogap", s.p1_px, s.p2_px, s.length_m)
     return cases
+
+
+def nearer_beyond_both_ends(scene: Any, p1: tuple[int, int], p2: tuple[int, int], rules: Any, length: int = EXTENSION_PX) -> bool:
+    """Beyond each end of the row or column segment p1-p2, the median of the valid ground truth over
+    the ``length`` px the gap rule looks at (its extension) is nearer than the end by more than
+    ``rules.jump_px``: a nearer surface dominates both extensions."""
+    gt, ok = scene.gt_disparity, scene.nonocc_mask & np.isfinite(scene.gt_disparity)
+    h, w = gt.shape
+    step = np.sign(np.subtract(p2, p1)).astype(int)
+    k = np.arange(1, length + 1)
+    for (x, y), (sx, sy) in ((p1, -step), (p2, step)):
+        xs, ys = x + sx * k, y + sy * k
+        inside = (xs >= 0) & (xs < w) & (ys >= 0) & (ys < h)
+        xs, ys = xs[inside], ys[inside]
+        v = gt[ys, xs][ok[ys, xs]]
+        if v.size == 0 or not float(np.median(v)) > float(gt[y, x]) + rules.jump_px:
+            return False
+    return True
 
 
 def scene_frames(scene: Any, rng: np.random.Generator, disparities: Sequence[str] = DISPARITIES) -> dict[str, Any]:
@@ -184,7 +209,8 @@ def write_stress_middlebury(out_dir: Path, records: Sequence[StressRecord], setu
         "verdict thresholds of measure/verdict.py were set on these), held-out = the rest.",
         "",
         "Conditions: exact end pixels; 3-px click jitter; ends 5-20 px inside; 15-40 px pieces; long "
-        f"segments (>= {LONG_PX} px); nogap = segments without the far-side rule. Disparities: sgbm, bm "
+        f"segments (>= {LONG_PX} px); nogap = segments without the far-side rule; recess = such segments "
+        "with a nearer surface beyond both ends (gap geometry, truth the recessed surface). Disparities: sgbm, bm "
         "(StereoBM), gt_out50 (ground truth, 50 % of pixels uniform outliers). A = Eq. 8 of the robust "
         "(default) answer; coverage = share of answered cases whose error is within 1σ / 2σ; good & A<90 "
         "and good are shares of all cases; robust≪basic = robust A < 90 while basic A >= 90.",

@@ -134,9 +134,10 @@ def select_end_models(t: np.ndarray, d: np.ndarray, length: float, line: Dispari
     return EndModels(d_end, slope, cov, (own[0], own[1]), (near_off[0], near_off[1]))
 
 
-def on_depth_edge(disparity: np.ndarray, valid_of, start: tuple[float, float], other: tuple[float, float], d_end: float, step: float, px: int) -> bool:
+def on_depth_edge(disparity: np.ndarray, valid_of, start: tuple[float, float], other: tuple[float, float], d_end: float, step: float, px: int, majority: bool = False) -> bool:
     """A disparity more than ``step`` (relative) away from ``d_end`` within ``px`` pixels beyond ``start``
-    (away from ``other``): a click there that misses by a pixel or two lands on another surface."""
+    (away from ``other``): a click there that misses by a pixel or two lands on another surface.
+    ``majority``: the median of those pixels is that far away (a surface there, not a scattered wrong match)."""
     x0, y0 = start
     ux, uy = x0 - other[0], y0 - other[1]
     n = float(np.hypot(ux, uy))
@@ -147,6 +148,8 @@ def on_depth_edge(disparity: np.ndarray, valid_of, start: tuple[float, float], o
     inside = (xs >= 0) & (xs < w) & (ys >= 0) & (ys < h)
     v = disparity[ys[inside], xs[inside]]
     v = v[valid_of(v)]
+    if majority:
+        return bool(v.size and abs(float(np.median(v)) - d_end) > step * abs(d_end))
     return bool(v.size and (np.abs(v - d_end) > step * abs(d_end)).any())
 
 

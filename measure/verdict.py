@@ -35,6 +35,7 @@ FEW_SAMPLES = 20
 FEW_SHARE = 0.5
 UNRELIABLE_SAMPLES = 10
 DISAGREE = 0.10
+DISAGREE_CAP = 10.0  # 1000 %
 EDGE_STEP = 0.1
 EDGE_PX = 3
 EXTRAPOLATED_PX = 5.0
@@ -62,4 +63,6 @@ def disagreement(distance: float, other: float) -> str | None:
     if not (other == other) or distance <= 0:  # NaN: the other method had no answer
         return None
     rel = abs(other - distance) / distance
+    if rel > DISAGREE_CAP:  # beyond this the figure says nothing more, and 1e31 % says it badly
+        return f"methods disagree by more than {100 * DISAGREE_CAP:.0f} %"
     return f"methods disagree by {100 * rel:.0f} %" if rel > DISAGREE else None

@@ -43,8 +43,9 @@ def test_uncertainty_covers_the_truth_on_sgbm(middlebury_stress):
 
 
 def test_robust_is_rarely_much_worse_than_basic(middlebury_stress):
-    # Issue #12 asks for <= 1 %; reached on dev: SGBM 2.2 %, GT + 50 % outliers 6.4 % (README).
-    for disparity, limit in (("sgbm", 0.03), ("gt_out50", 0.07)):
+    # Issue #12 asks for <= 1 %; reached on dev: SGBM 2.2 %, GT + 50 % outliers 1.7 % (README; 6.4 %
+    # while any single wrong match beyond a click counted as a depth edge and kept the line).
+    for disparity, limit in (("sgbm", 0.03), ("gt_out50", 0.03)):
         recs = [r for r in middlebury_stress if r.disparity == disparity]
         assert figures(recs)["robust_much_worse_than_basic"] <= limit
         worse = [r for r in recs if r.robust_m < 0.9 * r.case.truth_m or r.robust_m > 1.1 * r.case.truth_m]
@@ -53,9 +54,46 @@ def test_robust_is_rarely_much_worse_than_basic(middlebury_stress):
 
 
 def test_gap_rule_does_not_fire_without_a_gap(middlebury_stress):
-    nogap = [r for r in middlebury_stress if r.case.condition == "nogap"]
-    assert len(nogap) >= 20
-    assert figures(nogap)["gap_rate_no_gap"] <= 0.05
+    for disparity in ("sgbm", "gt_out50"):
+        nogap = [r for r in middlebury_stress if r.case.condition == "nogap" and r.disparity == disparity]
+        assert len(nogap) >= 20
+        assert figures(nogap)["gap_rate_no_gap"] <= 0.03, disparity
+    # A recessed surface between two nearer ones is a gap's geometry: answered as a gap it is never "good".
+    recess = [r for r in middlebury_stress if r.case.condition == "recess"]
+    assert len(recess) >= 10
+    assert not any(r.gap and r.quality == "good" for r in recess)
+
+
+def _boxes_frame(step: float, seed: int = 0):
+    """Two boxes at 9.4 px with a background ``step`` (relative depth) farther between them, smooth
+    correlated noise (sigma 0.1 px over ~5 px) and boxes fattened 3 px into the gap as SGBM does."""
+    import cv2
+
+    from measure import Frame, PinholeCamera
+
+    h, w = 200, 400
+    d = np.full((h, w), 9.4, np.float32)
+    d[:, 153:247] = 9.4 / (1.0 + step)
+    noise = cv2.GaussianBlur(np.random.default_rng(seed).normal(0.0, 0.5, (h, w)).astype(np.float32), (0, 0), 2.5)
+    d += noise * np.float32(0.1 / noise.std())
+    cam = PinholeCamera(500.0, 500.0, w / 2, h / 2, w, h)
+    return Frame(np.zeros((h, w, 3), np.uint8), d, cam, baseline_m=0.06)
+
+
+def test_gap_between_boxes_is_found_on_evidence_not_a_fixed_step():
+    """A 20 % deeper background (the simulator's floor behind its boxes at 3 m): both ends' surfaces
+    are 1.6 px in front of the segment's, dozens of correlation-inflated standard errors, so it is a
+    gap (the first pass needed the ends 20 % nearer in depth, 16.7 % here). A 5 % step is not."""
+    p1, p2 = (146.0, 100.0), (254.0, 100.0)
+    z = 500.0 * 0.06 / 9.4
+    truth = (p2[0] - p1[0]) * z / 500.0
+    for seed in range(3):
+        m = measure_distance(_boxes_frame(0.2, seed), p1, p2)
+        assert m.gap_detected and "gap detected" in m.reasons, m
+        assert abs(m.distance_m - truth) / truth < 0.02, (m.distance_m, truth)
+        assert m.quality != "good"
+        flat = measure_distance(_boxes_frame(0.05, seed), p1, p2)
+        assert not flat.gap_detected
 
 
 def test_every_answer_has_a_verdict(middlebury_stress):
