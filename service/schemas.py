@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from typing import Annotated, Literal
+from typing import Annotated, Any, Literal
 
 import re
 
@@ -228,6 +228,15 @@ class ReopenOut(_Out):
 
 class DeletedOut(_Out):
     deleted: int
+
+
+class ChecksOut(_Out):
+    """``GET /api/checks``: accuracy checks of `depthruler check`, newest first (each the JSON record
+    the check wrote: source, serial, calibration hash, time, figures, findings)."""
+
+    checks: list[dict[str, Any]]
+    count: int
+    file: str
 
 
 def json_doc(model: type[BaseModel] | object, csv: bool = False) -> dict[str, object]:

@@ -8,12 +8,13 @@ from fastapi import APIRouter, Query
 
 from device.check_history import checks_path, read_checks
 
+from ..schemas import ChecksOut, json_doc
 from ..state import State
 
 router = APIRouter(prefix="/api", tags=["checks"])
 
 
-@router.get("/checks")
+@router.get("/checks", **json_doc(ChecksOut))
 def checks(
     state: State,
     serial: Annotated[str | None, Query(max_length=200, description="Only this device serial.")] = None,

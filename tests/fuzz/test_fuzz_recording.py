@@ -112,17 +112,6 @@ def byte_edits(draw: st.DrawFn, data: bytes) -> bytes:
     return bytes(out)
 
 
-# Found by these tests on 2026-12-01 and left to the engineer hardening device/recording.py (issue 22):
-READER_FIELDS = pytest.mark.xfail(strict=False, reason=(
-    "device/recording.py reads manifest and frames.jsonl fields without checking their types and ranges: "
-    "baseline_m/doffs/source.* of the wrong type raise TypeError/ValueError/AttributeError in open_recording, "
-    "files.* that are not strings raise TypeError in Recording.frame/raw, and baseline_m/doffs outside the "
-    "physical range raise MeasureError from Frame instead of RecordingError naming file, line and field"))
-NPY_ERRORS = pytest.mark.xfail(strict=False, reason=(
-    "device/recording.py Recording.frame: np.load of a truncated or damaged extra/*.npy raises EOFError or "
-    "tokenize.TokenError, which it does not turn into RecordingError"))
-
-
 def _read_everything(rec_dir: Path) -> None:
     """Open and read every frame and raw pair, and summarize; check the errors and the answers."""
     before = _digest(rec_dir)
@@ -156,7 +145,6 @@ def _read_everything(rec_dir: Path) -> None:
     assert _digest(rec_dir) == before, "reading changed the recording"
 
 
-@READER_FIELDS
 @given(data=st.data())
 def test_manifest_mutated_field_by_field(template, tmp_path_factory, data):
     rec = _copy(template, tmp_path_factory)
@@ -172,7 +160,6 @@ def test_manifest_mutated_byte_by_byte(template, tmp_path_factory, data):
     _read_everything(rec)
 
 
-@READER_FIELDS
 @given(data=st.data())
 def test_frames_jsonl_lines_mutated_field_by_field(template, tmp_path_factory, data):
     rec = _copy(template, tmp_path_factory)
@@ -193,7 +180,6 @@ def test_frames_jsonl_mutated_byte_by_byte(template, tmp_path_factory, data):
 IMAGES = ["color/000001.png", "disparity/000001.png", "confidence/000001.png", "raw/left/000001.png"]
 
 
-@NPY_ERRORS
 @given(data=st.data())
 def test_image_files_mutated_byte_by_byte(template, tmp_path_factory, data):
     rec = _copy(template, tmp_path_factory)
@@ -212,10 +198,9 @@ def test_image_files_mutated_byte_by_byte(template, tmp_path_factory, data):
     _read_everything(rec)
 
 
-@pytest.mark.xfail(strict=False, reason=(
-    "device/recording.py resolves frames.jsonl file names against the recording without confining them to it: "
-    "a line naming ../x.png or /abs/x.png reads a file outside the recording"))
 def test_frame_files_outside_the_recording_are_refused(template, tmp_path_factory):
+    """A frames.jsonl line naming ../x.png or /abs/x.png never reads that file: the line is refused
+    (skipped, with its file, line and field in ``problems``) and the other frames stay readable."""
     rec = _copy(template, tmp_path_factory)
     outside = rec.parent / "outside.png"
     shutil.copy(rec / "color" / "000000.png", outside)
@@ -224,5 +209,7 @@ def test_frame_files_outside_the_recording_are_refused(template, tmp_path_factor
         entry = json.loads(lines[0])
         entry["files"]["color"] = name
         (rec / FRAMES).write_text("\n".join([json.dumps(entry), *lines[1:]]) + "\n")
-        with pytest.raises(RecordingError, match="line 1"):
-            open_recording(rec).frame(0)
+        opened = open_recording(rec)
+        assert len(opened) == len(lines) - 1
+        assert any("line 1" in p and "files.color" in p for p in opened.problems), opened.problems
+        assert all(opened.frame(i).image.shape for i in range(len(opened)))
