@@ -8,13 +8,10 @@ on (the service's `service/store.py` writes it) and nothing more:
   stored result (``distance_m``, ``uncertainty_m``, ... as the service wrote them);
 - table ``frames`` with ``uid`` and ``file``: the saved frame, relative to the folder
   ``<DB stem>-frames/`` beside the database;
-- a saved frame file, recognised by its suffix: ``.npz`` (arrays ``image``, ``disparity``, optional
-  ``confidence``, ``camera`` = [fx, fy, cx, cy, width, height], ``numbers`` = [baseline_m, doffs,
-  timestamp], ``meta`` = a JSON string), or ``.frame`` (an uncompressed zip of ``disparity.png`` in
-  the recording's 16-bit code or ``disparity.npy``, ``color.jpg``, optional ``confidence.png`` and
-  ``frame.json`` with camera, baseline_m, doffs, timestamp and meta). A frame whose ``file`` is
-  empty was deleted by the service's size cap; its measurements come out as error rows. Another
-  format needs a loader in :data:`FRAME_LOADERS`.
+- a saved frame file, ``.frame`` or the ``.npz`` of earlier versions, read by
+  :func:`device.frame_file.load_frame_file` (the module the service writes them with). A frame
+  whose ``file`` is empty was deleted by the service's size cap; its measurements come out as
+  error rows.
 
 The database is read once, by the caller, with SQLite's ``mode=ro`` (a running service keeps
 writing meanwhile); workers read only the frame files. A batch never changes the history.
@@ -22,15 +19,13 @@ writing meanwhile); workers read only the frame files. A batch never changes the
 
 from __future__ import annotations
 
-import io
 import json
 import sqlite3
-from collections.abc import Callable
+import zipfile
 from pathlib import Path
 
-import numpy as np
-
-from measure import Frame, PinholeCamera
+from device.frame_file import SUFFIX, load_frame_file
+from measure import Frame
 
 from .tasks import OPTION_FIELDS, Task, TaskError
 
@@ -87,67 +82,6 @@ def history_tasks(db: Path) -> list[Task]:
     return tasks
 
 
-def _load_npz(path: Path) -> Frame:
-    with np.load(path, allow_pickle=False) as z:
-        fx, fy, cx, cy, w, h = z["camera"].tolist()
-        baseline, doffs, ts = z["numbers"].tolist()
-        return Frame(
-            image=z["image"],
-            disparity=z["disparity"],
-            camera=PinholeCamera(fx=fx, fy=fy, cx=cx, cy=cy, width=int(w), height=int(h)),
-            baseline_m=baseline,
-            doffs=doffs,
-            confidence=z["confidence"] if "confidence" in z.files else None,
-            timestamp=ts,
-            meta=json.loads(str(z["meta"])),
-        )
-
-
-def _decode(data: bytes, flags: int) -> np.ndarray:
-    import cv2
-
-    img = cv2.imdecode(np.frombuffer(data, np.uint8), flags)
-    if img is None:
-        raise ValueError("an image inside the frame file cannot be decoded")
-    return img
-
-
-def _load_frame_zip(path: Path) -> Frame:
-    import zipfile
-
-    import cv2
-
-    from device.recording import decode_confidence, decode_disparity
-
-    try:
-        with zipfile.ZipFile(path) as zf:
-            names = set(zf.namelist())
-            info = json.loads(zf.read("frame.json"))
-            if "disparity.png" in names:
-                disparity = decode_disparity(_decode(zf.read("disparity.png"), cv2.IMREAD_UNCHANGED))
-            else:
-                disparity = np.load(io.BytesIO(zf.read("disparity.npy")), allow_pickle=False)
-            image = _decode(zf.read("color.jpg"), cv2.IMREAD_COLOR)
-            confidence = decode_confidence(_decode(zf.read("confidence.png"), cv2.IMREAD_UNCHANGED)) if "confidence.png" in names else None
-    except zipfile.BadZipFile as exc:
-        raise ValueError(f"not a frame file ({exc})") from exc
-    cam = info["camera"]
-    return Frame(
-        image=image,
-        disparity=disparity,
-        camera=PinholeCamera(fx=cam["fx"], fy=cam["fy"], cx=cam["cx"], cy=cam["cy"], width=int(cam["width"]), height=int(cam["height"])),
-        baseline_m=info["baseline_m"],
-        doffs=info["doffs"],
-        confidence=confidence,
-        timestamp=info["timestamp"],
-        meta=info["meta"],
-    )
-
-
-# saved-frame file suffix -> loader
-FRAME_LOADERS: dict[str, Callable[[Path], Frame]] = {".npz": _load_npz, ".frame": _load_frame_zip}
-
-
 class HistoryFrames:
     """Saved frames of a history database, by the keys :func:`history_tasks` gives (file paths)."""
 
@@ -161,12 +95,11 @@ class HistoryFrames:
         if key.startswith("dropped:"):
             raise HistoryError(f"the frame {key[8:]} was deleted from {self.db}'s history to keep it under its size cap; only its numbers are kept")
         path = Path(key)
-        loader = FRAME_LOADERS.get(path.suffix.lower())
-        if loader is None:
-            raise HistoryError(f"{path}: saved frames of type {path.suffix!r} are not readable by this version (it reads {', '.join(FRAME_LOADERS)})")
+        if path.suffix.lower() not in (".npz", SUFFIX):
+            raise HistoryError(f"{path}: saved frames of type {path.suffix!r} are not readable by this version (it reads .npz, {SUFFIX})")
         try:
-            return loader(path)
-        except (OSError, KeyError, ValueError, TypeError) as exc:
+            return load_frame_file(path)
+        except (OSError, KeyError, ValueError, TypeError, zipfile.BadZipFile) as exc:
             raise HistoryError(f"cannot read the saved frame {path}: {exc}") from exc
 
     def close(self) -> None:

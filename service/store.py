@@ -2,7 +2,7 @@
 
 The database holds every :class:`measure.Measurement` field, the frame id and clicked points,
 the options and a small thumbnail. The frame itself goes to ``<db stem>-frames/<uid>.frame``
-(:mod:`service.frame_file`: PNG16 disparity, JPEG colour, camera) once, however many
+(:mod:`device.frame_file`: PNG16 disparity, JPEG colour, camera) once, however many
 measurements use it, so history survives a restart and a measurement can be re-opened and
 re-measured on its frame.
 
@@ -41,9 +41,8 @@ from typing import Any
 import cv2
 import numpy as np
 
-from measure import Frame, PinholeCamera
-
-from .frame_file import SUFFIX, TMP_SUFFIX, decode_frame, encode_frame, write_durably
+from device.frame_file import SUFFIX, TMP_SUFFIX, encode_frame, load_frame_file, write_durably
+from measure import Frame
 
 _SCHEMA = """
 CREATE TABLE IF NOT EXISTS frames (
@@ -133,29 +132,11 @@ class FrameDropped(StoreError):
 def load_frame(path: Path) -> Frame:
     """Read a saved frame: a ``.frame`` file, or an ``.npz`` of earlier versions."""
     try:
-        if path.suffix == ".npz":
-            return _load_npz(path)
-        return decode_frame(path.read_bytes())
+        return load_frame_file(path)
     except (OSError, KeyError, ValueError, TypeError) as exc:
         raise StoreError(f"cannot read saved frame {path}: {exc}; the history entry needs this file") from exc
     except Exception as exc:  # zipfile.BadZipFile and friends: a damaged file, never a crash
         raise StoreError(f"cannot read saved frame {path}: {exc}; the file is damaged") from exc
-
-
-def _load_npz(path: Path) -> Frame:
-    with np.load(path, allow_pickle=False) as z:
-        fx, fy, cx, cy, w, h = z["camera"].tolist()
-        baseline, doffs, ts = z["numbers"].tolist()
-        return Frame(
-            image=z["image"],
-            disparity=z["disparity"],
-            camera=PinholeCamera(fx=fx, fy=fy, cx=cx, cy=cy, width=int(w), height=int(h)),
-            baseline_m=baseline,
-            doffs=doffs,
-            confidence=z["confidence"] if "confidence" in z.files else None,
-            timestamp=ts,
-            meta=json.loads(str(z["meta"])),
-        )
 
 
 def _num(x: Any) -> float | None:

@@ -240,7 +240,7 @@ def test_from_history_reproduces_stored_measurements(archive, tmp_path):
 
 
 def _frame_file(frame) -> bytes:
-    """A ``.frame`` file as the service writes it (service/frame_file.py's documented layout)."""
+    """A ``.frame`` file as the service writes it (device/frame_file.py's documented layout)."""
     import io
     import zipfile
 
@@ -266,7 +266,7 @@ def test_history_reads_both_saved_frame_formats(archive, tmp_path):
     frame = open_recording(archive / "rec_poster").frame(1)
     (tmp_path / "a.frame").write_bytes(_frame_file(frame))
     try:  # the service's own writer, where this tree has it
-        from service.frame_file import encode_frame
+        from device.frame_file import encode_frame
 
         (tmp_path / "b.frame").write_bytes(encode_frame(frame))
     except ImportError:

@@ -23,7 +23,7 @@ from typing import Any
 import cv2
 import numpy as np
 
-from device.recording import DISPARITY_SCALE, MAX_DISPARITY_CODE, decode_confidence, decode_disparity, encode_confidence
+from .recording import DISPARITY_SCALE, MAX_DISPARITY_CODE, decode_confidence, decode_disparity, encode_confidence
 from measure import Frame, PinholeCamera
 
 SUFFIX = ".frame"
@@ -117,6 +117,30 @@ def decode_frame(data: bytes) -> Frame:
         timestamp=info["timestamp"],
         meta=info["meta"],
     )
+
+
+def load_frame_file(path: Path) -> Frame:
+    """A saved frame from ``path``: a ``.frame`` file, or the ``.npz`` that history stores kept before.
+    Raises OSError when unreadable and ValueError / KeyError / TypeError / zipfile.BadZipFile when damaged."""
+    if path.suffix.lower() == ".npz":
+        return _load_npz(path)
+    return decode_frame(path.read_bytes())
+
+
+def _load_npz(path: Path) -> Frame:
+    with np.load(path, allow_pickle=False) as z:
+        fx, fy, cx, cy, w, h = z["camera"].tolist()
+        baseline, doffs, ts = z["numbers"].tolist()
+        return Frame(
+            image=z["image"],
+            disparity=z["disparity"],
+            camera=PinholeCamera(fx=fx, fy=fy, cx=cx, cy=cy, width=int(w), height=int(h)),
+            baseline_m=baseline,
+            doffs=doffs,
+            confidence=z["confidence"] if "confidence" in z.files else None,
+            timestamp=ts,
+            meta=json.loads(str(z["meta"])),
+        )
 
 
 def _image(data: bytes, dtype: type, flags: int = cv2.IMREAD_UNCHANGED) -> np.ndarray:
