@@ -1,4 +1,4 @@
-"""The paper's published figures (METHOD.md "Results to beat") beside a simulated study's, for its report."""
+"""The paper's published figures (docs/method.md "Results to beat") beside a simulated study's, for its report."""
 
 from __future__ import annotations
 

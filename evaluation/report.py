@@ -1,6 +1,6 @@
 """Accuracy statistics, plots and Markdown tables shared by the evaluation reports.
 
-Accuracy of one measurement is the paper's Eq. 8 (METHOD.md "Results to beat"):
+Accuracy of one measurement is the paper's Eq. 8 (docs/method.md "Results to beat"):
 ``A = 100 - 100 |g - m| / g`` with g the ground-truth length and m the measured one (same unit).
 A is not clipped: a measurement three times too long scores -200, as it would in the paper.
 """

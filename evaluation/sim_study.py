@@ -1,4 +1,4 @@
-"""The paper's accuracy study (METHOD.md "Results to beat") reproduced on the simulated rig.
+"""The paper's accuracy study (docs/method.md "Results to beat") reproduced on the simulated rig.
 
 Protocol: poster width, poster length and a person's height, at 2, 4, 6 and 7 m, under indoor,
 mixed and outdoor lighting, each measurement a fresh ``sim.scenario`` (its own seed: sensor noise,

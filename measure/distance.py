@@ -1,10 +1,10 @@
-"""Point-to-point 3D measurement (METHOD.md): the "basic", "paper" and "robust" methods.
+"""Point-to-point 3D measurement (docs/method.md): the "basic", "paper" and "robust" methods.
 
 Inputs: a :class:`Frame` (disparity in px, intrinsics in px, baseline in m) and two clicked
 pixels (x, y) of its colour image. Output: a :class:`Measurement` in metres.
 
 - ``basic``: window-median disparity at each click, Eq. 2, |P1 - P2|.
-- ``paper``: METHOD.md steps 1-6 as published: sample the segment (step 1), FAST-MCD with
+- ``paper``: docs/method.md steps 1-6 as published: sample the segment (step 1), FAST-MCD with
   h = support_fraction * N on the 3D points (step 2), exact-fit branches (step 3: a = b = 0 ->
   Z of P1, P2 set to -d/c and Eq. 2; other planes -> perpendicular projection, Eq. 4-5),
   otherwise projection of the window end points P1, P2 onto the first principal component

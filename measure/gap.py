@@ -1,4 +1,4 @@
-"""Gap detection (METHOD.md step 6): is the segment behind both of its end points?
+"""Gap detection (docs/method.md step 6): is the segment behind both of its end points?
 
 The range of each 25-pixel extension beyond an end point (away from the other) is the
 Tukey bisquare M-estimate of the depths of its valid pixels. The paper declares a gap when

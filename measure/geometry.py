@@ -1,4 +1,4 @@
-"""The paper's end-point projections (METHOD.md steps 3-4). Metres, camera frame.
+"""The paper's end-point projections (docs/method.md steps 3-4). Metres, camera frame.
 
 Both broadcast over leading axes so the uncertainty code can evaluate many perturbed models
 at once. (The robust method instead takes the end points on the clicks' viewing rays; see

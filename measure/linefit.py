@@ -1,4 +1,4 @@
-"""The robust model of the 3D points along the segment (METHOD.md steps 2-4).
+"""The robust model of the 3D points along the segment (docs/method.md steps 2-4).
 
 FAST-MCD (``measure.mcd``) on the valid samples' 3D points (metres) gives either a robust
 line (location T, first principal axis v0), or an exact fit: a plane holding at least h
@@ -61,7 +61,7 @@ def _from_mcd(res: McdResult, support: np.ndarray, degenerate: bool, top: McdRes
 
 
 def fit_line(points: np.ndarray, support_fraction: float, seed: int) -> LineModel:
-    """Robust line / exact-fit model of ``points`` (n x 3, metres, camera frame), METHOD.md steps 2-4."""
+    """Robust line / exact-fit model of ``points`` (n x 3, metres, camera frame), docs/method.md steps 2-4."""
     res = fast_mcd(points, support_fraction=support_fraction, seed=seed)
     if not (res.exact_fit and res.fit_kind == "hyperplane"):
         return _from_mcd(res, res.support, False, res)

@@ -2,7 +2,7 @@
 
 Minimum covariance determinant: among all h-subsets of the n points find the one whose
 covariance has the smallest determinant; its mean and covariance are the robust location T
-and scatter S used by METHOD.md steps 2-4 (h = 0.5 N tolerates up to 50 % outliers).
+and scatter S used by docs/method.md steps 2-4 (h = 0.5 N tolerates up to 50 % outliers).
 
 How it runs (inputs in any unit; tolerances are relative to a robust data scale):
 

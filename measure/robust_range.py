@@ -1,4 +1,4 @@
-"""Robust range of a short run of pixels: Tukey's bisquare M-estimator of location (METHOD.md step 6)."""
+"""Robust range of a short run of pixels: Tukey's bisquare M-estimator of location (docs/method.md step 6)."""
 
 from __future__ import annotations
 

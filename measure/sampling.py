@@ -1,4 +1,4 @@
-"""Pixels along the clicked segment and their 3D points (METHOD.md step 1, Eq. 2).
+"""Pixels along the clicked segment and their 3D points (docs/method.md step 1, Eq. 2).
 
 Units: pixel coordinates (x right, y down) of the colour image; disparity in pixels;
 3D points in metres in the camera frame (X right, Y down, Z forward).
@@ -36,7 +36,7 @@ def check_point(frame: Frame, p: object, name: str) -> tuple[float, float]:
 def segment_pixels(x1: float, y1: float, x2: float, y2: float) -> np.ndarray:
     """Integer pixels from (x1, y1) to (x2, y2): one per column if |dx| > |dy|, else one per row.
 
-    METHOD.md step 1. The major coordinate steps by one pixel from round(start) to round(end);
+    docs/method.md step 1. The major coordinate steps by one pixel from round(start) to round(end);
     the other is the segment's value there, rounded. Returns N x 2 int64 (x, y).
     """
     dx, dy = x2 - x1, y2 - y1
@@ -55,7 +55,7 @@ def segment_pixels(x1: float, y1: float, x2: float, y2: float) -> np.ndarray:
 
 def extension_pixels(frame: Frame, start: tuple[float, float], away_from: tuple[float, float], length: int) -> np.ndarray:
     """Pixels of the ``length``-pixel extension beyond ``start``, pointing away from ``away_from``
-    (METHOD.md step 6), excluding ``start`` itself and clipped to the image. N x 2 int64."""
+    (docs/method.md step 6), excluding ``start`` itself and clipped to the image. N x 2 int64."""
     x0, y0 = start
     h, w = frame.disparity.shape
     # Beyond the image diagonal every pixel would be clipped: don't enumerate them.
@@ -124,7 +124,7 @@ class SegmentSamples:
 
 
 def sample_segment(frame: Frame, p1: tuple[float, float], p2: tuple[float, float]) -> SegmentSamples:
-    """METHOD.md step 1: pixels on p1 -> p2, drop those without range, back-project the rest."""
+    """docs/method.md step 1: pixels on p1 -> p2, drop those without range, back-project the rest."""
     px = segment_pixels(p1[0], p1[1], p2[0], p2[1])
     d = frame.disparity[px[:, 1], px[:, 0]]
     ok = valid_disparity(frame, d)

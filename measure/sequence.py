@@ -16,7 +16,7 @@ from one camera (same size, intrinsics in px, baseline in m); clicked pixels (x,
    "scene moved (...): k of N frames pooled"; with k = 1 the answer is the newest frame's alone. A
    moving scene is never averaged.
 3. **Pooling** (``pool``): "samples" puts the segment samples of all still frames into one robust
-   fit (METHOD.md steps 1-6 on the pooled samples; the end windows, edges and gap extensions of the
+   fit (docs/method.md steps 1-6 on the pooled samples; the end windows, edges and gap extensions of the
    newest frame); "fits" combines the per-frame end depths on the clicks' rays by Tukey's bisquare
    (``robust_range.tukey_location``). Chosen by measurement: "samples" (figures below).
 4. **Uncertainty**: the single-frame model (``measure.uncertainty``, before its calibration scale)

@@ -1,7 +1,7 @@
 """Shared data types of depthruler: camera intrinsics, frames, options and results.
 
 Every source (devices, recordings, the simulator) produces a :class:`Frame`; the
-measurement core consumes it. See ARCHITECTURE.md "Shared types".
+measurement core consumes it. See docs/design.md "Shared types".
 """
 
 from __future__ import annotations
@@ -193,7 +193,7 @@ def validate_frame(frame: Frame) -> None:
 
 @dataclass(frozen=True)
 class MeasureOptions:
-    """How to measure. See METHOD.md for the meaning of each parameter."""
+    """How to measure. See docs/method.md for the meaning of each parameter."""
 
     method: Method = "robust"
     support_fraction: float = 0.5

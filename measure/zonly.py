@@ -1,4 +1,4 @@
-"""The paper's ablation "robust fit of Z alone" (METHOD.md "Results to beat": +0.6 points only).
+"""The paper's ablation "robust fit of Z alone" (docs/method.md "Results to beat": +0.6 points only).
 
 Inputs as :func:`measure.measure_distance`. The depth Z (m) of the valid samples is fit
 robustly as a straight line Z(t) of the pixel position t (px) along the segment, by
