@@ -116,7 +116,7 @@ class SourceSpec:
             raise SourceError(f"cannot parse the options {query!r} of source spec {spec!r}; write key=value&key=value") from exc
         if not kind.strip():
             raise SourceError(f"source spec {spec!r} names no kind; start it with one of {', '.join(BACKENDS)}")
-        return cls(kind=kind.lower(), target=unquote(target), params=params)
+        return cls(kind=kind.strip().lower(), target=unquote(target), params=params)
 
     def check_keys(self, allowed: tuple[str, ...]) -> None:
         """Raise SourceError naming the options of this spec that its kind does not know."""

@@ -18,6 +18,7 @@ settings.register_profile(
 )
 settings.register_profile(
     "long", max_examples=int(os.environ.get("DEPTHRULER_FUZZ_EXAMPLES", "20000")), deadline=None, database=None, print_blob=True,
+    derandomize=False,  # explicit: a profile inherits unset settings from the one loaded when it is registered
     suppress_health_check=[HealthCheck.too_slow],
 )
 settings.load_profile("default")

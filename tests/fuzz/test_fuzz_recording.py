@@ -18,7 +18,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 import pytest
-from hypothesis import event, given
+from hypothesis import event, given, settings
 from hypothesis import strategies as st
 
 from device.base import SourceInfo
@@ -28,6 +28,8 @@ from fuzzing import EDGE_FLOATS, ODD_TEXT, typed_or_answer
 from measure import Frame, PinholeCamera
 
 W, H = 24, 16
+# Each example copies and reads a whole recording: a quarter of the profile's examples per property.
+BUDGET = settings(max_examples=max(5, settings.default.max_examples // 4))
 CAMERA = PinholeCamera(fx=30.0, fy=30.5, cx=11.5, cy=7.5, width=W, height=H)
 
 
@@ -146,6 +148,7 @@ def _read_everything(rec_dir: Path) -> None:
 
 
 @given(data=st.data())
+@BUDGET
 def test_manifest_mutated_field_by_field(template, tmp_path_factory, data):
     rec = _copy(template, tmp_path_factory)
     doc = json.loads((rec / MANIFEST).read_text())
@@ -154,6 +157,7 @@ def test_manifest_mutated_field_by_field(template, tmp_path_factory, data):
 
 
 @given(data=st.data())
+@BUDGET
 def test_manifest_mutated_byte_by_byte(template, tmp_path_factory, data):
     rec = _copy(template, tmp_path_factory)
     (rec / MANIFEST).write_bytes(data.draw(byte_edits((rec / MANIFEST).read_bytes())))
@@ -161,6 +165,7 @@ def test_manifest_mutated_byte_by_byte(template, tmp_path_factory, data):
 
 
 @given(data=st.data())
+@BUDGET
 def test_frames_jsonl_lines_mutated_field_by_field(template, tmp_path_factory, data):
     rec = _copy(template, tmp_path_factory)
     lines = (rec / FRAMES).read_text().splitlines()
@@ -171,6 +176,7 @@ def test_frames_jsonl_lines_mutated_field_by_field(template, tmp_path_factory, d
 
 
 @given(data=st.data())
+@BUDGET
 def test_frames_jsonl_mutated_byte_by_byte(template, tmp_path_factory, data):
     rec = _copy(template, tmp_path_factory)
     (rec / FRAMES).write_bytes(data.draw(byte_edits((rec / FRAMES).read_bytes())))
@@ -181,6 +187,7 @@ IMAGES = ["color/000001.png", "disparity/000001.png", "confidence/000001.png", "
 
 
 @given(data=st.data())
+@BUDGET
 def test_image_files_mutated_byte_by_byte(template, tmp_path_factory, data):
     rec = _copy(template, tmp_path_factory)
     target = rec / data.draw(st.sampled_from(IMAGES + [str(p.relative_to(template)) for p in template.glob("extra/*/*")]))
