@@ -170,7 +170,37 @@ def measure_distance(
     p2: tuple[float, float],
     options: MeasureOptions = MeasureOptions(),
 ) -> Measurement:
-    """Distance (m) between clicked pixels ``p1`` and ``p2`` (x, y) of ``frame`` by ``options.method``."""
+    """Distance (m) between clicked pixels ``p1`` and ``p2`` (x, y) of ``frame`` by ``options.method``.
+
+    The robust and paper methods fit a robust model to the disparity sampled along the segment and
+    back-project the clicks with it (docs/METHOD.md, Eq. 2-7; the module docstring has the steps).
+
+    Args:
+        frame: colour image with registered disparity; its (H, W) float32 disparity is in px.
+        p1: first click (x, y) (pair of floats, px, in the image of W x H).
+        p2: second click (x, y) (px).
+        options: method, window, support fraction, gap detection and seed.
+
+    Returns:
+        A :class:`Measurement`: ``distance_m`` and ``uncertainty_m`` in m, the 3D end points, the
+        samples and the verdict.
+
+    Raises:
+        MeasureError: bad frame, clicks or options, clicks too close, or no valid disparity to measure from.
+
+    Example:
+        >>> import numpy as np
+        >>> from measure import Frame, PinholeCamera
+        >>> cam = PinholeCamera(fx=60.0, fy=60.0, cx=31.5, cy=23.5, width=64, height=48)
+        >>> disparity = np.full((48, 64), 12.0, dtype=np.float32)  # a plane 0.5 m away
+        >>> frame = Frame(np.zeros((48, 64, 3), np.uint8), disparity, cam, baseline_m=0.1)
+        >>> from measure import MeasureOptions, measure_distance
+        >>> m = measure_distance(frame, (10, 24), (54, 24))  # 44 px at 0.5 m with fx = 60 px
+        >>> print(round(m.distance_m, 4), round(m.uncertainty_m, 4), m.fit, m.n_samples)
+        0.3667 0.0247 constant-depth 45
+        >>> print(round(measure_distance(frame, (10, 24), (54, 24), MeasureOptions(method="basic")).distance_m, 4))
+        0.3667
+    """
     t0 = time.perf_counter()
     xy1, xy2 = validate_request(frame, p1, p2, options)
     basic = basic_ends(frame, xy1, xy2, options.window)

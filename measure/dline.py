@@ -45,18 +45,49 @@ _FULL_DATA_STEPS = 2
 
 @dataclass(frozen=True)
 class DisparityLine:
-    alpha: float  # disparity (px) at t = 0
-    beta: float  # px per px along the segment
-    sigma_d: float  # per-sample disparity noise of the support (px)
-    param_cov: np.ndarray  # 2x2 covariance of (alpha, beta)
-    support: np.ndarray  # samples with non-zero bisquare weight
-    exact_start: bool  # the MCD start was an exact fit
+    """A robust line d(t) = alpha + beta t of disparity d (px) along a segment at position t (px).
+
+    Made by :func:`fit_disparity_line`.
+
+    Args:
+        alpha: disparity at t = 0 (float, px).
+        beta: slope of the disparity along the segment (float, px of disparity per px of t).
+        sigma_d: per-sample disparity noise of the support: RMS residual, at least q/sqrt(12) (float, px).
+        param_cov: (2, 2) float64 covariance of (alpha, beta) (px², px²/px, px²/px²).
+        support: (n,) bool array, True for the samples with non-zero bisquare weight.
+        exact_start: the FAST-MCD start was an exact fit (e.g. half the samples on one level) (bool).
+
+    Returns:
+        A frozen line; :meth:`at` evaluates it, :meth:`cov_at` gives the covariance of two of its values.
+
+    Example:
+        >>> from measure.dline import DisparityLine
+        >>> line = DisparityLine(10.0, 0.5, 0.1, np.eye(2) * 0.01, np.ones(4, bool), False)
+        >>> print(line.at(4.0), line.cov_at(0.0, 1.0).round(3).tolist())
+        12.0 [[0.01, 0.01], [0.01, 0.02]]
+    """
+
+    alpha: float
+    beta: float
+    sigma_d: float
+    param_cov: np.ndarray
+    support: np.ndarray
+    exact_start: bool
 
     def at(self, t: float | np.ndarray) -> float | np.ndarray:
+        """Fitted disparity (px) at position ``t`` (px; a float or an array of any shape)."""
         return self.alpha + self.beta * t
 
     def cov_at(self, t1: float, t2: float) -> np.ndarray:
-        """2x2 covariance of the fitted disparities at t1 and t2."""
+        """2x2 covariance of the fitted disparities at t1 and t2.
+
+        Args:
+            t1: first position along the segment (float, px).
+            t2: second position (float, px).
+
+        Returns:
+            (2, 2) float64 covariance of (d(t1), d(t2)) (px²).
+        """
         a = np.array([[1.0, t1], [1.0, t2]])
         return a @ self.param_cov @ a.T
 
@@ -77,7 +108,32 @@ def mcd_line(res: McdResult) -> tuple[float, float] | None:
 
 
 def fit_disparity_line(t: np.ndarray, d: np.ndarray, support_fraction: float, seed: int, quantum: float, iterations: int = 50) -> DisparityLine:
-    """Robust d = alpha + beta t of samples at positions ``t`` (px) with disparities ``d`` (px)."""
+    """Robust d = alpha + beta t of samples at positions ``t`` (px) with disparities ``d`` (px).
+
+    FAST-MCD on (t, d) gives the start, Tukey-bisquare IRLS with a fixed scale the answer (module docstring).
+
+    Args:
+        t: (n,) positions of the samples along the segment (float, px), n >= 3.
+        d: (n,) disparities of the samples (float, px), finite.
+        support_fraction: fraction h/n of the samples FAST-MCD keeps (float in [0.5, 1.0]).
+        seed: seed of FAST-MCD's random starts (int >= 0).
+        quantum: disparity quantum q of the sensor (float, px, e.g. 1/16; 0 for continuous disparity);
+            the noise scale is at least q/sqrt(12) so quantized data do not collapse onto one level.
+        iterations: most IRLS iterations (int); it stops earlier once the line moves by < 1e-4 of the scale.
+
+    Returns:
+        The :class:`DisparityLine`, its ``support`` of shape (n,).
+
+    Example:
+        >>> import numpy as np
+        >>> from measure.dline import fit_disparity_line
+        >>> t = np.arange(40.0)
+        >>> d = 10.0 + 0.05 * t
+        >>> d[::10] += 3.0  # four wrong matches
+        >>> line = fit_disparity_line(t, d, support_fraction=0.5, seed=0, quantum=1 / 16)
+        >>> print(round(line.alpha, 3), round(line.beta, 4), int(line.support.sum()), line.exact_start)
+        10.0 0.05 36 True
+    """
     t = np.asarray(t, dtype=np.float64)
     d = np.asarray(d, dtype=np.float64)
     res = fast_mcd(

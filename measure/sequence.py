@@ -241,7 +241,37 @@ def measure_sequence(
     pool: str = "samples",
 ) -> Measurement:
     """Distance (m) between clicked pixels ``p1``, ``p2`` pooled over the still ``frames`` (oldest first;
-    the newest last); see the module docstring. Only the robust method pools; raises MeasureError."""
+    the newest last); see the module docstring. Only the robust method pools; raises MeasureError.
+
+    Only the newest unbroken run of frames without image shift or depth change is pooled.
+
+    Args:
+        frames: frames of one camera, oldest first, all with the same (H, W) float32 disparity (px)
+            and intrinsics.
+        p1: first click (x, y) in the newest frame (pair of floats, px).
+        p2: second click (x, y) (px).
+        options: measurement options; ``options.method`` must be ``"robust"``.
+        pool: ``"samples"`` (one robust fit on the pooled samples) or ``"fits"`` (Tukey location of the
+            per-frame end depths) (str).
+
+    Returns:
+        A :class:`measure.Measurement` of the newest frame with ``frames_used`` and
+        ``single_frame_uncertainty_m`` set (m).
+
+    Raises:
+        MeasureError: no frames, mismatched frames, an unknown ``pool``, a method other than robust, or
+            the newest frame cannot be measured.
+
+    Example:
+        >>> import numpy as np
+        >>> from measure import Frame, PinholeCamera\n        >>> from measure.sequence import measure_sequence
+        >>> cam = PinholeCamera(fx=60.0, fy=60.0, cx=31.5, cy=23.5, width=64, height=48)
+        >>> disparity = np.full((48, 64), 12.0, dtype=np.float32)  # a plane 0.5 m away
+        >>> frame = Frame(np.zeros((48, 64, 3), np.uint8), disparity, cam, baseline_m=0.1)
+        >>> m = measure_sequence([frame, frame, frame], (10, 24), (54, 24))
+        >>> print(m.frames_used, round(m.distance_m, 4))
+        3 0.3667
+    """
     frames = _check_frames(frames)
     if pool not in POOLS:
         raise MeasureError(f"pool={pool!r} is unknown; use one of {', '.join(POOLS)}")

@@ -18,7 +18,25 @@ METHODS: tuple[str, ...] = ("robust", "paper", "basic")
 
 
 class MeasureError(ValueError):
-    """Bad input to the measurement core; the message says what to change."""
+    """Bad input to the measurement core; the message says what to change.
+
+    A subclass of :class:`ValueError`, raised by the constructors of :class:`PinholeCamera`,
+    :class:`Frame` and :class:`MeasureOptions` and by :func:`measure.measure_distance`.
+
+    Args:
+        message: what is wrong with the input and what to change (str).
+
+    Returns:
+        The exception; it is raised, not returned.
+
+    Example:
+        >>> from measure import MeasureError, MeasureOptions
+        >>> try:
+        ...     MeasureOptions(window=4)
+        ... except MeasureError as err:
+        ...     print(err)
+        window=4 must be a positive odd whole number of pixels
+    """
 
 
 # Physical ranges of the numbers a calibration gives (outside them the numbers are a unit or
@@ -75,7 +93,30 @@ def validate_camera(cam: PinholeCamera) -> None:
 
 @dataclass(frozen=True)
 class PinholeCamera:
-    """Intrinsics of the colour image the disparity is registered to (pixels, zero skew)."""
+    """Intrinsics of the colour image the disparity is registered to (pixels, zero skew).
+
+    A pixel (x, y) at depth Z (m) is the point ``((x - cx) Z / fx, (y - cy) Z / fy, Z)``
+    (docs/METHOD.md, Eq. 2). Pixel centres are at whole coordinates.
+
+    Args:
+        fx: horizontal focal length (float, px); within ``FOCAL_PER_SIZE`` times the larger image side.
+        fy: vertical focal length (float, px); same range as ``fx``.
+        cx: principal point column (float, px).
+        cy: principal point row (float, px).
+        width: image width W (int, px, >= 1).
+        height: image height H (int, px, >= 1).
+
+    Returns:
+        A frozen, validated camera; raises :class:`MeasureError` naming a value that is not a
+        finite number or outside its physical range.
+
+    Example:
+        >>> from measure import PinholeCamera
+        >>> cam = PinholeCamera(fx=60.0, fy=60.0, cx=31.5, cy=23.5, width=64, height=48)
+        >>> half = cam.scaled(32, 24)
+        >>> print(half.fx, half.cx, half.width)
+        30.0 15.5 32
+    """
 
     fx: float
     fy: float
@@ -88,7 +129,15 @@ class PinholeCamera:
         validate_camera(self)
 
     def scaled(self, width: int, height: int) -> PinholeCamera:
-        """The same camera seen at another resolution (pixel-centre convention)."""
+        """The same camera seen at another resolution (pixel-centre convention).
+
+        Args:
+            width: new image width (int, px).
+            height: new image height (int, px).
+
+        Returns:
+            A :class:`PinholeCamera` with focal lengths and principal point scaled to ``width x height``.
+        """
         sx, sy = width / self.width, height / self.height
         return PinholeCamera(
             fx=self.fx * sx,
@@ -105,6 +154,31 @@ class Frame:
     """One colour image with registered disparity.
 
     ``Z = fx * baseline_m / (disparity + doffs)`` in metres. NaN disparity means no data.
+
+    Args:
+        image: colour image, (H, W, 3) uint8, BGR.
+        disparity: disparity registered to ``image``, (H, W) float32, px; NaN where there is no data.
+        camera: intrinsics of ``image``; ``camera.width x camera.height`` must be ``W x H``.
+        baseline_m: stereo baseline (float, m, in ``BASELINE_RANGE_M``).
+        doffs: disparity offset added before the division (float, px): the difference of the two
+            cameras' principal points (Middlebury's ``doffs``); 0 for rectified pairs.
+        confidence: optional per-pixel confidence, (H, W) float32 in [0, 1], or None.
+        timestamp: capture time (float, s).
+        meta: free-form source information (mapping of str to JSON-ready values).
+
+    Returns:
+        A frozen, validated frame; raises :class:`MeasureError` naming a wrong shape, dtype or number.
+
+    Example:
+        >>> import numpy as np
+        >>> from measure import Frame, PinholeCamera
+        >>> cam = PinholeCamera(fx=60.0, fy=60.0, cx=31.5, cy=23.5, width=64, height=48)
+        >>> disparity = np.full((48, 64), 12.0, dtype=np.float32)  # a plane 0.5 m away
+        >>> frame = Frame(np.zeros((48, 64, 3), np.uint8), disparity, cam, baseline_m=0.1)
+        >>> frame.shape
+        (48, 64)
+        >>> print(frame.depth()[0, 0])  # 60 px * 0.1 m / 12 px
+        0.5
     """
 
     image: np.ndarray
@@ -121,17 +195,29 @@ class Frame:
 
     @property
     def shape(self) -> tuple[int, int]:
+        """(H, W) of the disparity, px."""
         return self.disparity.shape  # type: ignore[return-value]
 
     def valid(self, disparity: np.ndarray) -> np.ndarray:
         """Where ``disparity`` (px) is one a camera can produce: finite, ``d + doffs > 0`` (in
-        front of the camera) and at most the image width (the match lies inside the other image)."""
+        front of the camera) and at most the image width (the match lies inside the other image).
+
+        Args:
+            disparity: disparities of any shape (px).
+
+        Returns:
+            Boolean array of the same shape.
+        """
         d = np.asarray(disparity)
         with np.errstate(invalid="ignore", over="ignore"):
             return np.isfinite(d) & (d + self.doffs > 0) & (d <= self.camera.width)
 
     def depth(self) -> np.ndarray:
-        """Depth in metres, NaN where the disparity is invalid (:meth:`valid`)."""
+        """Depth in metres, NaN where the disparity is invalid (:meth:`valid`).
+
+        Returns:
+            (H, W) float64 array of Z (m).
+        """
         ok = self.valid(self.disparity)
         z = np.full(self.disparity.shape, np.nan)
         z[ok] = self.camera.fx * self.baseline_m / (self.disparity[ok].astype(np.float64) + self.doffs)
@@ -193,7 +279,27 @@ def validate_frame(frame: Frame) -> None:
 
 @dataclass(frozen=True)
 class MeasureOptions:
-    """How to measure. See docs/method.md for the meaning of each parameter."""
+    """How to measure. See docs/METHOD.md for the meaning of each parameter.
+
+    Args:
+        method: ``"robust"`` (robust disparity line along the segment, the default), ``"paper"``
+            (the paper's robust 3D line, docs/METHOD.md Eq. 3-7) or ``"basic"`` (window medians at the
+            clicks and Eq. 2 only).
+        support_fraction: fraction h/n of the samples FAST-MCD keeps (float in [0.5, 1.0]).
+        window: side of the square window around each click (odd int, px).
+        extension_px: length of the extensions beyond the clicks that gap detection reads (int >= 3, px).
+        gap_detection: whether to look for an end clicked on a depth gap (bool).
+        seed: seed of FAST-MCD's random starts (int >= 0); the same seed gives the same answer.
+
+    Returns:
+        Frozen, validated options; raises :class:`MeasureError` naming a value out of range.
+
+    Example:
+        >>> from measure import MeasureOptions
+        >>> opts = MeasureOptions(method="basic", window=7)
+        >>> print(opts.method, opts.window, opts.support_fraction)
+        basic 7 0.5
+    """
 
     method: Method = "robust"
     support_fraction: float = 0.5
@@ -219,7 +325,51 @@ class MeasureOptions:
 
 @dataclass(frozen=True)
 class Measurement:
-    """The result of one point-to-point measurement (metres, pixels)."""
+    """The result of one point-to-point measurement (metres, pixels).
+
+    Made by :func:`measure.measure_distance` and :func:`measure.sequence.measure_sequence`.
+
+    Args:
+        distance_m: the distance |P2 - P1| (float, m).
+        method: the method that answered: ``"robust"``, ``"paper"`` or ``"basic"`` (str).
+        fit: which model gave the end points: ``"line"``, ``"constant-depth"``, ``"surfaces"`` or ``"none"``
+            (window medians) (str).
+        p1_m: 3D point of the first click (x, y, z) in the camera frame (m).
+        p2_m: 3D point of the second click (m).
+        basic_distance_m: the basic method's distance, for comparison (float, m; NaN without depth at a click).
+        uncertainty_m: one-sigma uncertainty of ``distance_m`` (float, m).
+        n_samples: pixels sampled along the segment (int).
+        n_valid: of them, with valid disparity (int).
+        n_support: of them, in the robust fit's support (int).
+        samples_px: (n_valid, 2) float array of the valid samples' (x, y) (px).
+        support: (n_valid,) bool array, True for samples in the fit's support.
+        gap_detected: an end was clicked on a depth gap and moved to the surface (bool).
+        warnings: human-readable warnings (tuple of str).
+        elapsed_ms: time the measurement took (float, ms).
+        interval_m: 95 % interval of the distance (low, high) (m).
+        quality: verdict on the answer (measure.verdict): ``"good"`` (the truth is expected inside the
+            interval), ``"check"`` or ``"unreliable"`` (str).
+        reasons: why the verdict is not ``"good"`` (tuple of str).
+        frames_used: frames of a still scene pooled into the answer (int, 1 for one frame).
+        single_frame_uncertainty_m: one-sigma the newest frame alone would have had (float, m); the
+            pooling gain is its ratio to ``uncertainty_m``.
+
+    Returns:
+        A frozen result; :meth:`to_dict` gives its JSON form.
+
+    Example:
+        >>> import numpy as np
+        >>> from measure import Frame, PinholeCamera
+        >>> cam = PinholeCamera(fx=60.0, fy=60.0, cx=31.5, cy=23.5, width=64, height=48)
+        >>> disparity = np.full((48, 64), 12.0, dtype=np.float32)  # a plane 0.5 m away
+        >>> frame = Frame(np.zeros((48, 64, 3), np.uint8), disparity, cam, baseline_m=0.1)
+        >>> from measure import measure_distance
+        >>> m = measure_distance(frame, (10, 24), (54, 24))
+        >>> print(m.method, m.quality, round(m.distance_m, 4), m.frames_used)
+        robust good 0.3667 1
+        >>> sorted(m.to_dict())[:3]
+        ['basic_distance_m', 'distance_m', 'elapsed_ms']
+    """
 
     distance_m: float
     method: str
@@ -236,18 +386,18 @@ class Measurement:
     gap_detected: bool
     warnings: tuple[str, ...]
     elapsed_ms: float
-    # 95 % interval of the distance (m), and the verdict on the answer (measure.verdict):
-    # "good" (the truth is expected inside the interval), "check" or "unreliable", with reasons.
     interval_m: tuple[float, float] = (math.nan, math.nan)
     quality: str = "check"
     reasons: tuple[str, ...] = ()
-    # Several frames of a still scene (measure.sequence): how many were pooled, and the one-sigma
-    # the newest frame alone would have had (the gain is its ratio to uncertainty_m).
     frames_used: int = 1
     single_frame_uncertainty_m: float = math.nan
 
     def to_dict(self) -> dict[str, Any]:
-        """JSON-ready dict with the same field names (NaN becomes None)."""
+        """JSON-ready dict with the same field names (NaN becomes None).
+
+        Returns:
+            dict of str to floats, ints, bools, strs, None and lists of them.
+        """
 
         def num(x: float) -> float | None:
             return None if not math.isfinite(x) else float(x)
