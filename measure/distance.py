@@ -173,7 +173,7 @@ def measure_distance(
     """Distance (m) between clicked pixels ``p1`` and ``p2`` (x, y) of ``frame`` by ``options.method``.
 
     The robust and paper methods fit a robust model to the disparity sampled along the segment and
-    back-project the clicks with it (docs/METHOD.md, Eq. 2-7; the module docstring has the steps).
+    back-project the clicks with it (docs/method.md, Eq. 2-7; the module docstring has the steps).
 
     Args:
         frame: colour image with registered disparity; its (H, W) float32 disparity is in px.

@@ -96,7 +96,7 @@ class PinholeCamera:
     """Intrinsics of the colour image the disparity is registered to (pixels, zero skew).
 
     A pixel (x, y) at depth Z (m) is the point ``((x - cx) Z / fx, (y - cy) Z / fy, Z)``
-    (docs/METHOD.md, Eq. 2). Pixel centres are at whole coordinates.
+    (docs/method.md, Eq. 2). Pixel centres are at whole coordinates.
 
     Args:
         fx: horizontal focal length (float, px); within ``FOCAL_PER_SIZE`` times the larger image side.
@@ -279,11 +279,11 @@ def validate_frame(frame: Frame) -> None:
 
 @dataclass(frozen=True)
 class MeasureOptions:
-    """How to measure. See docs/METHOD.md for the meaning of each parameter.
+    """How to measure. See docs/method.md for the meaning of each parameter.
 
     Args:
         method: ``"robust"`` (robust disparity line along the segment, the default), ``"paper"``
-            (the paper's robust 3D line, docs/METHOD.md Eq. 3-7) or ``"basic"`` (window medians at the
+            (the paper's robust 3D line, docs/method.md Eq. 3-7) or ``"basic"`` (window medians at the
             clicks and Eq. 2 only).
         support_fraction: fraction h/n of the samples FAST-MCD keeps (float in [0.5, 1.0]).
         window: side of the square window around each click (odd int, px).
