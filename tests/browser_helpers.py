@@ -3,19 +3,14 @@ page that records console errors and failed API responses."""
 
 from __future__ import annotations
 
-import os
-import socket
 import subprocess
-import sys
-import time
 from collections.abc import Iterator
 from contextlib import contextmanager
 from pathlib import Path
 
-import httpx
-import pytest
+from server_process import ROOT, start_serve
 
-ROOT = Path(__file__).resolve().parents[1]
+__all__ = ["ROOT", "chromium", "image_point", "serve", "watch"]
 CHROMIUM_ARGS = [
     "--no-sandbox",
     "--disable-gpu",
@@ -26,39 +21,16 @@ CHROMIUM_ARGS = [
 ]
 
 
-def free_port() -> int:
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
-
-
 @contextmanager
 def serve(folder: Path, source: str, *args: str, config: str = "") -> Iterator[str]:
     """Run ``depthruler serve --source SOURCE ARGS`` with its history in ``folder``; yields the base URL
     once the first frame is there. ``config``: TOML text passed as ``--config`` (server options that
     have no flag, e.g. ``capture_fps``)."""
-    port = free_port()
-    cmd = [sys.executable, "-m", "service.cli", "serve", "--source", source, "--port", str(port)]
-    cmd += ["--db", str(folder / "h.db"), *args]
     if config:
         (folder / "serve.toml").write_text(config)
-        cmd += ["--config", str(folder / "serve.toml")]
-    log = open(folder / "serve.log", "wb")
-    proc = subprocess.Popen(cmd, cwd=ROOT, stdout=log, stderr=subprocess.STDOUT, env={**os.environ, "PYTHONUNBUFFERED": "1"})
-    base = f"http://127.0.0.1:{port}"
+        args = (*args, "--config", str(folder / "serve.toml"))
+    proc, base = start_serve(source, folder / "h.db", folder / "serve.log", *args)
     try:
-        deadline = time.monotonic() + 60
-        while True:
-            if proc.poll() is not None:
-                pytest.fail(f"depthruler serve exited: {(folder / 'serve.log').read_text(errors='replace')}")
-            try:
-                if httpx.get(f"{base}/api/frames/latest", params={"wait": 2}, timeout=5).status_code == 200:
-                    break
-            except httpx.TransportError:
-                pass
-            if time.monotonic() > deadline:
-                pytest.fail(f"no frame from {source} within 60 s: {httpx.get(base + '/api/source').text}")
-            time.sleep(0.3)
         yield base
     finally:
         proc.terminate()
@@ -66,7 +38,6 @@ def serve(folder: Path, source: str, *args: str, config: str = "") -> Iterator[s
             proc.wait(10)
         except subprocess.TimeoutExpired:
             proc.kill()
-        log.close()
 
 
 @contextmanager

@@ -4,12 +4,9 @@ frame, a source that times out once, and a capped history. Nothing acknowledged 
 from __future__ import annotations
 
 import errno
-import os
 import shutil
 import signal
-import socket
 import subprocess
-import sys
 import threading
 import time
 from pathlib import Path
@@ -17,38 +14,16 @@ from pathlib import Path
 import httpx
 import numpy as np
 import pytest
+from server_process import start_serve
 from test_service import BASE, DISP, JSON, PlaneSource, latest, make_client, measure, plane_frame, true_length
 
 from device import SourceTimeout
 
-ROOT = Path(__file__).resolve().parents[1]
 SIM = "sim:poster?width=320&height=240&fps=30"
 
 
-def _free_port() -> int:
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
-
-
 def _serve(db: Path, log: Path, prefix: tuple[str, ...] = (), extra: tuple[str, ...] = ()) -> tuple[subprocess.Popen, str]:
-    port = _free_port()
-    cmd = [*prefix, sys.executable, "-m", "service.cli", "serve", "--source", SIM, "--port", str(port), "--db", str(db), *extra]
-    env = {**os.environ, "PYTHONPATH": str(ROOT)}
-    proc = subprocess.Popen(cmd, cwd=ROOT, stdout=open(log, "ab"), stderr=subprocess.STDOUT, env=env)
-    base = f"http://127.0.0.1:{port}"
-    deadline = time.monotonic() + 120
-    while time.monotonic() < deadline:
-        if proc.poll() is not None:
-            raise AssertionError(f"depthruler serve exited: {log.read_text(errors='replace')}")
-        try:
-            if httpx.get(f"{base}/api/frames/latest", params={"wait": 2}, timeout=5).status_code == 200:
-                return proc, base
-        except httpx.TransportError:
-            pass
-        time.sleep(0.2)
-    proc.kill()
-    raise AssertionError("the server gave no frame within 120 s")
+    return start_serve(SIM, db, log, *extra, prefix=prefix, timeout_s=120)
 
 
 def _points(frame: dict, k: int) -> tuple[list[float], list[float]]:
