@@ -119,7 +119,7 @@ from .sampling import (
     window_median_disparity,
 )
 from .surfaces import CLEAN_SPREAD, DISAGREE_REL, EndModels, clean_window_disparity, extrapolated, on_depth_edge, select_end_models
-from .types import Frame, MeasureError, MeasureOptions, Measurement, PinholeCamera, validate_frame
+from .types import Frame, MeasureError, MeasureOptions, Measurement, validate_frame
 from .uncertainty import (
     MODEL_SHARE,
     calibrated_sigma,
@@ -152,11 +152,7 @@ def validate_request(frame: Frame, p1: object, p2: object, options: MeasureOptio
         raise MeasureError(f"frame must be a measure.Frame, got {type(frame).__name__}")
     if not isinstance(options, MeasureOptions):
         raise MeasureError(f"options must be a measure.MeasureOptions, got {type(options).__name__}")
-    validate_frame(frame)
-    cam: PinholeCamera = frame.camera
-    for name in ("fx", "fy", "cx", "cy"):
-        if not math.isfinite(float(getattr(cam, name))):
-            raise MeasureError(f"camera {name} is not finite; check the calibration")
+    validate_frame(frame)  # validate_camera: every intrinsic finite and in its physical range
     xy1 = check_point(frame, p1, "p1")
     xy2 = check_point(frame, p2, "p2")
     if xy1 == xy2:
