@@ -5,6 +5,7 @@ from __future__ import annotations
 import itertools
 import os
 import threading
+from dataclasses import dataclass
 from pathlib import Path
 
 import cv2
@@ -378,14 +379,33 @@ def test_real_stereo_pair():
     assert np.isfinite(frame.disparity).mean() > 0.2
 
 
-@pytest.mark.parametrize("scene,distance", [("poster", 2.0), ("boxes", 3.0)])
-def test_simulator_rendered_pair_through_pipeline(scene, distance):
-    """The simulator's rendered stereo pair (exact ground truth) through the same grabber and processing."""
+@dataclass(frozen=True)
+class RenderedPair:
+    """The simulator's rendered stereo pair of one scene (640x480) with its exact disparity."""
+
+    left: np.ndarray
+    right: np.ndarray
+    k: np.ndarray  # 3x3 intrinsics of both (identical) cameras, px
+    baseline_m: float
+    gt: np.ndarray  # exact disparity, px; NaN where nothing was hit
+    view: object  # sim.scenes view: .camera, .truth()
+
+    @property
+    def ndisp(self) -> int:
+        return round_up_disparities(int(np.nanmax(self.gt) * 1.25) + 8)
+
+    def assert_matched(self, frame) -> None:
+        """The simulator's textures and sky change as it evolves, so no coverage figure is pinned here:
+        where SGBM matched, it must agree with the exact disparity."""
+        matched = np.isfinite(self.gt) & np.isfinite(frame.disparity)
+        assert matched.sum() > 0.3 * self.gt.size
+        assert np.median(np.abs(frame.disparity[matched] - self.gt[matched])) < 0.5
+
+
+def rendered_pair(scene: str, distance: float) -> RenderedPair:
     sim_scenes = pytest.importorskip("sim.scenes")
     from sim.scenario import make_model
     from sim.stereo import stereo_pair, true_disparity
-
-    from measure import MeasureOptions, measure_distance
 
     params = sim_scenes.SceneParams(scene=scene, distance_m=distance, width=640, height=480)
     model = make_model("indoor")
@@ -393,18 +413,23 @@ def test_simulator_rendered_pair_through_pipeline(scene, distance):
     view = sim_scenes.get_view(params)
     cam = view.camera
     k = np.array([[cam.fx, 0, cam.cx], [0, cam.fy, cam.cy], [0, 0, 1]])
+    return RenderedPair(left, right, k, model.baseline_wide_m, true_disparity(params, model), view)
+
+
+@pytest.mark.parametrize("scene,distance", [("poster", 2.0), ("boxes", 3.0)])
+def test_simulator_rendered_pair_through_pipeline(scene, distance):
+    """The simulator's rendered stereo pair (exact ground truth) through the same grabber and processing."""
+    from measure import MeasureOptions, measure_distance
+
+    pair = rendered_pair(scene, distance)
+    k = pair.k
     calib = StereoCalibration(image_size=(640, 480), K1=k, D1=np.zeros(5), K2=k, D2=np.zeros(5), R=np.eye(3),
-                              T=np.array([-model.baseline_wide_m, 0, 0]), extra={"rectified": True})
-    gt = true_disparity(params, model)
-    sgbm = SGBMConfig(num_disparities=round_up_disparities(int(np.nanmax(gt) * 1.25) + 8))
-    with StereoPairSource(StereoPairConfig(sgbm=sgbm), grabber=ImagePairGrabber([(left, right)]),
+                              T=np.array([-pair.baseline_m, 0, 0]), extra={"rectified": True})
+    sgbm = SGBMConfig(num_disparities=pair.ndisp)
+    with StereoPairSource(StereoPairConfig(sgbm=sgbm), grabber=ImagePairGrabber([(pair.left, pair.right)]),
                           calibration=calib) as src:
         frame = src.read()
-    # The simulator's textures and sky change as it evolves, so no coverage figure is pinned here:
-    # where SGBM matched, it must agree with the exact disparity, and the length must come out right.
-    matched = np.isfinite(gt) & np.isfinite(frame.disparity)
-    assert matched.sum() > 0.3 * gt.size
-    assert np.median(np.abs(frame.disparity[matched] - gt[matched])) < 0.5
-    truth = view.truth()
+    pair.assert_matched(frame)  # and the length must come out right
+    truth = pair.view.truth()
     got = measure_distance(frame, truth.p1_px, truth.p2_px, MeasureOptions(method="basic")).distance_m
     assert got == pytest.approx(truth.length_m, rel=0.05)

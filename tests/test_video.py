@@ -18,6 +18,7 @@ from device.middlebury import load_scene
 from device.sgbm import SGBMConfig, round_up_disparities
 from device.stereo_pair import StereoProcessor
 from device.video import config_from_spec, restore_odd_size, split_eyes
+from test_stereo_pair import rendered_pair
 from device.base import SourceSpec
 from measure import MeasureOptions, measure_distance
 
@@ -194,29 +195,17 @@ def test_two_files_one_per_eye(middlebury_dir, tmp_path):
 @pytest.mark.parametrize("scene,distance", [("poster", 2.0), ("boxes", 3.0)])
 def test_simulator_stereo_video_measures_the_truth(tmp_path, scene, distance):
     """The simulator's rendered pair (exact ground truth) as a side-by-side FFV1 video through video:."""
-    sim_scenes = pytest.importorskip("sim.scenes")
-    from sim.scenario import make_model
-    from sim.stereo import stereo_pair, true_disparity
-
-    params = sim_scenes.SceneParams(scene=scene, distance_m=distance, width=640, height=480)
-    model = make_model("indoor")
-    left, right = stereo_pair(params, model, np.random.default_rng(0))
-    view = sim_scenes.get_view(params)
-    cam = view.camera
-    k = np.array([[cam.fx, 0, cam.cx], [0, cam.fy, cam.cy], [0, 0, 1]])
+    pair = rendered_pair(scene, distance)
+    cam, k = pair.view.camera, pair.k
     yaml = write_opencv_yaml(tmp_path / "sim.yaml", k, np.zeros((1, 5)), k, np.zeros((1, 5)), np.eye(3),
-                             np.array([[-model.baseline_wide_m], [0.0], [0.0]]), (640, 480))
-    video = write_video(tmp_path / "sim.mkv", [np.hstack([left, right])])
-    gt = true_disparity(params, model)
-    ndisp = round_up_disparities(int(np.nanmax(gt) * 1.25) + 8)
-    with open_source(f"video:{video}?calib={yaml}&ndisp={ndisp}") as src:
+                             np.array([[-pair.baseline_m], [0.0], [0.0]]), (640, 480))
+    video = write_video(tmp_path / "sim.mkv", [np.hstack([pair.left, pair.right])])
+    with open_source(f"video:{video}?calib={yaml}&ndisp={pair.ndisp}") as src:
         frame = src.read()
-    truth = view.truth()
+    truth = pair.view.truth()
     # Identical K, R = I: rectification is the identity up to OpenCV's alpha=0 crop, which is none here.
     assert frame.camera.fx == pytest.approx(cam.fx, rel=1e-6) and frame.camera.cx == pytest.approx(cam.cx, abs=1e-6)
-    matched = np.isfinite(gt) & np.isfinite(frame.disparity)
-    assert matched.sum() > 0.3 * gt.size
-    assert np.median(np.abs(frame.disparity[matched] - gt[matched])) < 0.5
+    pair.assert_matched(frame)
     got = measure_distance(frame, truth.p1_px, truth.p2_px, MeasureOptions(method="robust")).distance_m
     print(f"sim {scene} at {distance} m: {got:.4f} m vs {truth.length_m:.4f} m ({got / truth.length_m - 1:+.2%})")
     assert got == pytest.approx(truth.length_m, rel=0.05)  # as the in-memory simulator test
