@@ -48,6 +48,15 @@ class Source(Protocol):
     def __exit__(self, *exc: object) -> None: ...
 
 
+@runtime_checkable
+class FrameAccess(Protocol):
+    """A source of a fixed number of frames (a recording, a bag) that reads any of them directly."""
+
+    def __len__(self) -> int: ...
+
+    def frame(self, i: int) -> Frame: ...
+
+
 class SourceBase:
     """Context-manager plumbing shared by all sources: ``with src: src.read()``."""
 

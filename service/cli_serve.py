@@ -137,6 +137,7 @@ def measure(
 ) -> None:
     """Measure between two points on one frame of a source, headless; prints distance, uncertainty and method."""
     from device import SourceError, open_source
+    from device.base import FrameAccess
     from measure import MeasureError, MeasureOptions, measure_distance
     from measure.sequence import measure_sequence
 
@@ -149,8 +150,13 @@ def measure(
     read: list[Any] = []
     try:
         with open_source(source) as src:
-            for _ in range(frame + 1):
-                read = (read + [src.read(timeout)])[-frames:]
+            if isinstance(src, FrameAccess):  # a recording or bag: read the frames asked for, not every one before them
+                if frame >= len(src):
+                    _fail(f"cannot read frame {frame} of {source}: it has {len(src)} frames (0-{len(src) - 1})", 1)
+                read = [src.frame(i) for i in range(frame - frames + 1, frame + 1)]
+            else:
+                for _ in range(frame + 1):
+                    read = (read + [src.read(timeout)])[-frames:]
     except SourceError as exc:
         _fail(f"cannot read frame {frame} of {source}: {exc}", 1)
     f = read[-1]

@@ -42,6 +42,18 @@ def test_measure_on_named_frame_of_recording(recording):
     assert f"distance {true_length(p1, p2):.4f} m" in text.stdout
 
 
+def test_measure_reads_the_named_frame_of_a_recording_directly(recording):
+    """`--frame N` reads frame N itself: a damaged earlier frame neither shifts it nor stops it, a damaged N is an error."""
+    (recording / json.loads((recording / "frames.jsonl").read_text().splitlines()[0])["files"]["disparity"]).write_bytes(b"not a png")
+    p1, p2 = (40.0, 30.0), (280.0, 200.0)
+    args = ["--p1", "40,30", "--p2", "280,200", "--method", "basic", "--json"]
+    ok = CliRunner().invoke(app, ["measure", f"replay:{recording}", "--frame", "2", *args])
+    assert ok.exit_code == 0, ok.output
+    assert json.loads(ok.stdout)["distance_m"] == pytest.approx(true_length(p1, p2) / 3, rel=1e-3)
+    bad = CliRunner().invoke(app, ["measure", f"replay:{recording}", "--frame", "0", *args])
+    assert bad.exit_code == 1 and "frame 0" in bad.output
+
+
 @pytest.mark.parametrize(
     "args, fragment, code",
     [

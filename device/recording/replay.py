@@ -101,13 +101,23 @@ class ReplaySource(SourceBase):
                 time.sleep(wait)
         self._pos += 1
         try:
-            frame = rec.frame(i)
+            return self.frame(i)
         except RecordingError as exc:
             # one damaged frame must not end (or, reopened, restart) the replay: skip it, say so
             self.warnings.append(f"{exc}; frame {i} skipped")
             if len(self.warnings) >= len(rec) and self.config.loop:
                 raise RecordingError(f"no frame of {rec.path} can be read ({exc})") from exc
             return self.read(timeout_s)
+
+    def __len__(self) -> int:
+        return len(self.recording) if self.recording is not None else 0
+
+    def frame(self, i: int) -> Frame:
+        """Frame ``i`` of the recording, read directly (a damaged frame raises RecordingError)."""
+        rec = self.recording
+        if rec is None or not self.is_open:
+            raise SourceError("the replay source is not open; call open() or use it in a with block")
+        frame = rec.frame(i)
         meta = dict(frame.meta)
         meta["replay"] = {"path": str(rec.path), "index": i}
         return dataclasses.replace(frame, meta=meta)
