@@ -1,8 +1,9 @@
 """The history of accuracy checks (`depthruler check`): one JSON line per check, next to the service's database.
 
 A camera's accuracy is followed over weeks, so each line keeps what identifies the chain that was
-checked (source spec, device serial, the calibration file and its SHA-256) with the time and the
-figures. The file is ``<db stem>-checks.jsonl`` beside the service database (``depthruler.db`` ->
+checked (source spec, device serial, the calibration file and its SHA-256, and the calibration the
+frames carried with its own SHA-256, which also identifies on-board calibrations) with the time and
+the figures. The file is ``<db stem>-checks.jsonl`` beside the service database (``depthruler.db`` ->
 ``depthruler-checks.jsonl``), where ``GET /api/checks`` reads it. Lines are appended whole and
 fsync'd; a reader skips a truncated or corrupt line (a crash mid-write) instead of failing.
 It lives in ``device`` because both the check (``evaluation``) and the service read it, and neither
@@ -16,6 +17,8 @@ import json
 import os
 from pathlib import Path
 from typing import Any
+
+from measure import Frame
 
 from .base import SourceSpec
 from .errors import SourceError
@@ -45,6 +48,24 @@ def calibration_of(spec: str) -> tuple[str | None, str | None]:
         except OSError:
             return calib, None
     return calib, digest.hexdigest()
+
+
+def camera_of(frame: Frame) -> tuple[dict[str, float], str]:
+    """The calibration a frame was measured with (intrinsics, size, baseline, doffs) and its SHA-256.
+
+    This identifies the calibration in use whatever its origin: a file named by the spec, a
+    device's on-board calibration (an OAK's EEPROM, which no spec names), or a simulator's. A
+    recalibrated device gives another hash, so its checks are not compared with the old ones.
+    Values are rounded to 1e-6 (px, m) so that a float printed and parsed again hashes the same.
+    """
+    cam = frame.camera
+    values = {
+        "fx": cam.fx, "fy": cam.fy, "cx": cam.cx, "cy": cam.cy, "width": cam.width, "height": cam.height,
+        "baseline_m": frame.baseline_m, "doffs": frame.doffs,
+    }
+    values = {k: round(float(v), 6) for k, v in values.items()}
+    text = json.dumps(values, sort_keys=True, separators=(",", ":"))
+    return values, hashlib.sha256(text.encode("ascii")).hexdigest()
 
 
 def append_check(path: str | Path, record: dict[str, Any]) -> Path:

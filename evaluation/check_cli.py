@@ -29,7 +29,7 @@ def check(
     """How accurate are lengths from this camera, here, today: measure the known lengths of a printed board."""
     from device import open_source
     from device.calibration import BoardSpec
-    from device.check_history import append_check, calibration_of, checks_path, read_checks
+    from device.check_history import append_check, calibration_of, camera_of, checks_path, read_checks
     from device.cli import _parse_squares
     from device.errors import SourceEnded, SourceError
 
@@ -51,9 +51,10 @@ def check(
             raise CheckError(f"{source} gave no frame; check the source")
         result = run_check(got, board)
         calib, calib_hash = calibration_of(source)
-        # earlier checks of this camera with this calibration file: does the bias change with distance?
+        camera, camera_hash = camera_of(got[0])
+        # earlier checks of this camera with this calibration: does the bias change with distance?
         earlier = [r for r in read_checks(checks_path(db), serial=info.serial)
-                   if r.get("calibration_sha256") == calib_hash and r.get("kind") == info.kind] if history else []
+                   if r.get("camera_sha256") == camera_hash and r.get("kind") == info.kind] if history else []
         rep = report(result, earlier)
     except (SourceError, CheckError) as exc:
         typer.echo(f"error: {exc}", err=True)
@@ -65,6 +66,8 @@ def check(
         "serial": info.serial,
         "calibration": calib,
         "calibration_sha256": calib_hash,
+        "camera": camera,
+        "camera_sha256": camera_hash,
         **rep,
     }
     record = _finite(record)

@@ -283,3 +283,29 @@ def test_cli_without_a_board_says_what_to_do(tmp_path):
                               "--squares", "7x5", "--square-mm", "40", "--marker-mm", "30", "--db", str(tmp_path / "d.db")])
     assert res.exit_code == 1 and "show the whole board" in res.output
     assert not checks_path(tmp_path / "d.db").exists()
+
+
+def test_history_compares_only_checks_made_with_the_same_calibration(tmp_path):
+    """The calibration in use is identified from the frames (camera_sha256), so a device's on-board
+    calibration counts too: after a recalibration the old checks are not part of the trend."""
+    from service.cli import app
+
+    db = tmp_path / "d.db"
+
+    def check(distance: float, baseline_error: float) -> dict:
+        board = board_for(distance)
+        res = runner.invoke(app, ["check", "--source", sim_spec(distance, board, baseline_error=baseline_error),
+                                  "--squares", "7x5", "--square-mm", f"{board.square_m * 1000:g}",
+                                  "--marker-mm", f"{board.marker_m * 1000:g}", "--frames", "1", "--json", "--db", str(db)])
+        assert res.exit_code == 0, res.output
+        return json.loads(res.output.strip().splitlines()[-1])
+
+    old = [check(d, 0.02) for d in (1.0, 2.0, 4.0)]
+    assert old[0]["calibration_sha256"] is None  # no calibration file names it ...
+    assert len({r["camera_sha256"] for r in old}) == 1 and old[0]["camera"]["baseline_m"] == pytest.approx(0.0612)
+    level = float(re.search(r"stays at ([+-][0-9.]+) %", old[-1]["findings"][-1]["measured"]).group(1))
+    assert level == pytest.approx(2.0, abs=0.3)  # ... and the three checks of the 2 % baseline error agree
+    new = check(4.0, 0.0)
+    assert new["camera_sha256"] != old[0]["camera_sha256"]
+    assert not any("stays at" in f["measured"] or "grows with distance" in f["measured"] for f in new["findings"])
+    assert len(read_checks(checks_path(db))) == 4
