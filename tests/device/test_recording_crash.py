@@ -10,7 +10,7 @@ import time
 from pathlib import Path
 
 import pytest
-from test_recording import assert_same_frame, record, synthetic_frame
+from factories import assert_same_frame, record, synthetic_frame
 
 from device.recording import FRAMES, open_recording
 
@@ -19,9 +19,9 @@ ROOT = Path(__file__).resolve().parents[2]
 WRITER_SCRIPT = """
 import sys
 sys.path[:0] = [{root!r}, {tests!r}]
-from test_recording import INFO, synthetic_frame
+from factories import SYNTH_INFO, synthetic_frame
 from device.recording import RecordingWriter
-w = RecordingWriter({out!r}, INFO)
+w = RecordingWriter({out!r}, SYNTH_INFO)
 k = 0
 while True:
     w.write(synthetic_frame(k, 320, 240))
@@ -45,7 +45,7 @@ def _wait_for_lines(path: Path, n: int, proc: subprocess.Popen, limit_s: float =
 @pytest.mark.parametrize("delay_s", [0.0, 0.037])
 def test_sigkill_mid_stream_keeps_every_complete_frame(tmp_path: Path, delay_s: float) -> None:
     out = tmp_path / "rec"
-    script = WRITER_SCRIPT.format(root=str(ROOT), tests=str(ROOT / "tests" / "device"), out=str(out))
+    script = WRITER_SCRIPT.format(root=str(ROOT), tests=str(ROOT / "tests"), out=str(out))
     proc = subprocess.Popen([sys.executable, "-c", script], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
     try:
         _wait_for_lines(out / FRAMES, 8, proc)

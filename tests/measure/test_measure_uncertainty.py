@@ -9,7 +9,7 @@ import pytest
 
 from measure import MeasureOptions, measure_distance
 
-from measure_synth import plane_frame, true_length
+from factories import plane_frame, true_length
 
 NORMAL, K = np.array([0.3, -0.1, 1.0]), 3.0
 P1, P2 = (30.0, 60.0), (290.0, 170.0)
