@@ -28,7 +28,7 @@ after the extrinsics), which is what the colour intrinsics need; and a footprint
 whose centres it holds, where librealsense rounds both corners and covers about one pixel more per axis,
 so that neighbours of one surface overlap and the z-buffer keeps the nearer of two noisy samples: on the
 simulated frames warped to a camera 5 cm aside and back, that rule measured the poster 14-17 mm off,
-this one 0.1-0.8 mm, as replay does (tests/test_bag.py). Depth finer than the colour image (several
+this one 0.1-0.8 mm, as replay does (tests/device/test_bag.py). Depth finer than the colour image (several
 depth pixels per colour pixel) gives each colour pixel the depth pixel whose footprint holds its centre,
 not the nearest of them: warped to half resolution and back, 1.7-7.3 mm instead of 15-17 mm.
 

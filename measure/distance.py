@@ -36,10 +36,10 @@ Why these choices (A = 100 - 100 |g - m| / g, mean over measurements unless note
   2/4/6/7 m, wall 0.6 m behind, 1/4 px, contention, 1.5 px jitter, 48 cases): d-line rays 98.39,
   3D-line rays 96.50, paper 93.95, basic 97.74. The 3D TLS line is tilted by the depth noise
   that runs along the rays (worst at 7 m: 97.03 vs 91.81), so the d-line model was kept.
-- Final figures (tests/test_measure_accuracy.py: wall 2 m behind, 50 % contention, 3 px jitter,
+- Final figures (tests/measure/test_measure_accuracy.py: wall 2 m behind, 50 % contention, 3 px jitter,
   80 cases): robust 96.78, paper 86.77, basic 73.54 (per distance in bench/RESULTS.md).
   Middlebury, SGBM (left band filled), 49 GT edge-to-edge segments x 3 clicks
-  (tests/test_middlebury_accuracy.py): median robust 98.63, paper 97.85, basic 97.91; mean
+  (tests/measure/test_middlebury_accuracy.py): median robust 98.63, paper 97.85, basic 97.91; mean
   97.51 / 91.54 / 61.78.
 - Stress protocol (issue #12; evaluation/stress_middlebury.py and stress_sim.py: exact, jittered,
   inside, piece, long and no-gap click pairs on SGBM, StereoBM and ground truth with 50 % uniform

@@ -43,7 +43,7 @@ Adirondack, Piano, Playroom, Shelves; 360 click pairs) have 68 / 90 / 95 % quant
 3.85 (held-out scenes: 0.74 / 2.07 / 3.18). The reported one-sigma is ``SIGMA_SCALE`` = 1.25 model
 sigmas (so 2 sigma reaches the 90 % quantile) and the 95 % interval ``interval_m`` is
 ``INTERVAL_SCALE`` = 3.9 model sigmas either side. Held-out scenes and the other disparity sources are the check (README "Accuracy").
-tests/test_measure_uncertainty.py checks coverage of the truth on the reduced stress protocol.
+tests/measure/test_measure_uncertainty.py checks coverage of the truth on the reduced stress protocol.
 """
 
 from __future__ import annotations

@@ -75,7 +75,7 @@ class AnnotationIn(BaseModel):
 
 # ---------------------------------------------------------------------------------------------
 # Response bodies. The routes build plain dicts (encoded off the event loop where it matters) and
-# declare these for /docs; tests/test_api_schemas.py checks that real answers validate against them.
+# declare these for /docs; tests/service/test_api_schemas.py checks that real answers validate against them.
 
 
 class _Out(BaseModel):

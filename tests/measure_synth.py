@@ -1,4 +1,4 @@
-"""A small synthetic rig for the measurement-core tests (independent of sim/).
+"""A small synthetic poster rig for the measurement-core tests (its own ray casting, not sim/'s renderer).
 
 A tilted rectangular poster in front of a fronto-parallel wall, seen by a pinhole camera with
 registered disparity: Gaussian disparity noise, quantization, foreground fattening at the
@@ -12,6 +12,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from factories import camera
 from measure import Frame, PinholeCamera
 
 W, H = 960, 540
@@ -32,10 +33,6 @@ class Case:
     @property
     def length_m(self) -> float:
         return float(np.linalg.norm(self.p2_m - self.p1_m))
-
-
-def camera(w: int = W, h: int = H, fx: float = FX) -> PinholeCamera:
-    return PinholeCamera(fx=fx, fy=fx, cx=(w - 1) / 2, cy=(h - 1) / 2, width=w, height=h)
 
 
 def rotation(yaw_deg: float, pitch_deg: float, roll_deg: float = 0.0) -> np.ndarray:
@@ -121,7 +118,7 @@ def poster_case(
     **degrade_kw,
 ) -> Case:
     """A poster at ``distance_m`` (its centre), measured across its width or height edge to edge."""
-    cam = camera()
+    cam = camera(W, H, FX)
     center = np.array([rng.uniform(-0.1, 0.1) * distance_m, rng.uniform(-0.05, 0.05) * distance_m, distance_m])
     rot = rotation(yaw_deg, pitch_deg)
     depth, poster = poster_depth(cam, center, rot, half, distance_m + wall_gap_m)
@@ -138,30 +135,3 @@ def poster_case(
     c2 = (min(max(t2[0] + j[2], 0), W - 1), min(max(t2[1] + j[3], 0), H - 1))
     frame = Frame(image=np.zeros((H, W, 3), np.uint8), disparity=disp, camera=cam, baseline_m=BASELINE)
     return Case(frame, p1, p2, c1, c2, t1, t2)
-
-
-# A small camera for plane-only frames (fast to build, used by the unit tests).
-SMALL_W, SMALL_H, SMALL_F, SMALL_B = 320, 240, 300.0, 0.1
-SMALL_CAM = PinholeCamera(SMALL_F, SMALL_F, (SMALL_W - 1) / 2, (SMALL_H - 1) / 2, SMALL_W, SMALL_H)
-
-
-def plane_frame(normal, k, *, quantum=None, noise=0.0, seed=0, outliers=0.0) -> Frame:
-    """Disparity of the plane normal . P = k seen by SMALL_CAM (optionally noisy/quantized/with outliers)."""
-    rng = np.random.default_rng(seed)
-    xs, ys = np.meshgrid((np.arange(SMALL_W) - SMALL_CAM.cx) / SMALL_F, (np.arange(SMALL_H) - SMALL_CAM.cy) / SMALL_F)
-    z = k / (normal[0] * xs + normal[1] * ys + normal[2])
-    d = SMALL_F * SMALL_B / z + rng.normal(0, noise, z.shape) if noise else SMALL_F * SMALL_B / z
-    if outliers:
-        bad = rng.random(d.shape) < outliers
-        d = np.where(bad, d * rng.uniform(0.5, 1.5, d.shape), d)
-    if quantum:
-        d = np.round(d / quantum) * quantum
-    return Frame(np.zeros((SMALL_H, SMALL_W, 3), np.uint8), d.astype(np.float32), SMALL_CAM, SMALL_B)
-
-
-def true_length(frame: Frame, normal, k, p1, p2) -> float:
-    pts = []
-    for x, y in (p1, p2):
-        r = np.array([(x - SMALL_CAM.cx) / SMALL_F, (y - SMALL_CAM.cy) / SMALL_F, 1.0])
-        pts.append(r * k / (np.asarray(normal) @ r))
-    return float(np.linalg.norm(pts[1] - pts[0]))

@@ -18,7 +18,7 @@ from device.middlebury import load_scene
 from device.sgbm import SGBMConfig, round_up_disparities
 from device.stereo_pair import StereoProcessor
 from device.video import config_from_spec, restore_odd_size, split_eyes
-from test_stereo_pair import rendered_pair
+from factories import rendered_pair
 from device.base import SourceSpec
 from measure import MeasureOptions, measure_distance
 

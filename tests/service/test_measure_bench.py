@@ -66,7 +66,7 @@ def test_bench_dependencies_are_declared():
     import tomllib
     from pathlib import Path
 
-    root = Path(__file__).resolve().parents[1]
+    root = Path(__file__).resolve().parents[2]
     project = tomllib.loads((root / "pyproject.toml").read_text())["project"]
     declared = {d.split(">")[0].split("[")[0].strip().lower() for d in project["dependencies"] + project["optional-dependencies"]["bench"]}
     distribution = {"sklearn": "scikit-learn", "cv2": "opencv-contrib-python-headless", "yaml": "pyyaml"}

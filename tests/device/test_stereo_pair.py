@@ -5,7 +5,6 @@ from __future__ import annotations
 import itertools
 import os
 import threading
-from dataclasses import dataclass
 from pathlib import Path
 
 import cv2
@@ -26,6 +25,7 @@ from device.stereo_pair import (
     config_from_spec,
     rectification,
 )
+from factories import rendered_pair
 
 # Share of non-occluded ground-truth pixels whose SGBM disparity (default SGBMConfig:
 # sgbm_3way, block 5, P1/P2 8/32*3*bs^2, left band filled) is within 1 px, measured 2026-11-23
@@ -377,43 +377,6 @@ def test_real_stereo_pair():
     with open_source(spec) as src:
         frame = src.read(timeout_s=3.0)
     assert np.isfinite(frame.disparity).mean() > 0.2
-
-
-@dataclass(frozen=True)
-class RenderedPair:
-    """The simulator's rendered stereo pair of one scene (640x480) with its exact disparity."""
-
-    left: np.ndarray
-    right: np.ndarray
-    k: np.ndarray  # 3x3 intrinsics of both (identical) cameras, px
-    baseline_m: float
-    gt: np.ndarray  # exact disparity, px; NaN where nothing was hit
-    view: object  # sim.scenes view: .camera, .truth()
-
-    @property
-    def ndisp(self) -> int:
-        return round_up_disparities(int(np.nanmax(self.gt) * 1.25) + 8)
-
-    def assert_matched(self, frame) -> None:
-        """The simulator's textures and sky change as it evolves, so no coverage figure is pinned here:
-        where SGBM matched, it must agree with the exact disparity."""
-        matched = np.isfinite(self.gt) & np.isfinite(frame.disparity)
-        assert matched.sum() > 0.3 * self.gt.size
-        assert np.median(np.abs(frame.disparity[matched] - self.gt[matched])) < 0.5
-
-
-def rendered_pair(scene: str, distance: float) -> RenderedPair:
-    sim_scenes = pytest.importorskip("sim.scenes")
-    from sim.scenario import make_model
-    from sim.stereo import stereo_pair, true_disparity
-
-    params = sim_scenes.SceneParams(scene=scene, distance_m=distance, width=640, height=480)
-    model = make_model("indoor")
-    left, right = stereo_pair(params, model, np.random.default_rng(0))
-    view = sim_scenes.get_view(params)
-    cam = view.camera
-    k = np.array([[cam.fx, 0, cam.cx], [0, cam.fy, cam.cy], [0, 0, 1]])
-    return RenderedPair(left, right, k, model.baseline_wide_m, true_disparity(params, model), view)
 
 
 @pytest.mark.parametrize("scene,distance", [("poster", 2.0), ("boxes", 3.0)])

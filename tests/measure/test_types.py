@@ -3,24 +3,14 @@ import math
 import numpy as np
 import pytest
 
+from factories import flat_frame
 from measure import Frame, MeasureError, MeasureOptions, PinholeCamera, measure_distance
 
 
-def make_frame(w=64, h=48, d=10.0, **kw):
-    cam = PinholeCamera(fx=100.0, fy=100.0, cx=(w - 1) / 2, cy=(h - 1) / 2, width=w, height=h)
-    return Frame(
-        image=np.zeros((h, w, 3), np.uint8),
-        disparity=np.full((h, w), d, np.float32),
-        camera=cam,
-        baseline_m=0.1,
-        **kw,
-    )
-
-
 def test_depth_from_disparity():
-    f = make_frame(d=10.0)
+    f = flat_frame(d=10.0)
     assert np.allclose(f.depth(), 100.0 * 0.1 / 10.0)
-    f2 = make_frame(d=np.nan)
+    f2 = flat_frame(d=np.nan)
     assert np.isnan(f2.depth()).all()
 
 
@@ -68,6 +58,6 @@ def test_options_validate():
 
 
 def test_basic_on_fronto_parallel_plane():
-    f = make_frame(d=10.0)  # Z = 1 m everywhere
+    f = flat_frame(d=10.0)  # Z = 1 m everywhere
     m = measure_distance(f, (10, 20), (50, 20), MeasureOptions(method="basic"))
     assert m.distance_m == pytest.approx(40 / 100.0 * 1.0)

@@ -10,18 +10,18 @@ import time
 from pathlib import Path
 
 import pytest
-from test_recording import assert_same_frame, record, synthetic_frame
+from factories import assert_same_frame, record, synthetic_frame
 
 from device.recording import FRAMES, open_recording
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]
 
 WRITER_SCRIPT = """
 import sys
 sys.path[:0] = [{root!r}, {tests!r}]
-from test_recording import INFO, synthetic_frame
+from factories import SYNTH_INFO, synthetic_frame
 from device.recording import RecordingWriter
-w = RecordingWriter({out!r}, INFO)
+w = RecordingWriter({out!r}, SYNTH_INFO)
 k = 0
 while True:
     w.write(synthetic_frame(k, 320, 240))

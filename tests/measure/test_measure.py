@@ -15,7 +15,8 @@ from measure.sampling import backproject_depth, sample_segment
 from measure.zonly import measure_z_only
 
 from evaluation.report import accuracy
-from measure_synth import SMALL_B, SMALL_CAM, SMALL_F, SMALL_H, SMALL_W, plane_frame, poster_case, true_length
+from factories import SMALL_B, SMALL_CAM, SMALL_F, SMALL_H, SMALL_W, doorway_frame, plane_frame, true_length
+from measure_synth import poster_case
 
 W, H, F, B = SMALL_W, SMALL_H, SMALL_F, SMALL_B
 CAM = SMALL_CAM
@@ -86,15 +87,6 @@ def test_degenerate_camera_centre_plane(p1, p2, noise):
 
 
 # --- gaps -----------------------------------------------------------------------------------------
-
-def doorway_frame(wall_z=3.0, back_z=6.0, opening=(100, 220), noise=0.1, seed=0) -> Frame:
-    rng = np.random.default_rng(seed)
-    z = np.full((H, W), wall_z)
-    z[:, opening[0] : opening[1]] = back_z
-    d = F * B / z + rng.normal(0, noise, z.shape)
-    d = np.round(d * 4) / 4
-    return Frame(np.zeros((H, W, 3), np.uint8), d.astype(np.float32), CAM, B)
-
 
 @pytest.mark.parametrize("method", ["paper", "robust"])
 def test_gap_found_on_doorway(method):

@@ -7,7 +7,7 @@ import json
 from pathlib import Path
 
 import pytest
-from test_recording import assert_same_frame, record
+from factories import assert_same_frame, record
 
 from device.errors import RecordingError
 from device.recording import FRAMES, MANIFEST, ReplaySource, open_recording

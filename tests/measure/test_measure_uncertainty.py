@@ -1,6 +1,6 @@
 """The reported uncertainty against the truth: noisy frames and clicks that miss the intended pixels
 by a Gaussian 1.5 px (the click error the uncertainty models), truth the intended segment's length.
-The real-stereo coverage (Middlebury, SGBM) is checked in tests/test_stress.py."""
+The real-stereo coverage (Middlebury, SGBM) is checked in tests/evaluation/test_stress.py."""
 
 from __future__ import annotations
 
@@ -9,7 +9,7 @@ import pytest
 
 from measure import MeasureOptions, measure_distance
 
-from measure_synth import plane_frame, true_length
+from factories import plane_frame, true_length
 
 NORMAL, K = np.array([0.3, -0.1, 1.0]), 3.0
 P1, P2 = (30.0, 60.0), (290.0, 170.0)

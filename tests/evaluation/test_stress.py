@@ -9,6 +9,7 @@ import pytest
 from evaluation.stress import figures
 from evaluation.stress_middlebury import DEV_SCENES, run_stress_middlebury
 from evaluation.stress_sim import run_stress_sim
+from factories import boxes_frame
 from measure import MeasureOptions, measure_distance
 
 SCENES = DEV_SCENES  # dev scenes only
@@ -64,22 +65,6 @@ def test_gap_rule_does_not_fire_without_a_gap(middlebury_stress):
     assert not any(r.gap and r.quality == "good" for r in recess)
 
 
-def _boxes_frame(step: float, seed: int = 0):
-    """Two boxes at 9.4 px with a background ``step`` (relative depth) farther between them, smooth
-    correlated noise (sigma 0.1 px over ~5 px) and boxes fattened 3 px into the gap as SGBM does."""
-    import cv2
-
-    from measure import Frame, PinholeCamera
-
-    h, w = 200, 400
-    d = np.full((h, w), 9.4, np.float32)
-    d[:, 153:247] = 9.4 / (1.0 + step)
-    noise = cv2.GaussianBlur(np.random.default_rng(seed).normal(0.0, 0.5, (h, w)).astype(np.float32), (0, 0), 2.5)
-    d += noise * np.float32(0.1 / noise.std())
-    cam = PinholeCamera(500.0, 500.0, w / 2, h / 2, w, h)
-    return Frame(np.zeros((h, w, 3), np.uint8), d, cam, baseline_m=0.06)
-
-
 def test_gap_between_boxes_is_found_on_evidence_not_a_fixed_step():
     """A 20 % deeper background (the simulator's floor behind its boxes at 3 m): both ends' surfaces
     are 1.6 px in front of the segment's, dozens of correlation-inflated standard errors, so it is a
@@ -88,11 +73,11 @@ def test_gap_between_boxes_is_found_on_evidence_not_a_fixed_step():
     z = 500.0 * 0.06 / 9.4
     truth = (p2[0] - p1[0]) * z / 500.0
     for seed in range(3):
-        m = measure_distance(_boxes_frame(0.2, seed), p1, p2)
+        m = measure_distance(boxes_frame(0.2, seed), p1, p2)
         assert m.gap_detected and "gap detected" in m.reasons, m
         assert abs(m.distance_m - truth) / truth < 0.02, (m.distance_m, truth)
         assert m.quality != "good"
-        flat = measure_distance(_boxes_frame(0.05, seed), p1, p2)
+        flat = measure_distance(boxes_frame(0.05, seed), p1, p2)
         assert not flat.gap_detected
 
 

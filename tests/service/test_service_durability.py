@@ -15,7 +15,8 @@ import httpx
 import numpy as np
 import pytest
 from server_process import start_serve
-from test_service import BASE, DISP, JSON, PlaneSource, latest, make_client, measure, plane_frame, true_length
+from factories import SMALL_H, SMALL_W, WALL_DISP, PlaneSource, wall_frame, wall_length
+from service_client import BASE, JSON, frame_index, latest, make_client, measure
 
 from device import SourceTimeout
 
@@ -205,23 +206,16 @@ def test_frame_is_durable_when_the_measurement_answers(tmp_path):
         f = latest(c)
         m = measure(c, f["id"], (10, 10), (300, 200), method="basic").json()
         files = list((tmp_path / "h-frames").iterdir())
-        assert len(files) == 1 and files[0].stat().st_size < 0.25 * (W * H * 7)  # 3 B colour + 4 B disparity raw
+        assert len(files) == 1 and files[0].stat().st_size < 0.25 * (SMALL_W * SMALL_H * 7)  # 3 B colour + 4 B disparity raw
         from service.store import load_frame
 
         saved = load_frame(files[0])
-        want = plane_frame(_index(c, f))
+        want = wall_frame(frame_index(c, f))
         np.testing.assert_array_equal(np.isnan(saved.disparity), np.isnan(want.disparity))
-        np.testing.assert_allclose(saved.disparity[8:, 8:], DISP, atol=1 / 128)
+        np.testing.assert_allclose(saved.disparity[8:, 8:], WALL_DISP, atol=1 / 128)
         assert np.abs(saved.image.astype(int) - want.image.astype(int)).mean() < 2.0  # JPEG, visually lossless
         assert saved.camera == want.camera and saved.baseline_m == want.baseline_m
-        assert m["distance_m"] == pytest.approx(true_length((10, 10), (300, 200)), rel=1e-6)
-
-
-W, H = 320, 240
-
-
-def _index(c, f) -> int:
-    return c.get(f"/api/frames/{f['id']}").json()["meta"]["index"]
+        assert m["distance_m"] == pytest.approx(wall_length((10, 10), (300, 200)), rel=1e-6)
 
 
 def test_source_timeout_is_retried_not_reopened(tmp_path):
@@ -253,7 +247,7 @@ def test_replay_with_a_corrupt_frame_skips_it_and_ends(tmp_path):
 
     with RecordingWriter(tmp_path / "rec", PlaneSource().info) as w:
         for i in range(1, 6):
-            w.write(plane_frame(i))
+            w.write(wall_frame(i))
     (tmp_path / "rec" / "color" / "000002.png").write_bytes(b"not a png")
     spec = f"replay:{tmp_path / 'rec'}?realtime=0"
     app = create_app(spec, db_path=tmp_path / "h.db", capture_fps=200.0, reconnect_initial_s=0.02)

@@ -10,7 +10,8 @@ import time
 import cv2
 import numpy as np
 import pytest
-from test_service import JSON, latest, make_client, measure, plane_frame
+from factories import wall_frame
+from service_client import JSON, latest, make_client, measure
 
 
 def test_history_list_is_slim_and_paginated(tmp_path):
@@ -37,7 +38,7 @@ def test_live_view_jpeg_and_exact_png(tmp_path):
     with make_client(tmp_path) as c:
         f = latest(c)
         c.post(f"/api/frames/{f['id']}/freeze", headers=JSON)
-        want = plane_frame(c.get(f"/api/frames/{f['id']}").json()["meta"]["index"]).image
+        want = wall_frame(c.get(f"/api/frames/{f['id']}").json()["meta"]["index"]).image
         jpg = c.get(f"/api/frames/{f['id']}/color.jpg")
         assert jpg.status_code == 200 and jpg.headers["content-type"] == "image/jpeg"
         img = cv2.imdecode(np.frombuffer(jpg.content, np.uint8), cv2.IMREAD_COLOR)
@@ -57,7 +58,7 @@ def test_thumbnail_is_drawn_on_request_not_when_measuring(tmp_path):
         thumb = cv2.imdecode(np.frombuffer(jpg.content, np.uint8), cv2.IMREAD_COLOR)
         assert thumb.shape == (180, 240, 3)
         # the segment is drawn where it was measured: (10,10)-(300,200) scaled by 240/320
-        assert thumb[8, 8].tolist() != plane_frame(0).image[10, 10].tolist()
+        assert thumb[8, 8].tolist() != wall_frame(0).image[10, 10].tolist()
         assert store.thumb(m["id"]) == jpg.content  # kept
         png = c.get(f"/api/measurements/{m['id']}/thumb.png")
         assert png.content[:8] == b"\x89PNG\r\n\x1a\n"

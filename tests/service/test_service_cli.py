@@ -12,7 +12,9 @@ from typer.testing import CliRunner
 from device import SourceInfo
 from device.recording import RecordingWriter
 from service.cli import app
-from test_service import DISP, H, W, plane_frame, true_length
+from factories import SMALL_H, SMALL_W, WALL_DISP, wall_frame, wall_length
+
+W, H, DISP = SMALL_W, SMALL_H, WALL_DISP
 
 
 @pytest.fixture
@@ -21,7 +23,7 @@ def recording(tmp_path):
     out = tmp_path / "rec"
     with RecordingWriter(out, SourceInfo(kind="plane", name="Fake plane", width=W, height=H, fps=30.0)) as rec:
         for i in range(3):
-            f = plane_frame(i)
+            f = wall_frame(i)
             rec.write(replace(f, disparity=np.full((H, W), DISP * (i + 1), np.float32)))
     return out
 
@@ -36,10 +38,10 @@ def test_measure_on_named_frame_of_recording(recording):
         assert result.exit_code == 0, result.output
         out = json.loads(result.stdout)
         assert out["frame"] == n and out["method"] == "basic"
-        assert out["distance_m"] == pytest.approx(true_length(p1, p2) / (n + 1), rel=1e-3)  # 1/64 px disparity steps
+        assert out["distance_m"] == pytest.approx(wall_length(p1, p2) / (n + 1), rel=1e-3)  # 1/64 px disparity steps
     text = runner.invoke(app, ["measure", f"replay:{recording}", "--p1", "40,30", "--p2", "280,200", "--method", "basic"])
     assert text.exit_code == 0 and "distance " in text.stdout and "method basic" in text.stdout
-    assert f"distance {true_length(p1, p2):.4f} m" in text.stdout
+    assert f"distance {wall_length(p1, p2):.4f} m" in text.stdout
 
 
 def test_measure_reads_the_named_frame_of_a_recording_directly(recording):

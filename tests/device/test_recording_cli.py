@@ -8,7 +8,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 import typer
-from test_recording import assert_same_frame, record
+from factories import assert_same_frame, record
 from typer.testing import CliRunner
 
 from device.recording import open_recording

@@ -17,20 +17,23 @@ from device.mcap_export import export_mcap, load_measurements
 from device.recording import RecordingWriter
 from service.frames import FrameRing
 from service.store import CSV_COLUMNS, Store, supported_decimals
-from test_service import BASELINE, FX, H, W, PlaneSource, latest, make_client, measure, plane_frame
+from factories import SMALL_B, SMALL_F, SMALL_H, SMALL_W, PlaneSource, hilly_frame, wall_frame
+from service_client import latest, make_client, measure
+
+W, H, FX, BASELINE = SMALL_W, SMALL_H, SMALL_F, SMALL_B
 
 
 def test_ring_keeps_frames_handed_out_as_latest():
     ring = FrameRing(capacity=2, max_frozen=4, keep_viewed=1)
-    first = ring.push(plane_frame(1))
+    first = ring.push(wall_frame(1))
     ring.mark_viewed(first.id)
     for i in range(2, 6):
-        ring.push(plane_frame(i))
+        ring.push(wall_frame(i))
     assert ring.get(first.id) is first  # shown to a page: kept although 4 newer frames came
     assert [e.id for e in map(ring.get, (first.id, 5))] == [1, 5] and len(ring) == 2  # the viewed one took a place
     second = ring.latest()
     ring.mark_viewed(second.id)  # keep_viewed=1: the older viewed frame goes now
-    ring.push(plane_frame(6))
+    ring.push(wall_frame(6))
     with pytest.raises(KeyError, match="evicted"):
         ring.get(first.id)
 
@@ -40,29 +43,14 @@ def test_ring_moves_on_when_every_frame_was_viewed():
     and at most capacity + keep_viewed frames are held."""
     ring = FrameRing(capacity=2, max_frozen=4, keep_viewed=3)
     for i in range(1, 12):
-        entry = ring.push(plane_frame(i))
+        entry = ring.push(wall_frame(i))
         assert ring.latest() is entry and ring.wait_latest(entry.id - 1, 0.01) is entry
         ring.mark_viewed(entry.id)
         assert len(ring) <= 2 + 3
 
 
-def hilly_frame(index: int):
-    """The plane source's frame with a disparity that varies per pixel and a hole."""
-    f = plane_frame(index)
-    yy, xx = np.mgrid[0:H, 0:W]
-    disparity = (10.0 + 10.0 * xx / W + 0.37 * np.sin(yy / 7.0)).astype(np.float32)
-    disparity[50:60, 100:110] = np.nan
-    return type(f)(f.image, disparity, f.camera, f.baseline_m, doffs=1.5, timestamp=f.timestamp, meta=dict(f.meta))
-
-
-class HillySource(PlaneSource):
-    def read(self, timeout_s: float = 1.0):
-        self.n += 1
-        return hilly_frame(self.n)
-
-
 def test_depth_at_pixel_is_frame_depth_and_scale_matches_colors(tmp_path):
-    with make_client(tmp_path, factory=HillySource) as c:
+    with make_client(tmp_path, factory=lambda: PlaneSource(frame=hilly_frame)) as c:
         fid = latest(c)["id"]
         c.post(f"/api/frames/{fid}/freeze", json={})
         frame = hilly_frame(int(c.get(f"/api/frames/{fid}").json()["meta"]["index"]))
@@ -159,7 +147,7 @@ def test_result_fields_without_a_column_are_kept(tmp_path):
         "samples_px": [[1, 2]], "support": [True], "gap_detected": False, "warnings": [], "elapsed_ms": 1.0,
         "quality": "check", "reasons": ["the end p2 is extrapolated 12 px beyond the support"], "interval_m": [0.832, 0.838],
     }  # fmt: skip
-    rec = store.add(frame_id=1, frame_uid="u", frame=plane_frame(0), source="sim", p1=(1, 2), p2=(3, 4), options={}, result=result,
+    rec = store.add(frame_id=1, frame_uid="u", frame=wall_frame(0), source="sim", p1=(1, 2), p2=(3, 4), options={}, result=result,
                     context={"frame_index": 7})  # fmt: skip
     store.close()
     again = Store(tmp_path / "h.db")
@@ -179,7 +167,7 @@ def test_replay_pause_step_seek(tmp_path):
     src = PlaneSource()
     with RecordingWriter(rec, src.info) as w:
         for i in range(6):
-            w.write(plane_frame(i))
+            w.write(wall_frame(i))
     with make_client(tmp_path, factory=f"replay:{rec}?loop=1", capture_fps=50.0) as c:
         latest(c)
         assert c.post("/api/source/replay", json={"action": "pause"}).json()["paused"] is True

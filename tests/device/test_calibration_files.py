@@ -182,7 +182,7 @@ def test_board_png_prints_at_its_size_and_is_detectable(tmp_path):
 
 def test_calibration_does_not_import_the_capture_code():
     """The dependency runs one way: capture (stereo_pair, video) -> calibration, never back."""
-    root = Path(__file__).resolve().parents[1] / "device"
+    root = Path(__file__).resolve().parents[2] / "device"
     for module in ("calibration.py", "calibration_files.py"):
         tree = ast.parse((root / module).read_text())
         imported = {n.module for n in ast.walk(tree) if isinstance(n, ast.ImportFrom) and n.module}

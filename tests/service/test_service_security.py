@@ -9,7 +9,8 @@ from concurrent.futures import ThreadPoolExecutor
 
 import pytest
 from fastapi.testclient import TestClient
-from test_service import PlaneSource, latest, make_client, measure
+from factories import PlaneSource
+from service_client import latest, make_client, measure
 
 from service.app import create_app
 

@@ -35,7 +35,7 @@ from device.oak import (
 
 import depthai as dai  # noqa: E402  (device.oak has set DEPTHAI_LEVEL / DEPTHAI_SEARCH_TIMEOUT)
 
-FIXTURE = Path(__file__).parent / "fixtures" / "oak_calib.json"
+FIXTURE = Path(__file__).resolve().parents[1] / "fixtures" / "oak_calib.json"
 A, B, C = dai.CameraBoardSocket.CAM_A, dai.CameraBoardSocket.CAM_B, dai.CameraBoardSocket.CAM_C
 
 
@@ -497,7 +497,7 @@ def test_pipeline_default_auto_calibration_is_on_start():
 def test_oak_module_type_checks_against_depthai_stubs():
     """Defect 9: mypy on device/oak.py against the stubs depthai ships catches v2-era calls."""
     pytest.importorskip("mypy")
-    root = Path(__file__).resolve().parents[1]
+    root = Path(__file__).resolve().parents[2]
     result = subprocess.run(
         [sys.executable, "-m", "mypy", "--follow-imports=silent", "--ignore-missing-imports",
          "--no-incremental", "--cache-dir", os.devnull, str(root / "device" / "oak.py")],

@@ -111,7 +111,7 @@ def test_oak_mono_size_and_search_timeout_are_settable_from_toml(tmp_path):
 def test_oak_stereo_options_left_out_of_toml_keep_the_preset(tmp_path):
     config = from_toml(tmp_path, 'kind = "oak"\npreset = "high_detail"\n')
     assert (config.subpixel, config.lr_check, config.extended_disparity, config.confidence_threshold) == (None,) * 4
-    shipped = source_config(load_config(Path(__file__).resolve().parents[1] / "configs" / "oak.toml").source)
+    shipped = source_config(load_config(Path(__file__).resolve().parents[2] / "configs" / "oak.toml").source)
     assert (shipped.subpixel, shipped.lr_check, shipped.extended_disparity) == (None, None, None)
 
 

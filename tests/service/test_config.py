@@ -12,7 +12,7 @@ from service.cli import app
 from device import source_config
 from service.config import ConfigError, load_config, parse_config
 
-CONFIGS = Path(__file__).resolve().parents[1] / "configs"
+CONFIGS = Path(__file__).resolve().parents[2] / "configs"
 
 
 @pytest.mark.parametrize("name, kind", [("sim.toml", "sim"), ("oak.toml", "oak"), ("v4l2-sbs.toml", "v4l2"), ("replay.toml", "replay")])

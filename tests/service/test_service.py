@@ -13,70 +13,12 @@ import numpy as np
 import pytest
 from fastapi.testclient import TestClient
 
-from device import SourceBase, SourceDisconnected, SourceInfo, SourceNotFound, SourceTimeout
-from measure import Frame, PinholeCamera
+from factories import SMALL_B, SMALL_H, SMALL_W, WALL_DISP, PlaneSource, wall_frame, wall_length
+from measure import Frame
 from service.app import create_app
+from service_client import BASE, JSON, frame_index, latest, make_client, measure
 
-W, H, FX, BASELINE, DISP = 320, 240, 300.0, 0.1, 15.0
-Z = FX * BASELINE / DISP  # 2.0 m: every pixel sees a fronto-parallel wall
-BASE = "http://127.0.0.1"  # a loopback Host, as a browser on this machine sends
-JSON = {"Content-Type": "application/json"}  # every POST says JSON, body or not (cross-site forms cannot)
-
-
-def plane_frame(index: int) -> Frame:
-    yy, xx = np.mgrid[0:H, 0:W]
-    image = np.stack([(xx * 255 // W), (yy * 255 // H), np.full_like(xx, (index * 37) % 256)], -1).astype(np.uint8)
-    disparity = np.full((H, W), DISP, np.float32)
-    disparity[:8, :8] = np.nan  # a hole, so the colour map has "no data" to paint
-    cam = PinholeCamera(fx=FX, fy=FX, cx=(W - 1) / 2, cy=(H - 1) / 2, width=W, height=H)
-    return Frame(image, disparity, cam, BASELINE, timestamp=index / 30, meta={"source": "plane", "index": index})
-
-
-def true_length(p1, p2) -> float:
-    return float(np.hypot(p2[0] - p1[0], p2[1] - p1[1]) * Z / FX)
-
-
-class PlaneSource(SourceBase):
-    """A wall at 2 m; optionally disconnects after ``fail_after`` frames and refuses ``refuse`` reopenings."""
-
-    def __init__(self, fail_after: int | None = None, state: dict | None = None) -> None:
-        self.info = SourceInfo(kind="plane", name="Fake plane", serial="F1", width=W, height=H, fps=30.0)
-        self.fail_after = fail_after
-        self.state = state if state is not None else {}
-        self.n = 0
-
-    def open(self) -> None:
-        refuse = self.state.get("refuse", 0)
-        if refuse:
-            self.state["refuse"] = refuse - 1
-            raise SourceNotFound("fake plane unplugged; plug it back in")
-        super().open()
-
-    def read(self, timeout_s: float = 1.0) -> Frame:
-        gate = self.state.get("gate")
-        if gate is not None and not gate.acquire(timeout=timeout_s):
-            raise SourceTimeout("fake plane: no frame released by the test")
-        self.n += 1
-        if self.fail_after is not None and self.n > self.fail_after:
-            raise SourceDisconnected("fake plane: cable pulled (XLink error)")
-        return plane_frame(self.n)
-
-
-def make_client(tmp_path, factory=PlaneSource, **kw) -> TestClient:
-    kw.setdefault("capture_fps", 200.0)
-    kw.setdefault("reconnect_initial_s", 0.02)
-    kw.setdefault("reconnect_max_s", 0.1)
-    return TestClient(create_app(factory, db_path=tmp_path / "h.db", **kw), base_url=BASE)
-
-
-def latest(client: TestClient, after: int = 0) -> dict:
-    r = client.get("/api/frames/latest", params={"after": after, "wait": 5})
-    assert r.status_code == 200, r.text
-    return r.json()
-
-
-def measure(client, fid, p1, p2, **options):
-    return client.post("/api/measure", json={"frame_id": fid, "p1": list(p1), "p2": list(p2), "options": options})
+W, H, BASELINE, DISP = SMALL_W, SMALL_H, SMALL_B, WALL_DISP
 
 
 def test_measure_on_named_frame_and_history(tmp_path):
@@ -89,7 +31,7 @@ def test_measure_on_named_frame_and_history(tmp_path):
         assert r.status_code == 200, r.text
         m = r.json()
         assert m["frame_id"] == f["id"] and m["p1"] == list(p1) and m["method"] == "basic"
-        assert m["distance_m"] == pytest.approx(true_length(p1, p2), rel=1e-6)
+        assert m["distance_m"] == pytest.approx(wall_length(p1, p2), rel=1e-6)
         assert {"id", "created", "uncertainty_m", "samples_px", "support", "fit", "warnings"} <= m.keys()
         listed = c.get("/api/measurements").json()
         assert [x["id"] for x in listed] == [m["id"]]
@@ -101,25 +43,21 @@ def test_measure_on_named_frame_and_history(tmp_path):
         import cv2
 
         img = cv2.imdecode(np.frombuffer(png.content, np.uint8), cv2.IMREAD_COLOR)
-        np.testing.assert_array_equal(img, plane_frame(_index_of(c, f)).image)  # lossless, that exact frame
+        np.testing.assert_array_equal(img, wall_frame(frame_index(c, f)).image)  # lossless, that exact frame
         dimg = cv2.imdecode(np.frombuffer(disp.content, np.uint8), cv2.IMREAD_COLOR)
         assert (dimg[:8, :8] == 0).all() and dimg[100, 100].any()  # hole black, data coloured
-
-
-def _index_of(client, f) -> int:
-    return client.get(f"/api/frames/{f['id']}").json()["meta"]["index"]
 
 
 def test_measurement_uses_exactly_the_named_frame(tmp_path):
     """A frame whose disparity differs from the live ones: the answer must come from it alone."""
     with make_client(tmp_path) as c:
         ring = c.app.state.ring
-        base = plane_frame(0)
+        base = wall_frame(0)
         near = Frame(base.image, np.full((H, W), 2 * DISP, np.float32), base.camera, BASELINE, meta={"source": "near"})
         entry = ring.push(near, frozen=True)
         latest(c, after=entry.id + 3)  # the stream moved on
         m = measure(c, entry.id, (10, 10), (310, 10), method="basic").json()
-        assert m["distance_m"] == pytest.approx(true_length((10, 10), (310, 10)) / 2, rel=1e-6)
+        assert m["distance_m"] == pytest.approx(wall_length((10, 10), (310, 10)) / 2, rel=1e-6)
 
 
 def test_evicted_frame_is_410_and_frozen_survives(tmp_path):
@@ -282,7 +220,7 @@ def test_concurrent_measurements_no_errors(tmp_path):
                 with lock:
                     errors.append(r.text)
                 return float("nan")
-            return abs(r.json()["distance_m"] - true_length(p1, p2))
+            return abs(r.json()["distance_m"] - wall_length(p1, p2))
 
         with ThreadPoolExecutor(8) as pool:
             diffs = list(pool.map(one, range(80)))
@@ -311,7 +249,7 @@ def test_recording_start_stop(tmp_path):
         assert len(rec) == stopped["frames"]
         f = rec.frame(len(rec) - 1)
         assert f.meta["source"] == "plane"
-        np.testing.assert_array_equal(f.image, plane_frame(f.meta["index"]).image)
+        np.testing.assert_array_equal(f.image, wall_frame(f.meta["index"]).image)
         np.testing.assert_allclose(f.disparity[8:, 8:], DISP)
 
 
@@ -319,16 +257,16 @@ def test_ring_evicts_oldest_live_and_bounds_frozen():
     from service.frames import FrameGone, FrameRing, FrameUnknown
 
     ring = FrameRing(capacity=3, max_frozen=2)
-    ids = [ring.push(plane_frame(i)).id for i in range(3)]
+    ids = [ring.push(wall_frame(i)).id for i in range(3)]
     ring.freeze(ids[0])
     for i in range(5):
-        ring.push(plane_frame(10 + i))
+        ring.push(wall_frame(10 + i))
     assert ring.get(ids[0]).frozen  # frozen outlives 5 newer frames in a ring of 3
     with pytest.raises(FrameGone, match="evicted"):
         ring.get(ids[1])
     with pytest.raises(FrameUnknown):
         ring.get(999)
-    a, b = ring.push(plane_frame(20), frozen=True).id, ring.push(plane_frame(21), frozen=True).id
+    a, b = ring.push(wall_frame(20), frozen=True).id, ring.push(wall_frame(21), frozen=True).id
     assert ring.frozen_ids == [a, b]  # the third frozen frame released the oldest one
     assert len(ring) == 2 + 3
 
@@ -338,7 +276,7 @@ def test_replay_without_loop_ends_instead_of_starting_over(tmp_path):
 
     with RecordingWriter(tmp_path / "rec", PlaneSource().info) as w:
         for i in range(1, 4):
-            w.write(plane_frame(i))
+            w.write(wall_frame(i))
     spec = f"replay:{tmp_path / 'rec'}?realtime=0"
     with TestClient(create_app(spec, db_path=tmp_path / "h.db", capture_fps=200.0, reconnect_initial_s=0.02), base_url=BASE) as c:
         deadline = time.monotonic() + 10

@@ -25,57 +25,10 @@ from device.recording import (
     open_recording,
     summarize,
 )
-from measure import Frame, PinholeCamera
-from sim import Truth
+from factories import SYNTH_CAM, SYNTH_H, SYNTH_INFO, SYNTH_W, assert_same_frame, record, synthetic_frame
+from measure import Frame
 
-W, H = 96, 64
-CAMERA = PinholeCamera(fx=80.0, fy=81.5, cx=47.25, cy=31.75, width=W, height=H)
-INFO = SourceInfo(kind="synthetic", name="unit", serial="S1", width=W, height=H, fps=30.0, extra={"obj": object(), "n": 2})
-
-
-def synthetic_frame(k: int, w: int = W, h: int = H, confidence: bool = True) -> Frame:
-    """Deterministic frame number k: random colour, disparity in [0.5, 300) px with 10 % holes."""
-    rng = np.random.default_rng(1000 + k)
-    cam = CAMERA if (w, h) == (W, H) else PinholeCamera(fx=80.0, fy=81.5, cx=w / 2, cy=h / 2, width=w, height=h)
-    disp = rng.uniform(0.5, 300.0, (h, w)).astype(np.float32)
-    disp[rng.random((h, w)) < 0.1] = np.nan
-    return Frame(
-        image=rng.integers(0, 256, (h, w, 3), dtype=np.uint8),
-        disparity=disp,
-        camera=cam,
-        baseline_m=0.0625,
-        doffs=1.5,
-        confidence=rng.random((h, w)).astype(np.float32) if confidence else None,
-        timestamp=1000.0 + k / 30.0,
-        meta={
-            "source": "synthetic",
-            "k": k,
-            "gain": np.float32(1.25),
-            "truth": Truth(np.ones((h, w)), (0.0, 0.1, 2.0), (0.5, 0.1, 2.0), (10.0, 20.0), (60.0, 20.0), 0.5, "poster-width", False),
-            "handle": object(),
-        },
-    )
-
-
-def assert_same_frame(got: Frame, want: Frame) -> None:
-    assert got.image.dtype == np.uint8 and np.array_equal(got.image, want.image), "colour must round-trip bit for bit"
-    assert np.array_equal(np.isnan(got.disparity), np.isnan(want.disparity)), "NaN pattern must be identical"
-    ok = ~np.isnan(want.disparity)
-    assert np.max(np.abs(got.disparity[ok] - want.disparity[ok])) <= 1 / 128
-    assert got.camera == want.camera and got.baseline_m == want.baseline_m and got.doffs == want.doffs
-    assert got.timestamp == want.timestamp
-    if want.confidence is None:
-        assert got.confidence is None
-    else:
-        assert np.max(np.abs(got.confidence - want.confidence)) <= 1 / 510 + 1e-7
-
-
-def record(path: Path, n: int, **kw) -> list[Frame]:
-    frames = [synthetic_frame(k) for k in range(n)]
-    with RecordingWriter(path, INFO, **kw) as w:
-        for k, f in enumerate(frames):
-            assert w.write(f) == k
-    return frames
+W, H, CAMERA, INFO = SYNTH_W, SYNTH_H, SYNTH_CAM, SYNTH_INFO
 
 
 def test_synthetic_round_trip(tmp_path: Path) -> None:

@@ -14,7 +14,8 @@ import numpy as np
 import pytest
 
 from evaluation.gt_segments import SegmentRules, find_segments, scene_segments
-from measure import MeasureError, MeasureOptions, PinholeCamera, measure_distance
+from factories import camera
+from measure import MeasureError, MeasureOptions, measure_distance
 from evaluation.report import accuracy
 
 METHODS = ("basic", "paper", "robust")
@@ -80,7 +81,7 @@ def test_robust_accuracy_on_middlebury(middlebury_results):
 def _box_scene():
     """A fronto-parallel box (disparity 40 px) in front of a tilted wall (disparity 20 + x/100)."""
     h, w = 200, 300
-    cam = PinholeCamera(500.0, 500.0, 149.5, 99.5, w, h)
+    cam = camera(w, h, 500.0)
     xs = np.arange(w)[None, :].repeat(h, 0).astype(np.float32)
     gt = 20.0 + xs / 100.0
     gt[50:150, 80:200] = 40.0

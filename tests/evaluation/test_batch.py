@@ -25,7 +25,7 @@ from evaluation.executors import InProcessExecutor, PoolExecutor, RayExecutor, m
 from evaluation.tasks import Task, read_tasks
 from service.cli import app as cli
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]
 SIZE = "width=480&height=270"
 # Columns that say where, when and how fast a row was made; everything else must match across executors.
 VOLATILE = {"run", "worker", "finished", "frame_read_ms", "elapsed_ms"}

@@ -10,7 +10,7 @@ import pytest
 import typer
 from mcap.reader import make_reader
 from mcap_protobuf.decoder import DecoderFactory
-from test_recording import record
+from factories import record
 from typer.testing import CliRunner
 
 from device.errors import RecordingError
