@@ -51,7 +51,7 @@ def test_measure_reads_the_named_frame_of_a_recording_directly(recording):
     args = ["--p1", "40,30", "--p2", "280,200", "--method", "basic", "--json"]
     ok = CliRunner().invoke(app, ["measure", f"replay:{recording}", "--frame", "2", *args])
     assert ok.exit_code == 0, ok.output
-    assert json.loads(ok.stdout)["distance_m"] == pytest.approx(true_length(p1, p2) / 3, rel=1e-3)
+    assert json.loads(ok.stdout)["distance_m"] == pytest.approx(wall_length(p1, p2) / 3, rel=1e-3)
     bad = CliRunner().invoke(app, ["measure", f"replay:{recording}", "--frame", "0", *args])
     assert bad.exit_code == 1 and "frame 0" in bad.output
 
