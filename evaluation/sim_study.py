@@ -466,17 +466,18 @@ def sim_markdown(results: dict[str, Any], plots: dict[str, str]) -> str:
         return f(a["mean"] - c["mean"]) if a["mean"] is not None and c["mean"] is not None else "–"
 
     gains = report.markdown_table(
-        ["comparison", "all"] + [f"{k} m" for k in dist_keys] + ["std change, all"],
+        ["comparison", "all"] + [f"{k} m" for k in dist_keys] + ["std change, all (points, % of the second's)"],
         [
             [name, gain(x["overall"], y["overall"])]
             + [gain(x["by_distance"][k], y["by_distance"][k]) for k in dist_keys]
             + [
-                f"{100 * (x['overall']['std'] - y['overall']['std']) / y['overall']['std']:+.1f} %"
+                f"{x['overall']['std'] - y['overall']['std']:+.2f} "
+                f"({100 * (x['overall']['std'] - y['overall']['std']) / y['overall']['std']:+.1f} %)"
                 if y["overall"]["std"]
                 else "–"
             ]
             for name, x, y in (
-                ("paper − basic (paper: +2.6 all, ≈ +4 at 6–7 m, −5 % std)", p, b),
+                ("paper − basic (paper: +2.6 all, ≈ +4 at 6–7 m, std −5 points)", p, b),
                 ("robust − paper", r, p),
                 ("z_only − basic (paper: +0.6)", ms["z_only"], b),
             )

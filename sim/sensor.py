@@ -103,10 +103,13 @@ outliers) is shared by both profiles. No value was fitted to the paper's results
 chosen between two readings, see above, and both are reported); what the profile gives
 on the 1800-measurement study (seeds 0, 1, 2; docs/eval/sim-paper/, README "Simulated rig, paper
 profile"): paper - basic +1.97, +1.85, +2.09 points (the paper: +2.6), at 6-7 m +3.68, +3.41, +3.88
-(about +4), +0.2 to +0.3 at 2-4 m, false gaps 8.7, 7.8, 7.6 % (6.8 %). Not reproduced: the standard
-deviation falls by 32-45 % (2.7-4.1 points of A; the paper's "5% reduction" may be points), z_only
-gains about as much as paper (+1.9 to +2.1; the paper: +0.6) and only 54-59 % of the false gaps are
-at >= 6 m (81 %).
+(about +4), +0.2 to +0.3 at 2-4 m, false gaps 8.7, 7.8, 7.6 % (6.8 %), the standard deviation of A
+4.10, 2.73, 3.73 points lower (the paper's "5% reduction", read as points like each of its other "%"
+of a change; 32-45 % of basic's, so not 5 % of it: evaluation/paper_figures.py). Not reproduced:
+z_only gains about as much as paper (+1.9 to +2.1; the paper: +0.6), and no sensor effect the paper
+names would separate them: on a straight target the gain is in the end points' depths (z_only moves
+nothing else and gains as much), which a robust depth line along the segment corrects as well as
+the 3D line (measure/zonly.py gives the readings measured); only 54-59 % of the false gaps are at >= 6 m (81 %).
 """
 
 from __future__ import annotations
