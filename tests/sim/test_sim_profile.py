@@ -131,3 +131,17 @@ def test_z_only_gains_as_much_as_paper_on_a_straight_target(reduced):
     # and 7: the two gains differ by 0.00 to 0.44 points.
     z = reduced["methods"]["z_only"]["overall"]["mean"] - reduced["methods"]["basic"]["overall"]["mean"]
     assert abs(z - _gain(reduced)) < 1.5
+
+
+def test_paper_method_on_a_segment_over_two_pixel_rows_keeps_both_halves():
+    """A near-horizontal click pair steps from row 360 to 359: FAST-MCD's exact fit is the plane of one
+    row's viewing rays, and the line inside it must use the samples of both rows (it used one row's
+    half, at two disparity levels, and ran along Z: 0.203 m for 0.836 m)."""
+    import sim
+    from measure import MeasureOptions, measure_distance
+
+    frame, truth, (c1, c2) = sim.scenario("poster", target="poster-width", distance_m=4.0, lighting="outdoor", seed=5044,
+                                          yaw_deg=0.0, roll_deg=0.0, profile="paper", width=1280, height=720)
+    assert round(c1[1]) != round(c2[1])
+    m = measure_distance(frame, c1, c2, MeasureOptions(method="paper"))
+    assert abs(m.distance_m - truth.length_m) / truth.length_m < 0.15
