@@ -62,7 +62,7 @@ from .distance import robust_with_terms
 from .robust_range import median, tukey_location
 from .sampling import SegmentSamples, ray, sample_segment, segment_pixels
 from .types import Frame, MeasureError, MeasureOptions, Measurement
-from .uncertainty import SIGMA_SCALE, calibrated_sigma, interval
+from .uncertainty import CLICK_PX, INTERVAL_SCALE, SIGMA_SCALE, calibrated_sigma, disparity_quantum, interval
 from .verdict import judge
 
 __all__ = ["MAX_FRAMES", "POOLS", "measure_sequence", "still_frames"]
@@ -78,13 +78,10 @@ STEP_SHARE = 0.75  # share of a move that one frame step must hold to count as a
 QUIET_SHARE = 1 / 3  # ... while the frames after it stay below this share of it
 MOTION_DEPTH_REL = 0.01  # relative change of the segment's disparity level beyond which it moved
 MOTION_SIGMAS = 4.0
-# chi-square quantiles / dof for 1..29 degrees of freedom at 16 % and 84 % (one-sigma bounds of s²).
-_CHI2_DOF = {k: v for k, v in enumerate((
-    (0.0199, 1.98), (0.174, 1.83), (0.288, 1.72), (0.372, 1.64), (0.436, 1.59), (0.487, 1.54), (0.529, 1.51),
-    (0.563, 1.48), (0.593, 1.45), (0.618, 1.43), (0.640, 1.41), (0.659, 1.39), (0.676, 1.38), (0.691, 1.36),
-    (0.705, 1.35), (0.717, 1.34), (0.728, 1.33), (0.738, 1.32), (0.747, 1.31), (0.756, 1.30), (0.764, 1.29),
-    (0.771, 1.29), (0.778, 1.28), (0.784, 1.27), (0.790, 1.27), (0.795, 1.26), (0.800, 1.26), (0.805, 1.25),
-    (0.809, 1.25)), start=1)}
+MAX_CLICK_PX = 50.0  # a click's one-sigma error beyond this is no click on the object at all
+MIN_SHARE_PX = 10  # pixels valid in every frame needed to tell static from fresh scatter
+Z95 = 1.96  # a normal error's 95 % half-width in sigmas (the clicks' part of the interval)
+OUTLIER_SIGMAS = 4.0  # robust sigmas beyond which a pixel's residual is a wrong match, not scatter
 
 
 def _check_frames(frames: Sequence[Frame]) -> list[Frame]:
@@ -223,22 +220,13 @@ def _pooled_samples(frames: Sequence[Frame], p1, p2) -> SegmentSamples:
     )
 
 
-def _spread_bounds(values: np.ndarray) -> tuple[float, float]:
-    """Lower and upper one-sigma bounds of the variance of ``values`` (chi-square, n - 1 dof)."""
-    n = len(values)
-    if n < 2:
-        return 0.0, 0.0
-    s2 = float(np.var(values, ddof=1))
-    lo, hi = _CHI2_DOF[min(n - 1, max(_CHI2_DOF))]
-    return s2 / hi, s2 / lo
-
-
 def measure_sequence(
     frames: Sequence[Frame],
     p1: tuple[float, float],
     p2: tuple[float, float],
     options: MeasureOptions = MeasureOptions(),
     pool: str = "samples",
+    click_px: float | None = None,
 ) -> Measurement:
     """Distance (m) between clicked pixels ``p1``, ``p2`` pooled over the still ``frames`` (oldest first;
     the newest last); see the module docstring. Only the robust method pools; raises MeasureError.
@@ -253,6 +241,9 @@ def measure_sequence(
         options: measurement options; ``options.method`` must be ``"robust"``.
         pool: ``"samples"`` (one robust fit on the pooled samples) or ``"fits"`` (Tukey location of the
             per-frame end depths) (str).
+        click_px: one-sigma error of the clicks along the segment (px); None: the single-frame model's
+            ``measure.uncertainty.CLICK_PX`` (a finger's tap). 0 for clicks known to be exact (detected
+            corners, a replayed annotation): the click term then drops out of the uncertainty.
 
     Returns:
         A :class:`measure.Measurement` of the newest frame with ``frames_used`` and
@@ -277,8 +268,12 @@ def measure_sequence(
         raise MeasureError(f"pool={pool!r} is unknown; use one of {', '.join(POOLS)}")
     if options.method != "robust":
         raise MeasureError(f"only the robust method pools several frames, not method={options.method!r}; use method='robust' or one frame")
+    if click_px is not None and not (isinstance(click_px, (int, float)) and math.isfinite(click_px) and 0 <= click_px <= MAX_CLICK_PX):
+        raise MeasureError(f"click_px={click_px!r} must be a number of pixels from 0 to {MAX_CLICK_PX}")
     ref = frames[-1]
     single, terms = robust_with_terms(ref, p1, p2, options)
+    if click_px is not None and terms:
+        single = _with_sigma(single, _reported(_sensor2(terms), terms.get("click", 0.0), click_px, single.distance_m))
     if len(frames) == 1:
         return _with_frames(single, single, 1, [])
     run, why = still_frames(frames, _xy(p1), _xy(p2))
@@ -286,18 +281,28 @@ def measure_sequence(
     reasons = [f"scene moved ({why[0]}): {run} of {len(frames)} frames pooled"] if why else []
     if run == 1:
         return _with_frames(single, single, 1, reasons)
-    per = [single]
+    per, per_terms = [single], [terms]
     for f in reversed(still[:-1]):
         try:
-            per.append(robust_with_terms(f, p1, p2, options)[0])
+            m, t = robust_with_terms(f, p1, p2, options)
         except MeasureError:
             break  # a frame without data along the segment ends the run: the pooled frames stay the newest ones
+        per.append(m)
+        per_terms.append(t)
     per.reverse()
     still = still[len(still) - len(per) :]
     dists = np.array([m.distance_m for m in per])
     n = len(per)
+    pooled, pooled_terms = robust_with_terms(ref, p1, p2, options, _pooled_samples(still, p1, p2))
+    kinds, notes = [(m.fit, m.gap_detected) for m in per], []
+    if pool == "samples" and kinds.count((pooled.fit, pooled.gap_detected)) * 2 <= n:
+        # A repeated error (a static wrong-match pattern at an edge) counts n times in the pooled samples
+        # and can make a surface or gap "significant" that most frames alone do not show: their fits decide.
+        pool = "fits"
+        notes = [f"pooled fit chose {pooled.fit}{' (gap)' if pooled.gap_detected else ''}, most frames not: per-frame fits combined"]
+        pooled_terms = {**terms, "fit": terms.get("fit", 0.0) / math.sqrt(n)} if terms else {}
     if pool == "samples":
-        out, _ = robust_with_terms(ref, p1, p2, options, _pooled_samples(still, p1, p2))
+        out = pooled
         q1, q2 = np.array(out.p1_m), np.array(out.p2_m)
     else:
         out = single
@@ -313,8 +318,18 @@ def measure_sequence(
             mid = 0.5 * (q1 + q2)
             q1, q2 = mid + (q1 - mid) * scale, mid + (q2 - mid) * scale
     dist = float(np.linalg.norm(q2 - q1))
-    sigma = pooled_sigma(single.uncertainty_m, terms, dists, dist)
-    return _with_frames(out, single, n, reasons, q1, q2, sigma, dists)
+    rho = static_share(still, _xy(p1), _xy(p2))
+    single_half = single.interval_m[1] - single.distance_m
+    if terms and pooled_terms and all(per_terms):
+        sigma, half = pooled_sigma(terms, pooled_terms, rho, [t.get("structure", 0.0) for t in per_terms], dist, click_px)
+        if pool == "fits":  # a mean of per-frame answers is no better than their spread says
+            floor = float(np.std(dists, ddof=1)) / math.sqrt(n)
+            half, sigma = half * max(1.0, floor / sigma) if sigma > 0 else half, max(sigma, floor)
+        # The mean of still frames is never less precise than one of them: the newest frame's caps it.
+        sigma, half = min(sigma, max(single.uncertainty_m, calibrated_sigma(0.0, dist))), min(half, single_half)
+    else:  # a window (basic) answer has no terms: nothing is known to average
+        sigma, half = single.uncertainty_m, single_half
+    return _with_frames(out, single, n, reasons, q1, q2, (sigma, half), dists, notes)
 
 
 def _xy(p: tuple[float, float]) -> tuple[float, float]:
@@ -322,32 +337,99 @@ def _xy(p: tuple[float, float]) -> tuple[float, float]:
     return float(p[0]), float(p[1])
 
 
-def pooled_sigma(single_sigma: float, terms: dict[str, float], dists: np.ndarray, dist: float) -> float:
+def static_share(frames: Sequence[Frame], p1: tuple[float, float], p2: tuple[float, float]) -> float:
+    """Share rho in [0, 1] of the disparity scatter about the segment's surface that repeats in every
+    frame (the same error at the same pixel: fixed patterns, repeated wrong matches, a surface that is
+    not the line, noise-free rounding), from the pixels valid in all ``frames``: one minus the mean
+    within-pixel variance over frames (fresh noise) over the variance about a line fitted to the
+    per-pixel medians (fresh + static). 1 when fewer than ``MIN_SHARE_PX`` pixels say (no evidence
+    that anything averages)."""
+    seg = segment_pixels(p1[0], p1[1], p2[0], p2[1])
+    h, w = frames[-1].shape
+    seg = seg[(seg[:, 0] >= 0) & (seg[:, 0] < w) & (seg[:, 1] >= 0) & (seg[:, 1] < h)]
+    d = np.stack([f.disparity[seg[:, 1], seg[:, 0]].astype(np.float64) for f in frames])
+    ok = np.all(np.stack([f.valid(row) for f, row in zip(frames, d)]), axis=0)
+    d, t = d[:, ok], np.arange(len(seg), dtype=np.float64)[ok]
+    if t.size < MIN_SHARE_PX:
+        return 1.0
+    med = np.median(d, axis=0)
+    keep = np.ones(t.size, bool)
+    for _ in range(2):  # least squares, then again without the pixels a wrong match took
+        coef = np.polyfit(t[keep], med[keep], 1)
+        res = med - np.polyval(coef, t)
+        keep = np.abs(res - np.median(res[keep])) <= OUTLIER_SIGMAS * max(1.4826 * float(np.median(np.abs(res[keep] - np.median(res[keep])))), 1e-9)
+    r = d[:, keep] - np.polyval(coef, t[keep])
+    # A wrong match (contention) would count as scatter of whole pixels: entries beyond OUTLIER_SIGMAS
+    # robust sigmas are left out (a repeated one leaves its pixel without evidence), the scale floored
+    # at the disparity step, below which quantized residuals give no MAD.
+    scale = max(1.4826 * float(np.median(np.abs(r - np.median(r)))), disparity_quantum(d[np.isfinite(d)]))
+    r = np.where(np.abs(r - np.median(r)) <= OUTLIER_SIGMAS * scale, r, np.nan)
+    k = np.isfinite(r).sum(axis=0)
+    r = r[:, k >= 2]
+    if r.shape[1] < MIN_SHARE_PX:
+        return 1.0
+    total = float(np.nanvar(r, ddof=1))
+    fresh = float(np.nanmean(np.nanvar(r, axis=0, ddof=1)))
+    return float(min(1.0, max(0.0, 1.0 - fresh / total))) if total > 0 else 1.0
+
+
+def _reported(sensor2: float, click: float, click_px: float | None, dist: float) -> tuple[float, float]:
+    """Reported one-sigma and 95 % half-width (m) from the model's sensor variance ``sensor2`` (m²) and
+    click term ``click`` (m, at ``CLICK_PX``). Without a stated ``click_px``: the single-frame model as
+    it stands, both calibrated together (``calibrated_sigma``, ``interval``). With one, the click term
+    is the caller's knowledge, ``click_px / CLICK_PX`` of the term, not a model output: only the sensor
+    part carries the calibration (one sigma ``SIGMA_SCALE``, the interval ``INTERVAL_SCALE`` model
+    sigmas: real stereo's heavy tail), the click part one sigma and ``Z95`` sigmas."""
+    if click_px is None:
+        sigma = calibrated_sigma(math.sqrt(sensor2 + click * click), dist)
+        return sigma, interval(dist, sigma)[1] - dist
+    sensor = calibrated_sigma(math.sqrt(sensor2), dist)
+    c = click * click_px / CLICK_PX
+    return math.hypot(sensor, c), math.hypot(INTERVAL_SCALE / SIGMA_SCALE * sensor, Z95 * c)
+
+
+def _sensor2(terms: dict[str, float]) -> float:
+    return sum(v * v for k, v in terms.items() if k != "click")
+
+
+def _with_sigma(m: Measurement, sigma_half: tuple[float, float]) -> Measurement:
+    sigma, half = sigma_half
+    return replace(m, uncertainty_m=float(sigma), interval_m=(max(0.0, m.distance_m - half), m.distance_m + half))
+
+
+def pooled_sigma(terms: dict[str, float], pooled_terms: dict[str, float], rho: float, structure: Sequence[float],
+                 dist: float, click_px: float | None = None) -> tuple[float, float]:
     """Reported one-sigma (m) of the pooled answer (module docstring, step 4) from the newest frame's
-    calibrated ``single_sigma``, its model terms and the per-frame distances ``dists`` (m)."""
-    n = len(dists)
-    var_lo, var_hi = _spread_bounds(dists)
-    model1 = single_sigma / SIGMA_SCALE
-    # The same clicks, rounding levels and model choice in every frame: never averaged away.
-    floor2 = sum(terms.get(k, 0.0) ** 2 for k in ("click", "quant", "model"))
-    floor2 = min(floor2, model1 * model1) if math.isfinite(floor2) else model1 * model1
-    removable = model1 * model1 - floor2  # fit and structure: fresh per frame only as far as seen to vary
-    static2 = model1 * model1 - min(var_lo, removable)
-    random2 = min(var_hi, removable)
-    # A wide spread from few frames can bound sigma_random above what was removed; the mean of still
-    # frames is never less precise than one of them, so the newest frame's sigma caps it.
-    return min(calibrated_sigma(math.sqrt(static2 + random2 / n), dist), max(single_sigma, calibrated_sigma(0.0, dist)))
+    model ``terms``, the model ``pooled_terms`` of the fit on the pooled samples, the static share
+    ``rho`` (:func:`static_share`), every pooled frame's structure term ``structure`` (m, one per
+    frame), the pooled distance ``dist`` (m) and the clicks' stated error ``click_px``; and the 95 %
+    half-width (m)."""
+    n = len(structure)
+    # The pooled fit counts every frame's samples as independent; the static share repeats in every
+    # frame, so its variance is n times too small there (the design effect 1 + (n - 1) rho).
+    fit2 = pooled_terms.get("fit", 0.0) ** 2 * (1.0 + (n - 1) * rho)
+    # Shared by every frame, never averaged: the rounding levels (the larger of the newest frame's
+    # term and the pooled fit's, whose dithering may say less) and the model choice.
+    shared2 = max(terms.get("quant", 0.0), pooled_terms.get("quant", 0.0)) ** 2 + pooled_terms.get("model", 0.0) ** 2
+    # Residual structure next to the ends: a possible bias of the line there. Noise alone also leaves
+    # the nearest samples' median off the line (E s_1² = b² + v per frame, E s_N² = b² + v / n pooled),
+    # which the fit term already holds; only the part that persists over the frames is a bias b².
+    s_n2 = pooled_terms.get("structure", 0.0) ** 2
+    s_i2 = np.array(structure, dtype=np.float64) ** 2
+    bias2 = min(s_n2, max(0.0, (n * s_n2 - float(s_i2.mean())) / (n - 1))) if n > 1 and np.isfinite(s_i2).all() else s_n2
+    # The clicks: the same error in every frame, the newest frame's term.
+    return _reported(fit2 + shared2 + bias2, terms.get("click", 0.0), click_px, dist)
 
 
 def _with_frames(out: Measurement, single: Measurement, n: int, reasons: list[str], q1=None, q2=None,
-                 sigma: float | None = None, dists: np.ndarray | None = None) -> Measurement:
+                 sigma_half: tuple[float, float] | None = None, dists: np.ndarray | None = None, notes: Sequence[str] = ()) -> Measurement:
     if q1 is None:
         q1, q2 = np.array(out.p1_m), np.array(out.p2_m)
     dist = float(np.linalg.norm(np.asarray(q2) - np.asarray(q1)))
-    sigma = out.uncertainty_m if sigma is None else sigma
-    lo, hi = interval(dist, sigma)
+    sigma, half = (out.uncertainty_m, out.interval_m[1] - out.distance_m) if sigma_half is None else sigma_half
+    lo, hi = max(0.0, dist - half), dist + half
     base = [r for r in out.reasons if not r.startswith("uncertainty above")]
-    warnings = list(out.warnings)
+    warnings = list(out.warnings) + list(notes)
     if dists is not None and len(dists) > 1:
         warnings.append(f"{n} frames: per-frame distances {1e3 * float(dists.min()):.0f}-{1e3 * float(dists.max()):.0f} mm")
     quality, why = judge(base + reasons, out.n_valid, dist, 0.5 * (hi - lo))
