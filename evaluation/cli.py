@@ -67,7 +67,7 @@ def sim_command(
 def frames_command(
     out: Path = typer.Option(..., "--out", help="Output folder for report.md, results.json and frames.png."),
     trials: int = typer.Option(85, "--trials", "-n", min=2, help="Still scenes per (6-7 m distance, contention): 85 give 340 cases per (contention, clicks, N)."),
-    near_trials: int = typer.Option(28, "--near-trials", min=1, help="Still scenes per (2-5 m distance, contention)."),
+    near_trials: int = typer.Option(20, "--near-trials", min=1, help="Still scenes per (2-5 m distance, contention)."),
     seed: int = typer.Option(0, "--seed", help="Base seed of the scenes' noise and clicks."),
     workers: int = typer.Option(2, "--workers", "-j", min=1, help="Worker processes."),
 ) -> None:

@@ -187,7 +187,7 @@ def run_job(job: FramesJob) -> list[dict[str, Any]]:
     return _measure_still(frames, job) if job.motion is None else _measure_moving(frames, clicks, truth, job)
 
 
-def plan(trials: int = 85, near_trials: int = 28, seed: int = 0, moving: int = 4, width: int = 1280, height: int = 720) -> list[FramesJob]:
+def plan(trials: int = 85, near_trials: int = 20, seed: int = 0, moving: int = 4, width: int = 1280, height: int = 720) -> list[FramesJob]:
     """Still scenes: ``trials`` per (6-7 m distance, contention), ``near_trials`` per (2-5 m distance,
     contention), two targets and two click kinds each; ``moving`` sequences per motion at 7 m."""
     per = {d: (trials if d in BANDS["6-7 m"] else near_trials) for d in DISTANCES_M}

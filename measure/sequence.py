@@ -416,7 +416,12 @@ def pooled_sigma(terms: dict[str, float], pooled_terms: dict[str, float], rho: f
     # which the fit term already holds; only the part that persists over the frames is a bias b².
     s_n2 = pooled_terms.get("structure", 0.0) ** 2
     s_i2 = np.array(structure, dtype=np.float64) ** 2
-    bias2 = min(s_n2, max(0.0, (n * s_n2 - float(s_i2.mean())) / (n - 1))) if n > 1 and np.isfinite(s_i2).all() else s_n2
+    # The pooled samples' nearest ones need not be the same pixels (duplicates crowd the end), so the
+    # static share rho of the scatter repeats in the structure too: at least rho of its per-frame size.
+    if n > 1 and np.isfinite(s_i2).all():
+        bias2 = max(min(s_n2, max(0.0, (n * s_n2 - float(s_i2.mean())) / (n - 1))), rho * float(s_i2.mean()))
+    else:
+        bias2 = s_n2
     # The clicks: the same error in every frame, the newest frame's term.
     return _reported(fit2 + shared2 + bias2, terms.get("click", 0.0), click_px, dist)
 
