@@ -281,7 +281,8 @@ def measure_sequence(
 
     Example:
         >>> import numpy as np
-        >>> from measure import Frame, PinholeCamera\n        >>> from measure.sequence import measure_sequence
+        >>> from measure import Frame, PinholeCamera
+        >>> from measure.sequence import measure_sequence
         >>> cam = PinholeCamera(fx=60.0, fy=60.0, cx=31.5, cy=23.5, width=64, height=48)
         >>> disparity = np.full((48, 64), 12.0, dtype=np.float32)  # a plane 0.5 m away
         >>> frame = Frame(np.zeros((48, 64, 3), np.uint8), disparity, cam, baseline_m=0.1)
@@ -294,7 +295,7 @@ def measure_sequence(
         raise MeasureError(f"pool={pool!r} is unknown; use one of {', '.join(POOLS)}")
     if options.method != "robust":
         raise MeasureError(f"only the robust method pools several frames, not method={options.method!r}; use method='robust' or one frame")
-    if click_px is not None and not (isinstance(click_px, (int, float)) and math.isfinite(click_px) and 0 <= click_px <= MAX_CLICK_PX):
+    if click_px is not None and not (isinstance(click_px, (int, float)) and not isinstance(click_px, bool) and math.isfinite(click_px) and 0 <= click_px <= MAX_CLICK_PX):
         raise MeasureError(f"click_px={click_px!r} must be a number of pixels from 0 to {MAX_CLICK_PX}")
     ref = frames[-1]
     single, terms = robust_with_terms(ref, p1, p2, options)

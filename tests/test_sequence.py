@@ -104,7 +104,7 @@ def test_click_px_states_the_clicks_error():
     wide = measure_sequence(frames[-1:], p1, p2, click_px=6.0)
     assert exact.uncertainty_m < default.uncertainty_m < wide.uncertainty_m
     assert exact.distance_m == default.distance_m == wide.distance_m
-    for bad in (-1.0, math.nan, 1e3):
+    for bad in (-1.0, math.nan, 1e3, True):
         with pytest.raises(MeasureError, match="click_px"):
             measure_sequence(frames, p1, p2, click_px=bad)
 
