@@ -66,16 +66,21 @@ def sim_command(
 @app.command("frames")
 def frames_command(
     out: Path = typer.Option(..., "--out", help="Output folder for report.md, results.json and frames.png."),
-    trials: int = typer.Option(8, "--trials", "-n", min=2, help="Still scenes per (distance, target, contention) cell."),
+    trials: int = typer.Option(85, "--trials", "-n", min=2, help="Still scenes per (6-7 m distance, contention): 85 give 340 cases per (contention, clicks, N)."),
+    near_trials: int = typer.Option(20, "--near-trials", min=1, help="Still scenes per (2-5 m distance, contention)."),
     seed: int = typer.Option(0, "--seed", help="Base seed of the scenes' noise and clicks."),
     workers: int = typer.Option(2, "--workers", "-j", min=1, help="Worker processes."),
 ) -> None:
-    """Several frames of a still scene (evaluation/frames_study.py): N = 1, 3, 5, 10 at 2-7 m, and moving scenes that must be refused."""
-    from .frames_study import plan, run, write_report
+    """Several frames of a still scene (evaluation/frames_study.py): N = 1, 3, 5, 10 at 2-7 m, coverage of the truth, and moving scenes that must be refused."""
+    from sim.truth import ClickModel
+
+    from .frames_study import click_rms_px, plan, run, write_report
 
     t0 = time.perf_counter()
-    records = run(plan(trials, seed), workers=workers)
-    paths = write_report(out, records, {"trials": trials, "seed": seed, "wall_time_s": time.perf_counter() - t0})
+    records = run(plan(trials, near_trials, seed), workers=workers)
+    protocol = {"trials": trials, "near_trials": near_trials, "seed": seed, "workers": workers, "click_px": click_rms_px(ClickModel()),
+                "wall_time_s": time.perf_counter() - t0}
+    paths = write_report(out, records, protocol)
     print(f"{len(records)} measurements; report: {paths['report']}, plot: {paths['plot']}")
 
 
