@@ -176,13 +176,15 @@ def test_api_measures_over_frames_held_since_the_freeze(tmp_path):
     from service.app import create_app
 
     spec = "sim:poster?distance=6&width=640&height=360&fps=0&seed=4"
-    with TestClient(create_app(spec, db_path=tmp_path / "h.db", ring_size=12, capture_fps=100.0), base_url="http://127.0.0.1") as c:
+    # 30 frames in the ring: the 10 before the frozen one must still be there when the freeze lands,
+    # however many frames a loaded host lets the source add between wait_latest and the POST
+    with TestClient(create_app(spec, db_path=tmp_path / "h.db", ring_size=30, capture_fps=100.0), base_url="http://127.0.0.1") as c:
         ring = c.app.state.ring
         first = ring.wait_latest(0, 20.0)
         assert first is not None
         fid = ring.wait_latest(first.id + 11, 60.0).id  # at least 11 frames from the source
         assert c.post(f"/api/frames/{fid}/freeze", json={}).json()["frozen"] is True
-        ring.wait_latest(fid + 16, 60.0)  # the stream moved on past the ring's 12 frames
+        ring.wait_latest(fid + 34, 60.0)  # the stream moved on past the ring's 30 frames
         truth = ring.get(fid).frame.meta["truth"]
         body = {"frame_id": fid, "p1": list(map(float, truth.p1_px)), "p2": list(map(float, truth.p2_px))}
         one = c.post("/api/measure", json=body)
