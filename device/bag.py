@@ -953,27 +953,19 @@ _PARAMS = ("depth", "color", "depth_info", "color_info", "baseline", "depth_unit
 def options_from_spec(spec: SourceSpec) -> BagOptions:
     spec.check_keys(_PARAMS)
 
-    def num(key: str) -> float | None:
-        if key not in spec.params:
-            return None
-        try:
-            return float(spec.params[key])
-        except ValueError:
-            raise SourceError(f"bag option {key}={spec.params[key]!r} must be a number") from None
-
     try:
         start = int(spec.params.get("start", "0"))
     except ValueError:
         raise SourceError(f"bag option start={spec.params['start']!r} must be a frame index") from None
     return BagOptions(
         topics=tuple((k, spec.params[k]) for k in ("depth", "color", "depth_info", "color_info") if spec.params.get(k)),
-        baseline_m=num("baseline"),
-        depth_unit_m=num("depth_unit"),
-        skew_ms=num("skew_ms"),
+        baseline_m=spec.number("baseline"),
+        depth_unit_m=spec.number("depth_unit"),
+        skew_ms=spec.number("skew_ms"),
         registered=spec.flag("registered", False),
         loop=spec.flag("loop", False),
         realtime=spec.flag("realtime", False),
-        speed=num("speed") or 1.0,
+        speed=spec.number("speed") or 1.0,
         start=start,
     )
 

@@ -144,6 +144,15 @@ class SourceSpec:
         except ValueError:
             raise SourceError(f"{key}={self.params[key]!r} is not a yes/no value; write {key}=1 or {key}=0") from None
 
+    def number(self, key: str) -> float | None:
+        """The numeric option ``key``, or None when it is absent."""
+        if key not in self.params:
+            return None
+        try:
+            return float(self.params[key])
+        except ValueError:
+            raise SourceError(f"{self.kind} option {key}={self.params[key]!r} must be a number") from None
+
     def __str__(self) -> str:
         s = self.kind + (f":{quote(self.target, safe=_SAFE)}" if self.target else "")
         if self.params:

@@ -274,19 +274,11 @@ def config_from_spec(spec: SourceSpec) -> DepthFolderConfig:
         raise SourceNotFound("depthpng needs a folder: depthpng:path/to/folder")
     spec.check_keys(_PARAMS)
 
-    def num(key: str) -> float | None:
-        if key not in spec.params:
-            return None
-        try:
-            return float(spec.params[key])
-        except ValueError as exc:
-            raise SourceError(f"depthpng option {key}={spec.params[key]!r} must be a number") from exc
-
     return DepthFolderConfig(
         path=Path(spec.target),
-        baseline_m=num("baseline"),
-        depth_scale=num("depth_scale"),
-        fps=num("fps"),
+        baseline_m=spec.number("baseline"),
+        depth_scale=spec.number("depth_scale"),
+        fps=spec.number("fps"),
         loop=spec.flag("loop", False),
     )
 
