@@ -124,7 +124,7 @@ def measurements(
     not on the event loop."""
     if format == "csv":
         return _csv(state, "m", request)
-    return _json(state.store.list_slim(limit, before))
+    return Response(state.store.list_slim_json(limit, before), media_type="application/json")
 
 
 def _record(state: ServiceState, mid: int) -> dict[str, Any]:
