@@ -7,7 +7,7 @@ measurements use it, so history survives a restart and a measurement can be re-o
 re-measured on its frame.
 
 Durability: :meth:`Store.add` writes and fsyncs the frame file *before* it commits the row
-(synchronous=FULL), so a measurement that was answered is on disk with its frame, whatever
+(synchronous=FULL; measurements arriving together share one commit and its fsync), so a measurement that was answered is on disk with its frame, whatever
 happens next (SIGKILL, power). A crash between the two leaves an unreferenced file, deleted at
 the next start with any stale temporary file. A full disk raises :class:`StoreFull` (HTTP 507)
 and marks the store degraded until a probe write succeeds again.
@@ -41,6 +41,7 @@ from collections import OrderedDict
 from collections.abc import Iterator
 from concurrent.futures import ThreadPoolExecutor
 from contextlib import contextmanager
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
@@ -161,6 +162,18 @@ def _is_full(exc: BaseException) -> bool:
     )
 
 
+@dataclass
+class _Pending:
+    """A measurement waiting for the next group commit; ``finished`` (set under ``Store._lock``)
+    once a commit took it, with its id or the error to raise in the requesting thread."""
+
+    frame_row: tuple[Any, ...]
+    values: tuple[Any, ...]
+    finished: bool = False
+    mid: int | None = None
+    error: tuple[type[StoreError], str] | None = None
+
+
 class Store:
     """Thread-safe measurement history; ``Store(path)`` creates the database and frames folder."""
 
@@ -191,6 +204,7 @@ class Store:
         self._presaver = ThreadPoolExecutor(max_workers=_PRESAVE_WORKERS, thread_name_prefix="depthruler-presave")
         self._presaving = 0
         self._presaved: dict[str, float] = {}  # uid -> when, for frames saved before any measurement
+        self._pending: list[_Pending] = []  # measurements for the next group commit (under _books)
         self._slim: dict[int, bytes] = {}  # id -> JSON of its slim record (under _books)
         self._changes = 0  # bumped (under _books) whenever a stored record changes: stale encodings are not cached
         self._thumbs: OrderedDict[int, bytes] = OrderedDict()  # id -> thumbnail, least recently used first
@@ -419,32 +433,63 @@ class Store:
             result["n_valid"], result["n_support"], json.dumps(result["samples_px"]), json.dumps(result["support"]),
             int(result["gap_detected"]), json.dumps(result["warnings"]), result["elapsed_ms"], thumb, json.dumps(extra),
         )  # fmt: skip
+        frame_row = (frame_uid, f"{frame_uid}{SUFFIX}", w, h, float(frame.timestamp), str(frame.meta.get("source", "")), created, size)
+        row = _Pending(frame_row, values)
+        with self._books:
+            self._pending.append(row)
         with self._lock:
-            try:
-                self._db.execute("BEGIN IMMEDIATE")
-                self._db.execute(
-                    "INSERT OR IGNORE INTO frames(uid, file, width, height, timestamp, source, created, bytes) "
-                    "VALUES (?,?,?,?,?,?,?,?)",
-                    (frame_uid, f"{frame_uid}{SUFFIX}", w, h, float(frame.timestamp), str(frame.meta.get("source", "")), created, size),
-                )
-                cur = self._db.execute(
-                    "INSERT INTO measurements(created, frame_id, frame_uid, source, p1_x, p1_y, p2_x, p2_y, options, "
-                    "distance_m, method, fit, p1_m, p2_m, basic_distance_m, uncertainty_m, n_samples, n_valid, "
-                    "n_support, samples_px, support, gap_detected, warnings, elapsed_ms, thumb, extra) "
-                    "VALUES (?,?,?,?,?,?,?,?,?,?,?,?,?,?,?,?,?,?,?,?,?,?,?,?,?,?)",
-                    values,
-                )
-                self._db.execute("COMMIT")
-            except sqlite3.Error as exc:
-                if self._db.in_transaction:
-                    self._db.execute("ROLLBACK")
-                if _is_full(exc):
-                    raise self._full(exc, "measurement") from None
-                raise StoreError(f"cannot store the measurement in {self.path}: {exc}") from exc
-            self._degraded = ""  # a write went through: space is back
+            if not row.finished:  # no commit running took it along: commit it with all that queued meanwhile
+                with self._books:
+                    batch, self._pending = self._pending, []
+                self._commit(batch)
+        if row.error is not None:
+            kind, message = row.error
+            raise kind(message)
         with self._books:
             self._presaved.pop(frame_uid, None)
-        return int(cur.lastrowid)
+        assert row.mid is not None
+        return row.mid
+
+    def _commit(self, batch: list[_Pending]) -> None:
+        """Insert the measurements of ``batch`` (and their frames' rows) in one transaction: one
+        fsync of the WAL for all requests that queued while the previous commit ran (group commit;
+        the caller holds ``_lock``). A row SQLite refuses fails alone; a failed commit fails all."""
+        try:
+            self._db.execute("BEGIN IMMEDIATE")
+            for row in batch:
+                self._db.execute("SAVEPOINT one")
+                try:
+                    self._db.execute(
+                        "INSERT OR IGNORE INTO frames(uid, file, width, height, timestamp, source, created, bytes) "
+                        "VALUES (?,?,?,?,?,?,?,?)",
+                        row.frame_row,
+                    )
+                    cur = self._db.execute(
+                        "INSERT INTO measurements(created, frame_id, frame_uid, source, p1_x, p1_y, p2_x, p2_y, options, "
+                        "distance_m, method, fit, p1_m, p2_m, basic_distance_m, uncertainty_m, n_samples, n_valid, "
+                        "n_support, samples_px, support, gap_detected, warnings, elapsed_ms, thumb, extra) "
+                        "VALUES (?,?,?,?,?,?,?,?,?,?,?,?,?,?,?,?,?,?,?,?,?,?,?,?,?,?)",
+                        row.values,
+                    )
+                    row.mid = int(cur.lastrowid)
+                    self._db.execute("RELEASE one")
+                except sqlite3.Error as exc:
+                    if _is_full(exc):
+                        raise
+                    self._db.execute("ROLLBACK TO one")
+                    self._db.execute("RELEASE one")
+                    row.error = (StoreError, f"cannot store the measurement in {self.path}: {exc}")
+            self._db.execute("COMMIT")
+            self._degraded = ""  # a write went through: space is back
+        except sqlite3.Error as exc:
+            if self._db.in_transaction:
+                self._db.execute("ROLLBACK")
+            failed = self._full(exc, "measurement") if _is_full(exc) else StoreError(f"cannot store the measurement in {self.path}: {exc}")
+            for row in batch:
+                row.mid, row.error = None, (type(failed), str(failed))
+        finally:
+            for row in batch:
+                row.finished = True
 
     def pin(self, mid: int, pinned: bool = True) -> dict[str, Any] | None:
         """Pin (or unpin) a measurement: the history cap never deletes the frame of a pinned one."""

@@ -117,3 +117,49 @@ def test_newer_measurement_fields_are_stored_and_exported(tmp_path, monkeypatch)
 def test_list_limit_bounds(tmp_path, limit):
     with make_client(tmp_path) as c:
         assert c.get("/api/measurements", params={"limit": limit}).status_code == 422
+
+
+def test_concurrent_measurements_share_one_commit(tmp_path):
+    """Measurements that arrive while a commit (and its fsync) runs are committed together in the
+    next one: 8 requests, 2 commits, each request answered with its own durable record."""
+    import threading
+
+    from service.store import Store
+
+    store = Store(tmp_path / "h.db")
+    frame = plane_frame(0)
+    store._save_frame = lambda uid, f: 1000  # the frames are on disk already: only the rows commit
+    commits: list[int] = []
+    plain = store._commit
+
+    def slow_first(batch):
+        commits.append(len(batch))
+        deadline = time.monotonic() + 10
+        while len(commits) == 1 and len(store._pending) < 7 and time.monotonic() < deadline:
+            time.sleep(0.005)  # the first commit's fsync lasts until the 7 others queued behind it
+        plain(batch)
+
+    store._commit = slow_first
+    result = {"distance_m": 1.0, "method": "basic", "fit": "plane", "p1_m": [0, 0, 1], "p2_m": [1, 0, 1],
+              "basic_distance_m": 1.0, "uncertainty_m": 0.01, "n_samples": 1, "n_valid": 1, "n_support": 1,
+              "samples_px": [[0, 0]], "support": [True], "gap_detected": False, "warnings": [], "elapsed_ms": 1.0}  # fmt: skip
+    records: dict[int, dict] = {}
+
+    def add(k: int) -> None:
+        records[k] = store.add(frame_id=k, frame_uid=f"u{k}", frame=frame, source="s", p1=(k, 0), p2=(k, 1), options={}, result=result)
+
+    threads = [threading.Thread(target=add, args=(k,)) for k in range(8)]
+    threads[0].start()
+    while not commits:
+        time.sleep(0.001)
+    for t in threads[1:]:
+        t.start()
+    for t in threads:
+        t.join(20)
+    assert commits == [1, 7]
+    assert sorted(records) == list(range(8)) and len({r["id"] for r in records.values()}) == 8
+    store.close()
+    reopened = Store(tmp_path / "h.db")  # what was answered is in the database
+    for k, r in records.items():
+        assert reopened.get(r["id"])["p1"] == [k, 0] and reopened.get(r["id"])["frame_id"] == k
+    reopened.close()
