@@ -163,3 +163,41 @@ def test_concurrent_measurements_share_one_commit(tmp_path):
     for k, r in records.items():
         assert reopened.get(r["id"])["p1"] == [k, 0] and reopened.get(r["id"])["frame_id"] == k
     reopened.close()
+
+
+def _result(n: int) -> dict:
+    return {"distance_m": 1.0, "method": "basic", "fit": "plane", "p1_m": [0, 0, 1], "p2_m": [1, 0, 1],
+            "basic_distance_m": 1.0, "uncertainty_m": 0.01, "n_samples": n, "n_valid": n, "n_support": n,
+            "samples_px": [[k * 0.5, k * 0.25] for k in range(n)], "support": [True] * n, "gap_detected": False,
+            "warnings": [], "elapsed_ms": 1.0}  # fmt: skip
+
+
+def test_checkpoints_run_beside_the_commits(tmp_path, monkeypatch):
+    """No measurement's commit copies the WAL into the database (SQLite's automatic checkpoint did,
+    every ~1000 pages, ~140 measurements, for 50-350 ms); the checkpoint thread does."""
+    from service import store as store_module
+    from service.store import Store
+
+    monkeypatch.setattr(store_module, "_CHECKPOINT_S", 3600.0)  # no checkpoint thread pass
+    store = Store(tmp_path / "h.db")
+    store._save_frame = lambda uid, f: 1000
+    size0 = (tmp_path / "h.db").stat().st_size
+    ids = [store.add(frame_id=k, frame_uid=f"u{k}", frame=plane_frame(0), source="s", p1=(k, 0), p2=(k, 1), options={},
+                     result=_result(1280))["id"] for k in range(200)]  # fmt: skip
+    assert (tmp_path / "h.db").stat().st_size == size0  # every page is still in the WAL
+    assert store.get(ids[-1])["n_samples"] == 1280
+    store.close()
+    reopened = Store(tmp_path / "h.db")
+    assert [reopened.get(i)["p1"] for i in ids] == [[k, 0] for k in range(200)]
+    reopened.close()
+
+    monkeypatch.setattr(store_module, "_CHECKPOINT_S", 0.02)
+    store = Store(tmp_path / "h2.db")
+    store._save_frame = lambda uid, f: 1000
+    for k in range(60):
+        store.add(frame_id=k, frame_uid=f"u{k}", frame=plane_frame(0), source="s", p1=(k, 0), p2=(k, 1), options={}, result=_result(1280))
+    deadline = time.monotonic() + 10
+    while (tmp_path / "h2.db").stat().st_size < 512 * 1024 and time.monotonic() < deadline:
+        time.sleep(0.02)
+    assert (tmp_path / "h2.db").stat().st_size >= 512 * 1024  # the checkpoint thread copied the rows
+    store.close()
