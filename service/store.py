@@ -562,6 +562,12 @@ class Store:
             "pinned": bool(row["pinned"]),
         }
 
+    def segment(self, mid: int) -> tuple[str, list[float], list[float]] | None:
+        """The frame uid and the clicked points (px) of measurement ``mid`` (a thumbnail's inputs),
+        without decoding its record; None when there is no such measurement."""
+        row = self._one("SELECT frame_uid, p1_x, p1_y, p2_x, p2_y FROM measurements WHERE id=?", (mid,))
+        return None if row is None else (row["frame_uid"], [row["p1_x"], row["p1_y"]], [row["p2_x"], row["p2_y"]])
+
     def get(self, mid: int) -> dict[str, Any] | None:
         row = self._one("SELECT * FROM measurements WHERE id=?", (mid,))
         return self._record(row) if row else None

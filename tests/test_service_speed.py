@@ -61,6 +61,11 @@ def test_thumbnail_is_drawn_on_request_not_when_measuring(tmp_path):
         assert store.thumb(m["id"]) == jpg.content  # kept
         png = c.get(f"/api/measurements/{m['id']}/thumb.png")
         assert png.content[:8] == b"\x89PNG\r\n\x1a\n"
+    with make_client(tmp_path) as c:  # after a restart the frame is not in the ring: drawn from its saved file
+        again = c.get(f"/api/measurements/{m['id']}/thumb.jpg")
+        from_file = cv2.imdecode(np.frombuffer(again.content, np.uint8), cv2.IMREAD_COLOR)
+        assert from_file.shape == thumb.shape
+        assert np.abs(from_file.astype(int) - thumb).mean() < 2.0  # the same picture either way (0.8 on this frame)
 
 
 def _freeze_and_wait_for_presave(c, tmp_path, fid: int):
