@@ -179,11 +179,13 @@ def _result(n: int) -> dict:
 
 def test_checkpoints_run_beside_the_commits(tmp_path, monkeypatch):
     """No measurement's commit copies the WAL into the database (SQLite's automatic checkpoint did,
-    every ~1000 pages, ~140 measurements, for 50-350 ms); the checkpoint thread does."""
+    every ~1000 pages, ~140 measurements, for 50-350 ms); the checkpoint thread does, once the
+    commits pause."""
     from service import store as store_module
     from service.store import Store
 
-    monkeypatch.setattr(store_module, "_CHECKPOINT_S", 3600.0)  # no checkpoint thread pass
+    monkeypatch.setattr(store_module, "_CHECKPOINT_QUIET_S", 3600.0)  # no checkpoint thread pass
+    monkeypatch.setattr(store_module, "_CHECKPOINT_ROWS", 10**9)
     store = Store(tmp_path / "h.db")
     store._save_frame = lambda uid, f: 1000
     size0 = (tmp_path / "h.db").stat().st_size
@@ -196,7 +198,7 @@ def test_checkpoints_run_beside_the_commits(tmp_path, monkeypatch):
     assert [reopened.get(i)["p1"] for i in ids] == [[k, 0] for k in range(200)]
     reopened.close()
 
-    monkeypatch.setattr(store_module, "_CHECKPOINT_S", 0.02)
+    monkeypatch.setattr(store_module, "_CHECKPOINT_QUIET_S", 0.05)
     store = Store(tmp_path / "h2.db")
     store._save_frame = lambda uid, f: 1000
     for k in range(60):
