@@ -105,6 +105,7 @@ def create_app(source: str | Callable[[], Source], settings: ServerConfig | None
                 recorder.stop()
             capture.stop()
             store.close()
+            gc.unfreeze()  # a process that builds apps one after another (the tests) can free them again
 
     app = FastAPI(title="depthruler", summary="Click two points, get a robust 3D length.", lifespan=lifespan)
     app.state.service = state
