@@ -157,7 +157,8 @@ def delete_measurement(state: State, mid: MeasurementId) -> dict[str, Any]:
 
 
 def _thumb(state: ServiceState, mid: int) -> bytes:
-    """The measurement's thumbnail, drawn on first request from its saved frame and kept."""
+    """The measurement's thumbnail, drawn on first request from its frame (still in the ring, else
+    its saved file) and kept in memory."""
     where = state.store.segment(mid)
     if where is None:
         raise HTTPException(404, f"no measurement {mid}; GET /api/measurements lists them")
