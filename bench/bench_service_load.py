@@ -69,6 +69,15 @@ def start_server(code: Path, spec: str, db: Path) -> tuple[subprocess.Popen, str
     raise SystemExit(f"no frame from {spec} within 120 s")
 
 
+def cpu_seconds(pid: int) -> float:
+    """User + system CPU time of process ``pid`` so far (all its threads), from /proc; NaN elsewhere."""
+    try:
+        fields = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()
+    except OSError:
+        return float("nan")
+    return (int(fields[11]) + int(fields[12])) / os.sysconf("SC_CLK_TCK")
+
+
 def stop_server(proc: subprocess.Popen) -> None:
     proc.terminate()
     try:
@@ -110,7 +119,9 @@ class Viewer(threading.Thread):
                 self.shown += img.status_code == 200
 
 
-def run_load(base: str, clients: int, per_client: int, per_frame: int, think_s: tuple[float, float], method: str) -> dict:
+def run_load(
+    base: str, clients: int, per_client: int, per_frame: int, think_s: tuple[float, float], method: str, pid: int = 0
+) -> dict:
     measure_ms: list[float] = []
     list_ms: list[float] = []
     thumb_ms: list[float] = []
@@ -128,10 +139,12 @@ def run_load(base: str, clients: int, per_client: int, per_frame: int, think_s: 
                 errors.append(f"{method_} {url}: {r.status_code} {r.text[:160]}")
         return r
 
+    paths = httpx.get(f"{base}/openapi.json", timeout=30).json()["paths"]
+    thumb = "thumb.jpg" if any(p.endswith("/thumb.jpg") for p in paths) else "thumb.png"  # PNG on older servers
+
     def client(k: int) -> None:
         rng = np.random.default_rng(k)
         frame: dict = {}
-        thumb = "thumb.jpg"
         with httpx.Client(base_url=base, timeout=60, headers=JSON) as http:
             for done in range(per_client):
                 if done % per_frame == 0:
@@ -146,9 +159,7 @@ def run_load(base: str, clients: int, per_client: int, per_frame: int, think_s: 
                 if r.status_code != 200:
                     continue
                 timed(http, "GET", "/api/measurements?limit=100", list_ms)
-                t = http.get(f"/api/measurements/{r.json()['id']}/{thumb}")
-                if t.status_code == 404 and thumb == "thumb.jpg":
-                    thumb = "thumb.png"  # a server without JPEG thumbnails
+                # once, as the page does: the request that draws it
                 timed(http, "GET", f"/api/measurements/{r.json()['id']}/{thumb}", thumb_ms)
 
     viewer = Viewer(base)
@@ -156,10 +167,12 @@ def run_load(base: str, clients: int, per_client: int, per_frame: int, think_s: 
     time.sleep(1.0)  # the viewer has caught up with the stream
     source_before = httpx.get(f"{base}/api/source").json()
     shown0 = viewer.shown
+    cpu0 = cpu_seconds(pid) if pid else float("nan")
     t0 = time.perf_counter()
     with ThreadPoolExecutor(clients) as pool:
         list(pool.map(client, range(clients)))
     wall = time.perf_counter() - t0
+    cpu = (cpu_seconds(pid) if pid else float("nan")) - cpu0
     viewer.stop.set()
     viewer.join(10)
     source_after = httpx.get(f"{base}/api/source").json()
@@ -181,6 +194,9 @@ def run_load(base: str, clients: int, per_client: int, per_frame: int, think_s: 
         "list_p95_ms": pct(list_ms, 95),
         "thumb_p95_ms": pct(thumb_ms, 95),
         "throughput": len(ms) / wall,
+        # the server process's CPU over the run (requests, the source's rendering, the live view's
+        # JPEGs, saving frames) per measurement: steadier than latency on a shared host
+        "cpu_ms_per_measure": cpu / max(1, len(ms)) * 1e3,
         "view_fps": (viewer.shown - shown0) / wall,
         "source_fps": stream_frames / wall,
     }
@@ -201,12 +217,12 @@ def run_version(code: Path, spec: str, shapes: list[int], clients: list[int], ar
             rows = []
             for per_frame in shapes:
                 for c in clients:
-                    r = run_load(base, c, args.per_client, per_frame, (args.think_min, args.think_max), args.method)
+                    r = run_load(base, c, args.per_client, per_frame, (args.think_min, args.think_max), args.method, proc.pid)
                     print(
                         f"  {c} clients, {per_frame}/frame: {r['ok']}/{r['requests']} ok, {len(r['errors'])} errors; "
                         f"measure p50 {r['p50_ms']:.1f} / p95 {r['p95_ms']:.1f} / p99 {r['p99_ms']:.1f} ms; list p95 "
                         f"{r['list_p95_ms']:.1f} ms, thumb p95 {r['thumb_p95_ms']:.1f} ms; live view {r['view_fps']:.1f} fps "
-                        f"of the source's {r['source_fps']:.1f}",
+                        f"of the source's {r['source_fps']:.1f}; server CPU {r['cpu_ms_per_measure']:.1f} ms per measurement",
                         flush=True,
                     )
                     for e in r["errors"][:3]:
@@ -220,7 +236,8 @@ def run_version(code: Path, spec: str, shapes: list[int], clients: list[int], ar
 def _row(name: str, r: dict) -> str:
     return (
         f"| {name} | {r['per_frame']} | {r['clients']} | {r['ok']}/{r['requests']} | {len(r['errors'])} | {r['p50_ms']:.1f} | {r['p95_ms']:.1f} | "
-        f"{r['p99_ms']:.1f} | {r['list_p95_ms']:.1f} | {r['thumb_p95_ms']:.1f} | {r['view_fps']:.1f} / {r['source_fps']:.1f} |\n"
+        f"{r['p99_ms']:.1f} | {r['list_p95_ms']:.1f} | {r['thumb_p95_ms']:.1f} | {r['view_fps']:.1f} / {r['source_fps']:.1f} | "
+        f"{r['cpu_ms_per_measure']:.1f} |\n"
     )
 
 
@@ -238,11 +255,12 @@ def record(results: dict[str, list[dict]], args: argparse.Namespace, loads: list
         f"does; {args.per_client} measurements per client; after `per frame` measurements it takes a new frame (1: every "
         "measurement saves a frame; 5: a click and four adjustments). One viewer follows the live stream meanwhile "
         "(long-poll + JPEG, PNG on the baseline). Latency (ms) is `POST /api/measure` alone; the list and thumbnail "
-        "columns are their p95. The baseline revision runs from `git archive` in the "
+        "columns are their p95; the server's CPU time (all its threads: requests, the simulator's rendering, "
+        "the live view's JPEGs, saving frames) is divided by the measurements, the steadier figure on a shared host. The baseline revision runs from `git archive` in the "
         "same run, one server at a time, both under `nice -n 10` as every job on this shared host. "
         "Target (issue 13): 8 clients, p95 <= 40 ms and p50 <= 15 ms.\n\n"
-        "| code | per frame | clients | ok | errors | p50 | p95 | p99 | list p95 | thumb p95 | live view / source fps |\n"
-        "| --- | --- | --- | --- | --- | --- | --- | --- | --- | --- | --- |\n"
+        "| code | per frame | clients | ok | errors | p50 | p95 | p99 | list p95 | thumb p95 | live view / source fps | server CPU ms / measurement |\n"
+        "| --- | --- | --- | --- | --- | --- | --- | --- | --- | --- | --- | --- |\n"
         + "".join(rows)
         + f"\nMachine: {machine()}; {date}. The machine was shared with other engineers' jobs during the run: "
         f"1-minute load average {loads[0]:.1f} before, {loads[1]:.1f} after the baseline, {loads[-1]:.1f} at the end.\n"

@@ -129,6 +129,11 @@ class FrameRing:
                 )
             raise FrameUnknown(f"frame {fid} does not exist yet; the latest id is {self._next - 1}")
 
+    def find(self, uid: str) -> RingFrame | None:
+        """The frame stored as ``uid`` if the ring still holds it (a thumbnail drawn from memory)."""
+        with self._cond:
+            return next((e for e in reversed(self._frames.values()) if e.uid == uid), None)
+
     def latest(self) -> RingFrame | None:
         with self._cond:
             return self._frames[next(reversed(self._frames))] if self._frames else None

@@ -65,6 +65,11 @@ def colorize_disparity(disparity: np.ndarray) -> np.ndarray:
     return out
 
 
+def quarter(image: np.ndarray) -> np.ndarray:
+    """``image`` at 1/4 size by area averaging: what the saved JPEG's reduced decode gives, for a thumbnail."""
+    return cv2.resize(image, None, fx=0.25, fy=0.25, interpolation=cv2.INTER_AREA)
+
+
 def make_thumb(image: np.ndarray, full_width: int, p1: tuple[float, float], p2: tuple[float, float]) -> bytes:
     """A small JPEG of a frame's colour ``image`` (full size, or a reduced decode of a frame
     ``full_width`` pixels wide) with the measured segment (full-size pixels) drawn on it; bilinear

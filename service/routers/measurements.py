@@ -11,7 +11,7 @@ from fastapi.responses import JSONResponse, PlainTextResponse, Response
 from measure import MeasureError, MeasureOptions, measure_distance
 from measure.sequence import measure_sequence
 
-from ..render import encode_png, frame_json, make_thumb, png_from_jpeg
+from ..render import encode_png, frame_json, make_thumb, png_from_jpeg, quarter
 from ..schemas import (
     MAX_ID,
     AnnotationIn,
@@ -124,7 +124,7 @@ def measurements(
     not on the event loop."""
     if format == "csv":
         return _csv(state, "m", request)
-    return _json(state.store.list_slim(limit, before))
+    return Response(state.store.list_slim_json(limit, before), media_type="application/json")
 
 
 def _record(state: ServiceState, mid: int) -> dict[str, Any]:
@@ -157,15 +157,20 @@ def delete_measurement(state: State, mid: MeasurementId) -> dict[str, Any]:
 
 
 def _thumb(state: ServiceState, mid: int) -> bytes:
-    """The measurement's thumbnail, drawn on first request from its saved frame and kept."""
-    record = _record(state, mid)
+    """The measurement's thumbnail, drawn on first request from its frame (still in the ring, else
+    its saved file) and kept in memory."""
+    where = state.store.segment(mid)
+    if where is None:
+        raise HTTPException(404, f"no measurement {mid}; GET /api/measurements lists them")
     data = state.store.thumb(mid)
     if data is None:
+        uid, p1, p2 = where
+        entry = state.ring.find(uid)  # the frame is usually still in the ring: no file to read and decode
         try:
-            image, width = state.store.preview(record["frame_uid"])
+            image, width = (quarter(entry.frame.image), entry.frame.image.shape[1]) if entry else state.store.preview(uid)
         except StoreError as exc:
             raise HTTPException(404, f"measurement {mid} has no thumbnail: {exc}") from None
-        data = make_thumb(image, width, record["p1"], record["p2"])
+        data = make_thumb(image, width, p1, p2)
         state.store.set_thumb(mid, data)
     return data
 
