@@ -53,6 +53,16 @@ def _piece_length(support: np.ndarray) -> int:
     return int(hit[-1]) + 1 if hit.size else 0
 
 
+def _dense_span(dist: np.ndarray) -> float:
+    """Span (px) of the samples at distances ``dist`` from a click (nearest first) up to the first hole
+    wider than MIN_PIECE_PX / 2: a surface seen along the segment, not samples scattered across a hole."""
+    if dist.size == 0:
+        return 0.0
+    holes = np.flatnonzero(np.diff(dist) > 0.5 * MIN_PIECE_PX)
+    last = int(holes[0]) if holes.size else dist.size - 1
+    return float(dist[last] - dist[0])
+
+
 @dataclass(frozen=True)
 class EndModels:
     """Disparity at each end (px), its slope along t, the 2x2 covariance of the two end disparities,
@@ -63,6 +73,10 @@ class EndModels:
     cov: np.ndarray
     own: tuple[bool, bool]
     offsets: tuple[float, float]  # median residual (px) of the samples nearest each end from its model
+    # Median residual (px) of an end's piece that disagrees with the global line but yields no line of
+    # its own (too few samples along the segment, rough, steep...); 0 elsewhere. ``measure.neighbourhood``
+    # looks for that end's surface in the image around the click.
+    pieces: tuple[float, float] = (0.0, 0.0)
 
     @property
     def several(self) -> bool:
@@ -77,6 +91,7 @@ def select_end_models(t: np.ndarray, d: np.ndarray, length: float, line: Dispari
     cov = line.cov_at(0.0, length)
     r = d - line.at(t)
     own = [False, False]
+    pieces = [0.0, 0.0]
     local_cov = [0.0, 0.0]
     n = len(t)
     # The noise scale of the line's support (MAD: the RMS of a bisquare support is inflated by the
@@ -84,7 +99,7 @@ def select_end_models(t: np.ndarray, d: np.ndarray, length: float, line: Dispari
     scale = 1.4826 * median(np.abs(r[line.support])) if line.support.any() else line.sigma_d
     for e in (0, 1):
         k = _piece_length(line.support if e == 0 else line.support[::-1])
-        if k < MIN_LOCAL or k > n - MIN_LOCAL:  # no piece, or no global line left beside it
+        if k < MIN_LOCAL // 2 or k > n - MIN_LOCAL:  # no piece, or no global line left beside it
             continue
         sel = slice(0, k) if e == 0 else slice(n - k, n)
         if abs(float(t[sel][-1] - t[sel][0])) < MIN_PIECE_PX:
@@ -92,6 +107,12 @@ def select_end_models(t: np.ndarray, d: np.ndarray, length: float, line: Dispari
         off = median(r[sel])
         thr = max(DISAGREE_SIGMAS * scale, DISAGREE_REL * abs(float(d_end[e])))
         if abs(off) <= thr:
+            continue
+        ts = np.abs(t[sel] - (0.0 if e == 0 else length))
+        ts = ts if e == 0 else ts[::-1]  # nearest the click first
+        if _dense_span(ts) >= MIN_PIECE_PX:
+            pieces[e] = off
+        if k < MIN_LOCAL:
             continue
         te = 0.0 if e == 0 else length
         near = np.abs(t[sel] - te) <= PIECE_FIT_PX
@@ -113,6 +134,7 @@ def select_end_models(t: np.ndarray, d: np.ndarray, length: float, line: Dispari
         slope[e] = local.beta
         local_cov[e] = float(local.cov_at(te, te)[0, 0])
         own[e] = True
+        pieces[e] = 0.0
     # Residual structure next to each end: the median residual of the nearest supported samples (a shoe in
     # front of a leg, a rounded head, edge fattening). Counted in the uncertainty as a possible bias.
     m = max(MIN_LOCAL // 2, n // 10)
@@ -131,7 +153,7 @@ def select_end_models(t: np.ndarray, d: np.ndarray, length: float, line: Dispari
                 full[:, e] = 0.0
                 full[e, e] = local_cov[e]
         cov = full
-    return EndModels(d_end, slope, cov, (own[0], own[1]), (near_off[0], near_off[1]))
+    return EndModels(d_end, slope, cov, (own[0], own[1]), (near_off[0], near_off[1]), (pieces[0], pieces[1]))
 
 
 def on_depth_edge(disparity: np.ndarray, valid_of, start: tuple[float, float], other: tuple[float, float], d_end: float, step: float, px: int, majority: bool = False) -> bool:
