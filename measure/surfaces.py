@@ -34,6 +34,7 @@ import numpy as np
 
 from .dline import DisparityLine, fit_disparity_line
 from .robust_range import median
+from .uncertainty import correlation_inflation
 
 MIN_LOCAL = 10  # fewer valid samples than this in an end's piece: no line of its own
 MIN_PIECE_PX = 15  # a shorter piece is a click that slipped off the surface, not a surface of its own
@@ -43,6 +44,7 @@ DISAGREE_REL = 0.1  # relative disparity (= depth) offset an end's piece must sh
 DISAGREE_SIGMAS = 4.0
 MAX_PIECE_CHANGE = 0.5  # an own line may change its disparity by at most half across its piece
 LOCAL_ROUGHNESS = 3.0  # an own line may scatter at most this many times the main surface's noise
+NEAR_SIGMAS = 2.0  # an end's nearest supported samples move it when their median is this many standard errors off
 LOCAL_SUPPORT = 0.5  # share of its piece an end's own line must support: a surface, not scattered outliers
 
 
@@ -136,14 +138,26 @@ def select_end_models(t: np.ndarray, d: np.ndarray, length: float, line: Dispari
         own[e] = True
         pieces[e] = 0.0
     # Residual structure next to each end: the median residual of the nearest supported samples (a shoe in
-    # front of a leg, a rounded head, edge fattening). Counted in the uncertainty as a possible bias.
+    # front of a leg, a rounded head, edge fattening). Beyond NEAR_SIGMAS standard errors of that median
+    # (correlation-inflated) the end takes its nearest samples' level; otherwise it is counted in the
+    # uncertainty as a possible bias.
     m = max(MIN_LOCAL // 2, n // 10)
     near_off = [0.0, 0.0]
+    near_var = [0.0, 0.0]
     if n >= 2 * m:
         for e, sl in ((0, slice(0, m)), (1, slice(n - m, n))):
             sup = r[sl][line.support[sl]]
-            if not own[e] and sup.size:
-                near_off[e] = float(median(sup))
+            if own[e] or not sup.size:
+                continue
+            near_off[e] = float(median(sup))
+            if sup.size < MIN_LOCAL // 2:
+                continue
+            se = 1.2533 * max(scale, quantum / math.sqrt(12.0)) / math.sqrt(sup.size) * correlation_inflation(sup - near_off[e])
+            if abs(near_off[e]) > NEAR_SIGMAS * se:
+                d_end[e] += near_off[e]
+                near_var[e] = se * se
+                near_off[e] = 0.0
+    cov = cov + np.diag(near_var)
     if any(own):
         # Ends on their own lines are independent of each other and of the global line.
         full = cov.copy()

@@ -112,8 +112,10 @@ def test_several_surfaces_in_simulated_rooms(sim_stress):
     rooms = [r for r in sim_stress if r.case.group == "room"]
     f = figures(rooms)
     assert f["good_and_A_below_90"] <= 0.05, f
-    # Better than one straight line through wall, board and floor (mean A about 80 before).
+    # Better than one straight line through wall, board and floor (mean A about 80 before), and within
+    # a point of the window medians (basic) on average (issue #12).
     assert f["median_A"] >= 95.0, f
+    assert f["mean_A"] >= f["basic_mean_A"] - 1.0, f
     crossing = [r for r in rooms if r.fit == "surfaces"]
     assert crossing and all("segment crosses several surfaces" in r.reasons for r in crossing)
 
@@ -124,6 +126,24 @@ def test_person_height_and_doorways(sim_stress):
     assert err.mean() <= 0.03, err
     doors = figures([r for r in sim_stress if r.case.condition == "doorway"])
     assert doors["gap_rate_gap"] >= 0.75, doors
+
+
+def test_person_height_within_two_percent_on_dev_seeds():
+    # Issue #12: floor-to-head within 2 % on average; the dev seeds and distances of the stress study
+    # (evaluation/stress_sim.py), 24 people. One straight line through the body's front gave +2.3 %
+    # (the head's top and the shoe's front are off that line); the ends now take their nearest samples'
+    # level when it is two standard errors off (measure.surfaces): +1.9 % (held-out seeds +1.5 %).
+    import sim
+
+    from evaluation.stress_sim import DEV_SEEDS, DISTANCES_M, POSES
+
+    err = []
+    for seed in DEV_SEEDS:
+        for i, dist in enumerate(DISTANCES_M):
+            yaw, _ = POSES[(seed + i) % len(POSES)]
+            frame, truth, (c1, c2) = sim.scenario("person", distance_m=dist, seed=int(seed) * 100 + i, yaw_deg=yaw, width=720, height=1280)
+            err.append((measure_distance(frame, c1, c2).distance_m - truth.length_m) / truth.length_m)
+    assert np.abs(err).mean() <= 0.02, err
 
 
 def test_wall_to_floor_through_a_board_is_not_confidently_wrong():
