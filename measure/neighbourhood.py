@@ -10,7 +10,8 @@ the valid pixels within ``RADIUS`` px of the click on the segment's side of it (
 not what lies beyond it), by Tukey-bisquare IRLS from the median (a constant start: a majority surface
 wins), scale floored at the quantum's q/sqrt(12). It answers only when it is a surface: at least
 ``MIN_PIXELS`` valid pixels, ``MIN_SUPPORT`` of them supported, its value at the click inside the
-supported values' range. Its standard error is counted as one sample per ``CORRELATION_PX`` x
+supported values' range; its residual scatter ``sigma`` is for the caller to judge against the
+segment's own noise (scattered wrong matches give a plane as rough as their spread). Its standard error is counted as one sample per ``CORRELATION_PX`` x
 ``CORRELATION_PX`` block (stereo matching windows share errors between neighbours).
 """
 

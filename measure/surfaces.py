@@ -21,7 +21,21 @@ changes by at most ``MAX_PIECE_CHANGE`` across the piece (wrong matches in a
 contended band next to an edge pair up by chance but scatter widely), if that line supports ``LOCAL_SUPPORT`` of the
 piece (scattered wrong matches form no line) and differs from the global one at the click by the
 same threshold; its depth is that line's at the click: still on
-the clicked pixel's viewing ray.
+the clicked pixel's viewing ray. A disagreeing piece that yields no such line (rough, steep, too
+little support) but is dense along the segment (``_dense_span``: 15 px without a hole wider than
+7.5 px) is reported in ``EndModels.pieces``; ``measure.distance`` then looks for that end's surface
+in the image around the click (``measure.neighbourhood``).
+
+Residual structure at an end on the global line: the median residual of the supported samples in
+the segment's last tenth next to it (a shoe in front of the leg, a rounded head top, the slight
+bend SGBM gives a surface's last pixels). When it is more than ``NEAR_SIGMAS`` = 2 standard errors
+off the line (1.2533 s / sqrt(k) for k samples, inflated for lag-one correlation) and more than one
+disparity quantum (a median of quantized samples resolves no finer), the end takes that level,
+its variance the standard error squared; otherwise the offset is an uncertainty term only. Person
+height (stress study, 24 dev people) +2.28 -> +1.87 % (held-out +2.32 -> +1.48 %); rooms wall-floor
++0.5 points; Middlebury stress unchanged within 0.05 points; eval sim 97.53 -> 97.5 (figures in
+README "Trust"). Without the quantum floor, integer disparity (the edge protocol's contended ground
+truth) moved ends by a level and lost up to 12 points on single segments.
 Units: t, window in px along the segment; disparities in px.
 """
 
@@ -101,7 +115,7 @@ def select_end_models(t: np.ndarray, d: np.ndarray, length: float, line: Dispari
     scale = 1.4826 * median(np.abs(r[line.support])) if line.support.any() else line.sigma_d
     for e in (0, 1):
         k = _piece_length(line.support if e == 0 else line.support[::-1])
-        if k < MIN_LOCAL // 2 or k > n - MIN_LOCAL:  # no piece, or no global line left beside it
+        if k < MIN_LOCAL or k > n - MIN_LOCAL:  # no piece, or no global line left beside it
             continue
         sel = slice(0, k) if e == 0 else slice(n - k, n)
         if abs(float(t[sel][-1] - t[sel][0])) < MIN_PIECE_PX:
@@ -150,10 +164,11 @@ def select_end_models(t: np.ndarray, d: np.ndarray, length: float, line: Dispari
             if own[e] or not sup.size:
                 continue
             near_off[e] = float(median(sup))
-            if sup.size < MIN_LOCAL // 2:
+            if sup.size < MIN_LOCAL:  # a level needs as many samples as a piece
                 continue
             se = 1.2533 * max(scale, quantum / math.sqrt(12.0)) / math.sqrt(sup.size) * correlation_inflation(sup - near_off[e])
-            if abs(near_off[e]) > NEAR_SIGMAS * se:
+            # The median of quantized samples resolves no finer than a step: a smaller offset is no evidence.
+            if abs(near_off[e]) > max(NEAR_SIGMAS * se, quantum):
                 d_end[e] += near_off[e]
                 near_var[e] = se * se
                 near_off[e] = 0.0

@@ -46,10 +46,10 @@ def test_uncertainty_covers_the_truth_on_sgbm(middlebury_stress):
 
 
 def test_robust_is_rarely_much_worse_than_basic(middlebury_stress):
-    # Issue #12 asks for <= 1 %; reached on dev SGBM: 0.8 % (2.2 % before extrapolated ends took their
-    # click windows); GT + 50 % outliers 1.7 % (segments with fewer than half inliers, beyond the fit's
-    # breakdown point; 6.4 % while any single wrong match beyond a click counted as a depth edge).
-    for disparity, limit in (("sgbm", 0.01), ("gt_out50", 0.02)):
+    # Issue #12 asks for <= 1 %; dev SGBM 0.8 % (2.2 % before extrapolated ends took their click
+    # windows), GT + 50 % outliers 0.3 % (1.7 % before the fit got the click windows' line as a second
+    # start: segments with fewer than half inliers tilted FAST-MCD's half-sample).
+    for disparity, limit in (("sgbm", 0.01), ("gt_out50", 0.01)):
         recs = [r for r in middlebury_stress if r.disparity == disparity]
         assert figures(recs)["robust_much_worse_than_basic"] <= limit
         worse = [r for r in recs if r.robust_m < 0.9 * r.case.truth_m or r.robust_m > 1.1 * r.case.truth_m]
