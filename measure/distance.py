@@ -61,7 +61,7 @@ Why these choices (A = 100 - 100 |g - m| / g, mean over measurements unless note
   robust much worse than basic 0.8 % (held-out 1.6 %), 1σ/2σ 80.4/91.3 %, good 60.6 %, good &
   A < 90 3.9 %; ground truth + 50 % outliers robust much worse than basic 0.3 % (held-out 2.0 %);
   rooms 97.6 / 98.3 / 94.6 (held-out 96.6 / 98.8 / 95.8); person +1.87 % (held-out +1.48 %); eval
-  sim 97.63; edge protocol median 98.92 (SGBM).
+  sim 97.64; edge protocol median 98.92 (SGBM).
 - Imprecise line, one surface (one sigma above ``IMPRECISE`` = 8 % of the distance, typically a
   short piece full of wrong matches): the click windows answer when neither is on a depth edge and
   their standard error, counted as one sample per matching window, is smaller. Dev stress, SGBM:
@@ -73,7 +73,9 @@ Why these choices (A = 100 - 100 |g - m| / g, mean over measurements unless note
   62.2 -> 79.8; SGBM and StereoBM unchanged; "good" with A < 90 0 -> 0.6 / 0.4 %).
 - Extrapolated ends (``_observed_ends``): an end no supporting sample comes near (the line's
   support stops more than 5 px and 15 % of the length short of it) takes its click window's median
-  when that window is off a surface edge and within 10 % of the line there (the same surface). The
+  when that window is off a surface edge, within 10 % of the line there (the same surface) and
+  scattered by at most ``IMPRECISE`` of its disparity (one sample per window; a noisier window once
+  made an end's disparity indistinguishable from zero on a 6-m poster frame). The
   common cause of the dev SGBM cases where robust was much worse than basic: SGBM's smooth,
   correlated bias bends the last samples before a click (or leaves a hole there), the bisquare drops
   them as outliers against the tiny per-pixel scale, and the line's slope is extrapolated over
@@ -489,12 +491,14 @@ def _observed_ends(frame: Frame, xy1, xy2, basic: BasicEnds, t: np.ndarray, line
         if ends.own[e] or ts.size == 0 or float(np.abs(ts - te).min()) <= limit:
             continue
         dw = fb / float(p[2]) - frame.doffs
-        if abs(dw - d_end[e]) > DISAGREE_REL * abs(d_end[e]) or _on_surface_edge(frame, a, b, dw):
+        sw = fb / float(p[2]) ** 2 * basic.z_sigma[e] * window
+        # A window scattered over more than IMPRECISE of its disparity says less than the line.
+        if not sw <= IMPRECISE * abs(dw) or abs(dw - d_end[e]) > DISAGREE_REL * abs(d_end[e]) or _on_surface_edge(frame, a, b, dw):
             continue
         d_end[e] = dw
         cov[e, :] = 0.0
         cov[:, e] = 0.0
-        cov[e, e] = (fb / float(p[2]) ** 2 * basic.z_sigma[e] * window) ** 2
+        cov[e, e] = sw**2
         changed = True
     return EndModels(d_end, ends.slope, cov, ends.own, ends.offsets) if changed else ends
 
