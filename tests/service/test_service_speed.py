@@ -133,7 +133,7 @@ def test_concurrent_measurements_share_one_commit(tmp_path):
     from service.store import Store
 
     store = Store(tmp_path / "h.db")
-    frame = plane_frame(0)
+    frame = wall_frame(0)
     store._save_frame = lambda uid, f: 1000  # the frames are on disk already: only the rows commit
     commits: list[int] = []
     plain = store._commit
@@ -190,7 +190,7 @@ def test_checkpoints_run_beside_the_commits(tmp_path, monkeypatch):
     store = Store(tmp_path / "h.db")
     store._save_frame = lambda uid, f: 1000
     size0 = (tmp_path / "h.db").stat().st_size
-    ids = [store.add(frame_id=k, frame_uid=f"u{k}", frame=plane_frame(0), source="s", p1=(k, 0), p2=(k, 1), options={},
+    ids = [store.add(frame_id=k, frame_uid=f"u{k}", frame=wall_frame(0), source="s", p1=(k, 0), p2=(k, 1), options={},
                      result=_result(1280))["id"] for k in range(200)]  # fmt: skip
     assert (tmp_path / "h.db").stat().st_size == size0  # every page is still in the WAL
     assert store.get(ids[-1])["n_samples"] == 1280
@@ -203,7 +203,7 @@ def test_checkpoints_run_beside_the_commits(tmp_path, monkeypatch):
     store = Store(tmp_path / "h2.db")
     store._save_frame = lambda uid, f: 1000
     for k in range(60):
-        store.add(frame_id=k, frame_uid=f"u{k}", frame=plane_frame(0), source="s", p1=(k, 0), p2=(k, 1), options={}, result=_result(1280))
+        store.add(frame_id=k, frame_uid=f"u{k}", frame=wall_frame(0), source="s", p1=(k, 0), p2=(k, 1), options={}, result=_result(1280))
     deadline = time.monotonic() + 10
     while (tmp_path / "h2.db").stat().st_size < 512 * 1024 and time.monotonic() < deadline:
         time.sleep(0.02)
