@@ -130,7 +130,6 @@ def _measure_still(frames, job: FramesJob) -> list[dict[str, Any]]:
     from measure import MeasureError, MeasureOptions
     from measure.distance import robust_with_terms
     from measure.sequence import measure_sequence
-    from measure.uncertainty import CLICK_PX
     from sim.scenes import get_view
     from sim.truth import ClickModel
 
@@ -142,7 +141,7 @@ def _measure_still(frames, job: FramesJob) -> list[dict[str, Any]]:
             click_px = click_rms_px(ClickModel()) if kind == "human" else 0.0
             rec0 = {**_job(job), "target": target, "clicks": kind, "click_px": click_px, "truth_m": truth.length_m}
             try:
-                click_term = robust_with_terms(frames[-1], p1, p2, MeasureOptions())[1].get("click", 0.0) * click_px / CLICK_PX
+                click_term = robust_with_terms(frames[-1], p1, p2, MeasureOptions(click_px=click_px))[1].get("click", 0.0)
                 board = board_distance(frames[-1], truth, p1, p2)
             except MeasureError as exc:
                 out.append({**rec0, "n": 1, "error": str(exc)})

@@ -169,6 +169,7 @@ __all__ = ["backproject", "measure_distance", "window_median_disparity"]
 
 BASIC_CLICK_SHARE = 1.5  # px: the basic answer's click error, as a share of the segment's pixel length
 IMPRECISE = 0.08  # relative one-sigma above which the robust line yields to clean click windows
+DECISION_CLICK_PX = 1.5  # px: the click error at which IMPRECISE is judged (a mouse's; calibrated with it)
 MIN_FIT_SAMPLES = 5  # fewer valid samples than this cannot support a robust 3-D fit
 NO_DEPTH = "endpoint has no depth within window"
 BEYOND_RANGE = (
@@ -266,8 +267,8 @@ def _fb(frame: Frame) -> float:
     return frame.camera.fx * frame.baseline_m
 
 
-def _click_term(frame: Frame, xy1, xy2, d_end: np.ndarray, slope: np.ndarray, dist: float) -> float:
-    return click_sigma(lambda x, y: ray(frame, x, y), xy1, xy2, d_end, slope, _fb(frame), frame.doffs, dist)
+def _click_term(frame: Frame, xy1, xy2, d_end: np.ndarray, slope: np.ndarray, dist: float, click_px: float) -> float:
+    return click_sigma(lambda x, y: ray(frame, x, y), xy1, xy2, d_end, slope, _fb(frame), frame.doffs, dist, click_px)
 
 
 def _on_edge(frame: Frame, start, other, d_end: float) -> bool:
@@ -378,7 +379,8 @@ def _robust(frame, xy1, xy2, options, basic: BasicEnds, samples: SegmentSamples,
     fit_sigma = inflate * math.sqrt(max(0.0, float(grad @ ends.cov @ grad)))
     levels = int(np.unique(samples.disparity[line.support]).size)
     quant = quantization_sigma(dist, float(z.mean()), fb, quantum, levels, line.sigma_d)
-    click = _click_term(frame, xy1, xy2, d_end, ends.slope, dist)
+    click_1px = _click_term(frame, xy1, xy2, d_end, ends.slope, dist, 1.0)
+    click = options.click_px * click_1px if options.click_px > 0 else 0.0
     model = 0.0
     if ends.several:
         reasons.append("segment crosses several surfaces")
@@ -387,7 +389,11 @@ def _robust(frame, xy1, xy2, options, basic: BasicEnds, samples: SegmentSamples,
         if (z1 > 0).all():
             model = MODEL_SHARE * abs(float(np.linalg.norm(r2 * z1[1] - r1 * z1[0])) - dist)
     structure = math.hypot(grad[0] * ends.offsets[0], grad[1] * ends.offsets[1])
-    sigma = calibrated_sigma(math.sqrt(fit_sigma**2 + quant**2 + click**2 + model**2 + structure**2), dist)
+    sensor2 = fit_sigma**2 + quant**2 + model**2 + structure**2
+    sigma = calibrated_sigma(math.sqrt(sensor2 + click**2), dist)
+    # Whether the line says little (IMPRECISE, below) is judged at a mouse's click whatever the stated
+    # click error: the same clicks answer the same, only the uncertainty follows options.click_px.
+    sigma_line = calibrated_sigma(math.sqrt(sensor2 + (DECISION_CLICK_PX * click_1px) ** 2), dist)
     parts = {"fit": fit_sigma, "click": click, "quant": quant, "model": model, "structure": structure}
     q1f, q2f, gap = q1, q2, False
     if options.gap_detection:
@@ -411,7 +417,7 @@ def _robust(frame, xy1, xy2, options, basic: BasicEnds, samples: SegmentSamples,
             # stays on its end's surface.
             zl = fb / (np.array([line.at(0.0), line.at(length)]) + frame.doffs)
             alt = float(np.linalg.norm(r2 * zl[1] - r1 * zl[0])) if (zl > 0).all() else dist
-            click_g = _click_term(frame, xy1, xy2, np.array([e.disparity for e in ends_s]), np.zeros(2), gd)
+            click_g = _click_term(frame, xy1, xy2, np.array([e.disparity for e in ends_s]), np.zeros(2), gd, options.click_px)
             sigma = calibrated_sigma(math.sqrt(ext_sigma**2 + quant**2 + click_g**2 + (MODEL_SHARE * abs(gd - alt)) ** 2), gd)
             parts = {"fit": ext_sigma, "click": click_g, "quant": quant, "model": MODEL_SHARE * abs(gd - alt), "structure": 0.0}
             warnings.append("gap detected: both ends' surfaces are in front of the segment's; measured at their depths")
@@ -428,12 +434,12 @@ def _robust(frame, xy1, xy2, options, basic: BasicEnds, samples: SegmentSamples,
     if other:
         reasons.append(other)
     fit = "constant-depth" if line.beta == 0.0 and not ends.several else ("surfaces" if ends.several else "line")
-    if not gap and not ends.several and basic.ok and sigma > IMPRECISE * out:
+    if not gap and not ends.several and basic.ok and sigma_line > IMPRECISE * out:
         # The line says little here (short, sparse or full of wrong matches); click windows off any
         # depth edge, with the standard error of one matching window, measure the same two points.
         edge = _on_surface_edge(frame, xy1, xy2, fb / basic.p1_m[2] - frame.doffs) or _on_surface_edge(frame, xy2, xy1, fb / basic.p2_m[2] - frame.doffs)
         bs = basic.uncertainty_m * options.window
-        if not edge and math.isfinite(bs) and bs < sigma:
+        if not edge and math.isfinite(bs) and bs < sigma_line:
             return _basic_measurement(basic, "robust", t0, samples, tuple(warnings) + ("imprecise line; basic answer",), support=line.support,
                                       reasons=[r for r in reasons if not r.startswith("methods disagree")], window_sigma=bs)
     if terms is not None:

@@ -27,9 +27,9 @@ from one camera (same size, intrinsics in px, baseline in m); clicked pixels (x,
    the newest frame and of the fit on the pooled samples, each pooled as what it is:
 
    - click: the same clicks in every frame, never averaged: the newest frame's term, whole.
-     ``click_px`` states the clicks' one-sigma error along the segment (None: the model's
-     ``CLICK_PX``, calibrated together with the rest, as one frame does; 0: clicks known exact). A
-     stated click part is the caller's knowledge: it skips the sensor calibration (``SIGMA_SCALE``,
+     ``click_px`` states the clicks' one-sigma error along the segment (None: ``options.click_px``,
+     calibrated together with the rest, as one frame does; a number replaces ``options.click_px``; 0:
+     clicks known exact). A stated click part is the caller's knowledge: it skips the sensor calibration (``SIGMA_SCALE``,
      ``INTERVAL_SCALE``, set on real stereo's heavy tail) and enters the 95 % interval as a normal
      error, ``Z95`` sigmas;
    - quantization and model choice: shared rounding levels and the same choice, never averaged;
@@ -85,7 +85,7 @@ from .distance import robust_with_terms
 from .robust_range import median, tukey_location
 from .sampling import SegmentSamples, ray, sample_segment, segment_pixels
 from .types import Frame, MeasureError, MeasureOptions, Measurement
-from .uncertainty import CLICK_PX, INTERVAL_SCALE, SIGMA_SCALE, calibrated_sigma, disparity_quantum, interval
+from .uncertainty import INTERVAL_SCALE, SIGMA_SCALE, calibrated_sigma, disparity_quantum, interval
 from .verdict import judge
 
 __all__ = ["MAX_FRAMES", "POOLS", "measure_sequence", "still_frames"]
@@ -101,7 +101,6 @@ STEP_SHARE = 0.75  # share of a move that one frame step must hold to count as a
 QUIET_SHARE = 1 / 3  # ... while the frames after it stay below this share of it
 MOTION_DEPTH_REL = 0.01  # relative change of the segment's disparity level beyond which it moved
 MOTION_SIGMAS = 4.0
-MAX_CLICK_PX = 50.0  # a click's one-sigma error beyond this is no click on the object at all
 MIN_SHARE_PX = 10  # pixels valid in every frame needed to tell static from fresh scatter
 Z95 = 1.96  # a normal error's 95 % half-width in sigmas (the clicks' part of the interval)
 OUTLIER_SIGMAS = 4.0  # robust sigmas beyond which a pixel's residual is a wrong match, not scatter
@@ -267,9 +266,11 @@ def measure_sequence(
         options: measurement options; ``options.method`` must be ``"robust"``.
         pool: ``"samples"`` (one robust fit on the pooled samples) or ``"fits"`` (Tukey location of the
             per-frame end depths) (str).
-        click_px: one-sigma error of the clicks along the segment (px); None: the single-frame model's
-            ``measure.uncertainty.CLICK_PX`` (a finger's tap). 0 for clicks known to be exact (detected
-            corners, a replayed annotation): the click term then drops out of the uncertainty.
+        click_px: one-sigma error of the clicks along the segment (px); None: ``options.click_px``, with
+            the single-frame model's calibration. A number replaces ``options.click_px`` (same bounds) and
+            is taken as the caller's knowledge (the click part outside the calibration, see the module
+            docstring); 0 for clicks known to be exact (detected corners, a replayed annotation): the
+            click term then drops out of the uncertainty.
 
     Returns:
         A :class:`measure.Measurement` of the newest frame with ``frames_used`` and
@@ -295,12 +296,13 @@ def measure_sequence(
         raise MeasureError(f"pool={pool!r} is unknown; use one of {', '.join(POOLS)}")
     if options.method != "robust":
         raise MeasureError(f"only the robust method pools several frames, not method={options.method!r}; use method='robust' or one frame")
-    if click_px is not None and not (isinstance(click_px, (int, float)) and not isinstance(click_px, bool) and math.isfinite(click_px) and 0 <= click_px <= MAX_CLICK_PX):
-        raise MeasureError(f"click_px={click_px!r} must be a number of pixels from 0 to {MAX_CLICK_PX}")
+    stated = click_px is not None
+    if stated:
+        options = replace(options, click_px=click_px)  # validated there: a MeasureError names the value
     ref = frames[-1]
     single, terms = robust_with_terms(ref, p1, p2, options)
-    if click_px is not None and terms:
-        single = _with_sigma(single, _reported(_sensor2(terms), terms.get("click", 0.0), click_px, single.distance_m))
+    if stated and terms:
+        single = _with_sigma(single, _reported(_sensor2(terms), terms.get("click", 0.0), stated, single.distance_m))
     if len(frames) == 1:
         return _with_frames(single, single, 1, [])
     run, why = still_frames(frames, _xy(p1), _xy(p2))
@@ -348,7 +350,7 @@ def measure_sequence(
     rho = static_share(still, _xy(p1), _xy(p2))
     single_half = single.interval_m[1] - single.distance_m
     if terms and pooled_terms and all(per_terms):
-        sigma, half = pooled_sigma(terms, pooled_terms, rho, [t.get("structure", 0.0) for t in per_terms], dist, click_px)
+        sigma, half = pooled_sigma(terms, pooled_terms, rho, [t.get("structure", 0.0) for t in per_terms], dist, stated)
         if pool == "fits":  # a mean of per-frame answers is no better than their spread says
             floor = float(np.std(dists, ddof=1)) / math.sqrt(n)
             half, sigma = half * max(1.0, floor / sigma) if sigma > 0 else half, max(sigma, floor)
@@ -400,19 +402,18 @@ def static_share(frames: Sequence[Frame], p1: tuple[float, float], p2: tuple[flo
     return float(min(1.0, max(0.0, 1.0 - fresh / total))) if total > 0 else 1.0
 
 
-def _reported(sensor2: float, click: float, click_px: float | None, dist: float) -> tuple[float, float]:
+def _reported(sensor2: float, click: float, stated: bool, dist: float) -> tuple[float, float]:
     """Reported one-sigma and 95 % half-width (m) from the model's sensor variance ``sensor2`` (m²) and
-    click term ``click`` (m, at ``CLICK_PX``). Without a stated ``click_px``: the single-frame model as
-    it stands, both calibrated together (``calibrated_sigma``, ``interval``). With one, the click term
-    is the caller's knowledge, ``click_px / CLICK_PX`` of the term, not a model output: only the sensor
+    click term ``click`` (m, at ``options.click_px``). Not ``stated``: the single-frame model as it
+    stands, both calibrated together (``calibrated_sigma``, ``interval``). Stated (measure_sequence's
+    ``click_px``), the click term is the caller's knowledge, not a model output: only the sensor
     part carries the calibration (one sigma ``SIGMA_SCALE``, the interval ``INTERVAL_SCALE`` model
     sigmas: real stereo's heavy tail), the click part one sigma and ``Z95`` sigmas."""
-    if click_px is None:
+    if not stated:
         sigma = calibrated_sigma(math.sqrt(sensor2 + click * click), dist)
         return sigma, interval(dist, sigma)[1] - dist
     sensor = calibrated_sigma(math.sqrt(sensor2), dist)
-    c = click * click_px / CLICK_PX
-    return math.hypot(sensor, c), math.hypot(INTERVAL_SCALE / SIGMA_SCALE * sensor, Z95 * c)
+    return math.hypot(sensor, click), math.hypot(INTERVAL_SCALE / SIGMA_SCALE * sensor, Z95 * click)
 
 
 def _sensor2(terms: dict[str, float]) -> float:
@@ -425,11 +426,11 @@ def _with_sigma(m: Measurement, sigma_half: tuple[float, float]) -> Measurement:
 
 
 def pooled_sigma(terms: dict[str, float], pooled_terms: dict[str, float], rho: float, structure: Sequence[float],
-                 dist: float, click_px: float | None = None) -> tuple[float, float]:
+                 dist: float, stated: bool = False) -> tuple[float, float]:
     """Reported one-sigma (m) of the pooled answer (module docstring, step 4) from the newest frame's
     model ``terms``, the model ``pooled_terms`` of the fit on the pooled samples, the static share
     ``rho`` (:func:`static_share`), every pooled frame's structure term ``structure`` (m, one per
-    frame), the pooled distance ``dist`` (m) and the clicks' stated error ``click_px``; and the 95 %
+    frame), the pooled distance ``dist`` (m) and whether the click term was ``stated`` by the caller; and the 95 %
     half-width (m)."""
     n = len(structure)
     # The pooled fit counts every frame's samples as independent; the static share repeats in every
@@ -450,7 +451,7 @@ def pooled_sigma(terms: dict[str, float], pooled_terms: dict[str, float], rho: f
     else:
         bias2 = s_n2
     # The clicks: the same error in every frame, the newest frame's term.
-    return _reported(fit2 + shared2 + bias2, terms.get("click", 0.0), click_px, dist)
+    return _reported(fit2 + shared2 + bias2, terms.get("click", 0.0), stated, dist)
 
 
 def _with_frames(out: Measurement, single: Measurement, n: int, reasons: list[str], q1=None, q2=None,

@@ -277,6 +277,9 @@ def validate_frame(frame: Frame) -> None:
         )
 
 
+MAX_CLICK_PX = 50.0  # a click's one-sigma error beyond this is no click on the object at all
+
+
 @dataclass(frozen=True)
 class MeasureOptions:
     """How to measure. See docs/method.md for the meaning of each parameter.
@@ -290,6 +293,11 @@ class MeasureOptions:
         extension_px: length of the extensions beyond the clicks that gap detection reads (int >= 3, px).
         gap_detection: whether to look for an end clicked on a depth gap (bool).
         seed: seed of FAST-MCD's random starts (int >= 0); the same seed gives the same answer.
+        click_px: one-sigma error of each click along the segment (float, px of the frame's image, from 0
+            to ``MAX_CLICK_PX``): the uncertainty's click term (``measure.uncertainty.click_sigma``). The
+            caller knows it: 0 for exact pixel coordinates (a program, detected corners, a replayed
+            annotation), about 1.5 for a mouse (the default), more for a finger on a touch screen (its
+            tap's error at the displayed scale, converted to image pixels).
 
     Returns:
         Frozen, validated options; raises :class:`MeasureError` naming a value out of range.
@@ -307,6 +315,7 @@ class MeasureOptions:
     extension_px: int = 25
     gap_detection: bool = True
     seed: int = 0
+    click_px: float = 1.5
 
     def __post_init__(self) -> None:
         if not isinstance(self.method, str) or self.method not in METHODS:
@@ -321,6 +330,8 @@ class MeasureOptions:
             raise MeasureError(f"gap_detection={self.gap_detection!r} must be True or False")
         if not _is_whole(self.seed) or self.seed < 0:
             raise MeasureError(f"seed={self.seed!r} must be a non-negative whole number")
+        if not _is_number(self.click_px) or not (math.isfinite(self.click_px) and 0 <= self.click_px <= MAX_CLICK_PX):
+            raise MeasureError(f"click_px={self.click_px!r} must be a number of pixels from 0 (exact clicks) to {MAX_CLICK_PX:g}")
 
 
 @dataclass(frozen=True)

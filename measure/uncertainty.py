@@ -31,7 +31,8 @@ r_i . (P_i - P_j) / D.
 Beyond the fit (robust method): the fit term is inflated for residuals correlated along the
 segment (``correlation_inflation``: stereo matching windows share errors between neighbours), and
 four terms are added in quadrature: the click position (``click_sigma``: each end moved
-``CLICK_PX`` = 1.5 px along the segment on its own model), the model choice (``MODEL_SHARE`` of the
+the caller's ``MeasureOptions.click_px`` along the segment on its own model: 0 for exact pixel
+coordinates, 1.5 px for a mouse), the model choice (``MODEL_SHARE`` of the
 distance to the other model's answer when an end has a surface of its own or a gap is measured),
 the residual structure next to each end (the median residual of the supported samples nearest to
 it, ``measure.surfaces``: a shoe in front of a leg, edge fattening; counted as a possible bias) and
@@ -138,7 +139,6 @@ def endpoint_depth_sigma(p1: np.ndarray, p2: np.ndarray, sigma_z1: float, sigma_
     return math.sqrt((g1 * sigma_z1) ** 2 + (g2 * sigma_z2) ** 2)
 
 
-CLICK_PX = 1.5  # one-sigma error of a click along the segment (px): a tap is good to about this
 # Empirical calibration (module docstring "Calibration"): the model's sigma times SIGMA_SCALE is the
 # reported one-sigma; the 95 % interval is INTERVAL_SCALE model sigmas either side.
 SIGMA_SCALE = 1.25
@@ -161,9 +161,13 @@ def correlation_inflation(residuals: np.ndarray) -> float:
     return math.sqrt((1.0 + rho) / (1.0 - rho))
 
 
-def click_sigma(ray_at: Callable[[float, float], np.ndarray], xy1, xy2, d_end: np.ndarray, slope: np.ndarray, fb: float, doffs: float, distance: float) -> float:
-    """Distance error (m) from clicks off by CLICK_PX along the segment: each end moved one pixel
-    outwards on its own model (disparity d_end + slope per px), the change in distance propagated."""
+def click_sigma(ray_at: Callable[[float, float], np.ndarray], xy1, xy2, d_end: np.ndarray, slope: np.ndarray, fb: float, doffs: float, distance: float,
+                click_px: float) -> float:
+    """Distance error (m) from clicks off by ``click_px`` (px, one sigma, the caller's
+    ``MeasureOptions.click_px``) along the segment: each end moved one pixel outwards on its own model
+    (disparity d_end + slope per px), the change in distance propagated and scaled by ``click_px``."""
+    if click_px == 0:
+        return 0.0
     x1, y1 = xy1
     x2, y2 = xy2
     n = math.hypot(x2 - x1, y2 - y1)
@@ -177,7 +181,7 @@ def click_sigma(ray_at: Callable[[float, float], np.ndarray], xy1, xy2, d_end: n
     b = ray_at(x2 + ux, y2 + uy) * fb / db
     g1 = float(np.linalg.norm(p2 - a)) - distance
     g2 = float(np.linalg.norm(b - p1)) - distance
-    return CLICK_PX * math.hypot(g1, g2)
+    return click_px * math.hypot(g1, g2)
 
 
 def calibrated_sigma(model_sigma: float, distance: float) -> float:

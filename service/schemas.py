@@ -8,6 +8,8 @@ import re
 
 from pydantic import BaseModel, ConfigDict, Field, Strict, field_validator
 
+from measure.types import MAX_CLICK_PX
+
 FiniteNumber = Annotated[float, Strict(), Field(allow_inf_nan=False)]
 MAX_ID = 2**53 - 1  # the largest integer a JavaScript number holds exactly; far below SQLite's 2^63
 Id = Annotated[int, Strict(), Field(ge=0, le=MAX_ID)]
@@ -24,6 +26,8 @@ class OptionsIn(BaseModel):
     extension_px: Annotated[int, Strict(), Field(ge=3, le=500)] = 25
     gap_detection: Annotated[bool, Strict()] = True
     seed: Annotated[int, Strict(), Field(ge=0, le=2**32 - 1)] = 0
+    # One-sigma click error along the segment (px of the frame's image): 0 exact, a mouse 1.5, a finger more.
+    click_px: Annotated[float, Field(ge=0.0, le=MAX_CLICK_PX, allow_inf_nan=False)] = 1.5
 
 
 class MeasureIn(BaseModel):

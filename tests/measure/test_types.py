@@ -55,6 +55,25 @@ def test_options_validate():
         MeasureOptions(method="magic")
     with pytest.raises(MeasureError, match="odd"):
         MeasureOptions(window=4)
+    for bad in (-0.1, math.nan, math.inf, 50.5, True, "1.5", None):
+        with pytest.raises(MeasureError, match=r"click_px=.*0 \(exact clicks\) to 50"):
+            MeasureOptions(click_px=bad)
+    assert MeasureOptions(click_px=0).click_px == 0 and MeasureOptions(click_px=np.float32(50.0)).click_px == 50.0
+
+
+def test_click_px_scales_only_the_uncertainty():
+    # A tilted plane, clean: the click term is most of the sigma. The stated click error changes the
+    # uncertainty (0: only the sensor's part), never the answer.
+    from factories import plane_frame
+
+    f = plane_frame(np.array([0.3, -0.1, 1.0]), 3.0)
+    m = {c: measure_distance(f, (30.0, 60.0), (290.0, 170.0), MeasureOptions(click_px=c)) for c in (0.0, 1.5, 3.0, 6.0)}
+    assert len({x.distance_m for x in m.values()}) == 1
+    sig = [m[c].uncertainty_m for c in (0.0, 1.5, 3.0, 6.0)]
+    assert sig[0] < sig[1] < sig[2] < sig[3], sig
+    # Beyond the sensor's part the click term is linear in click_px: 6 px four times 1.5 px (1e-3: the
+    # floor MIN_RELATIVE_SIGMA holds the exact clicks' sigma).
+    assert (sig[3] ** 2 - sig[0] ** 2) == pytest.approx(16 * (sig[1] ** 2 - sig[0] ** 2), rel=1e-3)
 
 
 def test_basic_on_fronto_parallel_plane():

@@ -113,6 +113,18 @@ def test_request_options_are_the_measuring_options():
     assert MeasureOptions(**OptionsIn().model_dump()) == MeasureOptions()
 
 
+def test_click_px_is_bounded_like_the_measuring_options():
+    from pydantic import ValidationError
+
+    from measure.types import MAX_CLICK_PX
+
+    assert MeasureOptions(**OptionsIn(click_px=0).model_dump()).click_px == 0.0
+    assert OptionsIn(click_px=MAX_CLICK_PX).click_px == MAX_CLICK_PX
+    for bad in (-1.0, MAX_CLICK_PX + 0.5, float("nan"), float("inf")):
+        with pytest.raises(ValidationError, match="click_px"):
+            OptionsIn(click_px=bad)
+
+
 def test_serve_help_states_the_settings_defaults():
     """``depthruler serve --help`` says the defaults ServerConfig (the one settings object) has."""
     import inspect
