@@ -10,6 +10,10 @@
 const UNITS = { m: [1, 3], cm: [100, 1], mm: [1000, 0], in: [1 / 0.0254, 2] }; // factor, decimals
 const METHODS = ["robust", "paper", "basic"];
 const GRAB_PX = { mouse: 16, pen: 20, touch: 30 }; // screen pixels within which a press grabs an end point
+// One-sigma error (screen pixels) of a point placed with each pointer, sent as MeasureOptions.click_px in
+// image pixels: the uncertainty's click term follows the hand, not one fixed guess.
+const CLICK_SIGMA_PX = { mouse: 1.5, pen: 1.5, touch: 3 };
+const MAX_CLICK_PX = 50; // the API's bound (measure.types.MAX_CLICK_PX)
 const LONG_POLL_S = 5;
 const LOUPE_ZOOM = 4; // loupe pixels per screen pixel of the view
 const UNDO_MS = 6000;
@@ -33,6 +37,7 @@ const state = {
   result: null,       // the measurement on screen
   seq: 0,             // measurement requests issued; only the newest one's answer is shown
   press: null,        // {pointerId, index, offset, type, moved} while a point is placed or dragged
+  pointerTypes: [],   // the pointer type that last placed or moved each end point
   units: localStorage.getItem("depthruler-units") || "m",
   method: localStorage.getItem("depthruler-method") || "robust",
   recording: false,
@@ -357,6 +362,12 @@ function fitCanvas() {
   canvas.style.height = `${Math.floor(canvas.height * k)}px`;
 }
 
+function clickPx() {
+  // the less precise of the two ends' pointers, in image pixels at the displayed scale
+  const sigma = Math.max(...[0, 1].map((i) => CLICK_SIGMA_PX[state.pointerTypes[i]] || CLICK_SIGMA_PX.mouse));
+  return Math.min(MAX_CLICK_PX, Math.round(sigma * screenScale() * 100) / 100);
+}
+
 function screenScale() {
   const r = canvas.getBoundingClientRect();
   return r.width > 0 ? canvas.width / r.width : 1;
@@ -527,6 +538,7 @@ canvas.addEventListener("pointerdown", (ev) => {
     state.points.push(clampToImage(p));
     state.press = { pointerId: ev.pointerId, index: state.points.length - 1, offset: [0, 0], type: ev.pointerType, moved: false, isNew: true };
   }
+  state.pointerTypes[state.press.index] = ev.pointerType;
   queryDepth(state.points[state.press.index]);
   draw();
 });
@@ -580,7 +592,7 @@ async function measure(adjusting) {
   const gen = state.gen;
   const seq = ++state.seq;
   const previous = adjusting && state.result ? state.result.id : null;
-  const body = { frame_id: state.frame.id, p1: state.points[0], p2: state.points[1], options: { method: state.method } };
+  const body = { frame_id: state.frame.id, p1: state.points[0], p2: state.points[1], options: { method: state.method, click_px: clickPx() } };
   if (state.frames > 1 && state.method === "robust") body.frames = state.frames; // pooling is the robust method's
   $("hint").textContent = "Measuring…";
   let res;

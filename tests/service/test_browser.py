@@ -92,6 +92,9 @@ def test_click_poster_ends_reads_true_length(server, page, tmp_path):
     stored = httpx.get(f"{server}/api/measurements").json()[0]
     assert stored["frame_id"] == fid and stored["distance_m"] == pytest.approx(shown)
     assert stored["p1"] == pytest.approx(truth["p1_px"], abs=1.0) and stored["p2"] == pytest.approx(truth["p2_px"], abs=1.0)
+    # a mouse's click error, 1.5 screen px, reaches the uncertainty in image pixels (MeasureOptions.click_px)
+    scale = frame["width"] / page.locator("#canvas").bounding_box()["width"]
+    assert stored["options"]["click_px"] == pytest.approx(1.5 * scale, abs=0.011)
     page.wait_for_function("document.querySelectorAll('#history li').length === 1")
 
     # the interval reads as "0.835 m ± 2 mm" and spans the 95 % interval the page was given
@@ -289,6 +292,8 @@ def test_phone_layout_and_touch_measurement_with_loupe(server, browser, tmp_path
     mid = page.get_attribute("#distance", "data-id")
     before = httpx.get(f"{server}/api/measurements/{mid}").json()["p2"]
     s = page.locator("#canvas").bounding_box()["width"] / truth["width"]
+    # a finger's tap, 3 screen px one sigma, is stated as the clicks' error in image pixels
+    assert httpx.get(f"{server}/api/measurements/{mid}").json()["options"]["click_px"] == pytest.approx(min(50.0, 3.0 / s), abs=0.011)
     x, y = image_point(page, truth, before)
     touch_place(page, cdp, (x, y + 12), (x - 20, y + 12))
     wait_result(page, mid)
