@@ -66,7 +66,6 @@ import dataclasses
 import math
 import re
 import struct
-import time
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -78,7 +77,8 @@ from measure import Frame, MeasureError, PinholeCamera
 
 from .base import SourceBase, SourceInfo, SourceSpec
 from .depth_folder import DEFAULT_BASELINE_M, depth_to_disparity
-from .errors import RecordingError, SourceError, SourceNotFound, SourceTimeout
+from .errors import RecordingError, SourceError, SourceNotFound
+from .pacing import Pacer
 from .recording import EndOfRecording
 
 BAG_SUFFIXES = (".bag", ".mcap", ".db3")
@@ -874,8 +874,7 @@ class BagSource(SourceBase):
         self.info = SourceInfo(kind="bag", name=self.path.name)
         self.bag: BagReader | None = None
         self._pos = 0
-        self._cycle_start: float | None = None
-        self._offsets = np.zeros(0)
+        self._pacer = Pacer()
 
     def open(self) -> None:
         bag = BagReader(self.path, self.options)
@@ -890,9 +889,10 @@ class BagSource(SourceBase):
             bag.close()
             raise SourceError(f"start={self.options.start} is past the end: {self.path} has {len(c)} frames")
         t = c.color_ns[c.pairs[0]]
-        self._offsets = (t - t[0]) / 1e9
-        fps = (len(t) - 1) / self._offsets[-1] if len(t) > 1 and self._offsets[-1] > 0 else 0.0
-        self.bag, self._pos, self._cycle_start = bag, self.options.start, None
+        offsets = (t - t[0]) / 1e9
+        self._pacer = Pacer(offsets, self.options.speed)
+        fps = (len(t) - 1) / offsets[-1] if len(t) > 1 and offsets[-1] > 0 else 0.0
+        self.bag, self._pos = bag, self.options.start
         self.info = SourceInfo(
             kind="bag",
             name=self.path.name,
@@ -916,7 +916,8 @@ class BagSource(SourceBase):
         """Make frame ``i`` the next one ``read`` returns."""
         if not 0 <= i < len(self):
             raise IndexError(f"frame {i} is out of range: {self.path} has {len(self)} frames")
-        self._pos, self._cycle_start = i, None
+        self._pos = i
+        self._pacer.restart()
 
     def read(self, timeout_s: float = 1.0) -> Frame:
         if self.bag is None or not self.is_open:
@@ -925,18 +926,11 @@ class BagSource(SourceBase):
         if self._pos >= n:
             if not self.options.loop:
                 raise EndOfRecording(f"the bag {self.path} reached its end after {n} frames; use bag:PATH?loop=1 to repeat it")
-            self._pos, self._cycle_start = 0, None
+            self._pos = 0
+            self._pacer.restart()
         i = self._pos
         if self.options.realtime:
-            now = time.monotonic()
-            if self._cycle_start is None:
-                self._cycle_start = now - self._offsets[i] / self.options.speed
-            wait = self._cycle_start + self._offsets[i] / self.options.speed - now
-            if wait > timeout_s:
-                time.sleep(max(timeout_s, 0.0))
-                raise SourceTimeout(f"the next frame of the bag is due in {wait:.2f} s, after the {timeout_s} s timeout")
-            if wait > 0:
-                time.sleep(wait)
+            self._pacer.wait_for(i, timeout_s, "the bag")
         self._pos += 1
         return self.bag.frame(i)
 

@@ -4,7 +4,6 @@ from __future__ import annotations
 
 import dataclasses
 import math
-import time
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -13,7 +12,8 @@ import numpy as np
 from measure import Frame
 
 from ..base import SourceBase, SourceInfo, SourceSpec
-from ..errors import RecordingError, SourceError, SourceTimeout
+from ..errors import RecordingError, SourceError
+from ..pacing import Pacer
 from .format import FRAMES, EndOfRecording, RecordingNotFound
 from .reader import Recording, open_recording
 
@@ -47,8 +47,7 @@ class ReplaySource(SourceBase):
         self.info = SourceInfo(kind="replay", name=Path(self.config.path).name)
         self.recording: Recording | None = None
         self._pos = 0
-        self._offsets = np.zeros(0)
-        self._cycle_start: float | None = None
+        self._pacer = Pacer()
         self.warnings: list[str] = []  # frames skipped because they could not be read
 
     def open(self) -> None:
@@ -59,14 +58,14 @@ class ReplaySource(SourceBase):
             raise SourceError(f"start={self.config.start} is past the end: {rec.path} has {len(rec)} frames")
         ts = rec.timestamps
         if len(ts) > 1 and np.all(np.diff(ts) >= 0) and ts[-1] > ts[0]:
-            self._offsets = ts - ts[0]
+            offsets = ts - ts[0]
         elif rec.source.fps > 0:
-            self._offsets = np.arange(len(rec)) / rec.source.fps
+            offsets = np.arange(len(rec)) / rec.source.fps
         else:
-            self._offsets = np.zeros(len(rec))  # no timing recorded: realtime has nothing to follow
+            offsets = np.zeros(len(rec))  # no timing recorded: realtime has nothing to follow
+        self._pacer = Pacer(offsets, self.config.speed)
         self.recording = rec
         self._pos = self.config.start
-        self._cycle_start = None
         cam = rec.camera
         self.info = SourceInfo(
             kind="replay",
@@ -87,18 +86,10 @@ class ReplaySource(SourceBase):
             if not self.config.loop:
                 raise EndOfRecording(f"the replay of {rec.path} reached its end after {len(rec)} frames; use replay:DIR?loop=1 to repeat it")
             self._pos = 0
-            self._cycle_start = None
+            self._pacer.restart()
         i = self._pos
         if self.config.realtime:
-            now = time.monotonic()
-            if self._cycle_start is None:
-                self._cycle_start = now - self._offsets[i] / self.config.speed
-            wait = self._cycle_start + self._offsets[i] / self.config.speed - now
-            if wait > timeout_s:
-                time.sleep(max(timeout_s, 0.0))
-                raise SourceTimeout(f"the next replayed frame is due in {wait:.2f} s, after the {timeout_s} s timeout")
-            if wait > 0:
-                time.sleep(wait)
+            self._pacer.wait_for(i, timeout_s, f"the replay of {rec.path}")
         self._pos += 1
         try:
             return self.frame(i)
