@@ -83,6 +83,7 @@ VALID_OPTIONS = {
     "extension_px": st.one_of(st.sampled_from([3, 25, 500, 10**9]), st.integers(3, 300)),
     "gap_detection": st.booleans(),
     "seed": st.one_of(st.integers(0, 10), st.integers(0, 2**64)),
+    "click_px": st.one_of(st.sampled_from([0, 0.0, 1.5, 3, 50.0]), in_range(0.0, 50.0, 1.5)),
 }
 BAD_OPTIONS = {
     "method": st.sampled_from(["", "ROBUST", "magic", 3, None]),
@@ -91,6 +92,7 @@ BAD_OPTIONS = {
     "extension_px": st.one_of(st.integers(-3, 2), st.sampled_from([25.0, "25", None])),
     "gap_detection": st.sampled_from([0, 1, "yes", None]),
     "seed": st.one_of(st.integers(-5, -1), st.sampled_from([1.5, "0", None])),
+    "click_px": st.one_of(EDGE_FLOATS.filter(lambda v: not 0.0 <= v <= 50.0), st.sampled_from([-1e-9, 50.5, True, "1.5", None])),
 }
 CORRUPTIBLE = ("fx", "fy", "cx", "cy", "baseline_m", "doffs", *VALID_OPTIONS)
 
