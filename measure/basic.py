@@ -10,7 +10,7 @@ import numpy as np
 from .robust_range import median
 from .sampling import backproject, window_disparities
 from .types import Frame
-from .uncertainty import disparity_quantum, endpoint_depth_sigma, window_depth_sigma
+from .uncertainty import disparity_quantum, endpoint_depth_sigma, window_disparity_se, window_depth_sigma
 
 
 @dataclass(frozen=True)
@@ -24,6 +24,8 @@ class BasicEnds:
     z_sigma: tuple[float, float]  # standard error (m) of each end point's depth
     click1: tuple[float, float]
     click2: tuple[float, float]
+    disparity: tuple[float, float]  # each window's median disparity (px, without doffs; NaN: no valid pixel)
+    disparity_se: tuple[float, float]  # its standard error (px)
 
     @property
     def ok(self) -> bool:
@@ -48,4 +50,5 @@ def basic_ends(frame: Frame, xy1: tuple[float, float], xy2: tuple[float, float],
         sigma = float(np.linalg.norm(pts[0] / pts[0][2])) * math.hypot(s1, s2)
     else:
         sigma = math.nan
-    return BasicEnds(pts[0], pts[1], dist, sigma, (s1, s2), xy1, xy2)
+    se = (window_disparity_se(w1, q), window_disparity_se(w2, q))
+    return BasicEnds(pts[0], pts[1], dist, sigma, (s1, s2), xy1, xy2, (float(d[0]), float(d[1])), se)

@@ -131,6 +131,7 @@ from __future__ import annotations
 
 import math
 import time
+from dataclasses import replace
 
 import numpy as np
 
@@ -240,8 +241,7 @@ def measure_distance(
     if options.method == "basic":
         if not basic.ok:
             raise MeasureError(f"{NO_DEPTH}: the basic method needs depth at both clicks; click on a surface with depth or use method='robust'")
-        fb = _fb(frame)
-        edge = any(_on_edge(frame, a, b, fb / p[2] - frame.doffs) for a, b, p in ((xy1, xy2, basic.p1_m), (xy2, xy1, basic.p2_m)))
+        edge = any(_on_edge(frame, a, b, d) for a, b, d in ((xy1, xy2, basic.disparity[0]), (xy2, xy1, basic.disparity[1])))
         return _basic_measurement(basic, "basic", t0, reasons=["end point on a depth edge"] if edge else [])
     samples = sample_segment(frame, xy1, xy2)
     if samples.n_samples < MIN_FIT_SAMPLES:
@@ -348,8 +348,7 @@ def _robust(frame, xy1, xy2, options, basic: BasicEnds, samples: SegmentSamples,
     alt = None
     if basic.ok:
         # The line through the click windows' medians: a second start for the fit (measure.dline).
-        dw = _fb(frame) / np.array([basic.p1_m[2], basic.p2_m[2]]) - frame.doffs
-        alt = (float(dw[0]), float(dw[1] - dw[0]) / length)
+        alt = (basic.disparity[0], (basic.disparity[1] - basic.disparity[0]) / length)
     line = fit_disparity_line(t, samples.disparity, options.support_fraction, options.seed, quantum, alt_start=alt)
     ends = select_end_models(t, samples.disparity, length, line, quantum, options.seed)
     ends = _clean_ends(frame, xy1, xy2, options.window, ends)
@@ -437,7 +436,7 @@ def _robust(frame, xy1, xy2, options, basic: BasicEnds, samples: SegmentSamples,
     if not gap and not ends.several and basic.ok and sigma_line > IMPRECISE * out:
         # The line says little here (short, sparse or full of wrong matches); click windows off any
         # depth edge, with the standard error of one matching window, measure the same two points.
-        edge = _on_surface_edge(frame, xy1, xy2, fb / basic.p1_m[2] - frame.doffs) or _on_surface_edge(frame, xy2, xy1, fb / basic.p2_m[2] - frame.doffs)
+        edge = _on_surface_edge(frame, xy1, xy2, basic.disparity[0]) or _on_surface_edge(frame, xy2, xy1, basic.disparity[1])
         bs = basic.uncertainty_m * options.window
         if not edge and math.isfinite(bs) and bs < sigma_line:
             return _basic_measurement(basic, "robust", t0, samples, tuple(warnings) + ("imprecise line; basic answer",), support=line.support,
@@ -469,13 +468,11 @@ def _neighbourhood_ends(frame: Frame, xy1, xy2, ends: EndModels, quantum: float,
             continue
         d_end[e] = plane.disparity
         slope[e] = plane.slope if e == 0 else -plane.slope
-        cov[e, :] = 0.0
-        cov[:, e] = 0.0
-        cov[e, e] = plane.se**2
+        _independent(cov, e, plane.se**2)
         own[e] = True
     if own == list(ends.own):
         return ends
-    return EndModels(d_end, slope, cov, (own[0], own[1]), ends.offsets)
+    return replace(ends, d_end=d_end, slope=slope, cov=cov, own=(own[0], own[1]))
 
 
 def _observed_ends(frame: Frame, xy1, xy2, basic: BasicEnds, t: np.ndarray, line, length: float, ends: EndModels, window: int) -> EndModels:
@@ -491,22 +488,26 @@ def _observed_ends(frame: Frame, xy1, xy2, basic: BasicEnds, t: np.ndarray, line
     d_end, cov = ends.d_end.copy(), ends.cov.copy()
     limit = max(EXTRAPOLATED_PX, 0.15 * length)
     ts = t[line.support]
-    fb = _fb(frame)
     changed = False
-    for e, (a, b, p, te) in enumerate(((xy1, xy2, basic.p1_m, 0.0), (xy2, xy1, basic.p2_m, length))):
+    for e, (a, b, te) in enumerate(((xy1, xy2, 0.0), (xy2, xy1, length))):
         if ends.own[e] or ts.size == 0 or float(np.abs(ts - te).min()) <= limit:
             continue
-        dw = fb / float(p[2]) - frame.doffs
-        sw = fb / float(p[2]) ** 2 * basic.z_sigma[e] * window
+        dw = basic.disparity[e]
+        sw = basic.disparity_se[e] * window
         # A window scattered over more than IMPRECISE of its disparity says less than the line.
         if not sw <= IMPRECISE * abs(dw) or abs(dw - d_end[e]) > DISAGREE_REL * abs(d_end[e]) or _on_surface_edge(frame, a, b, dw):
             continue
         d_end[e] = dw
-        cov[e, :] = 0.0
-        cov[:, e] = 0.0
-        cov[e, e] = sw**2
+        _independent(cov, e, sw**2)
         changed = True
-    return EndModels(d_end, ends.slope, cov, ends.own, ends.offsets) if changed else ends
+    return replace(ends, d_end=d_end, cov=cov) if changed else ends
+
+
+def _independent(cov: np.ndarray, e: int, variance: float) -> None:
+    """End ``e`` now has a depth of its own: its error, ``variance`` (px²), is independent of the other end's."""
+    cov[e, :] = 0.0
+    cov[:, e] = 0.0
+    cov[e, e] = variance
 
 
 def _clean_ends(frame: Frame, xy1, xy2, window: int, ends: EndModels) -> EndModels:
@@ -520,9 +521,7 @@ def _clean_ends(frame: Frame, xy1, xy2, window: int, ends: EndModels) -> EndMode
         dw = clean_window_disparity(frame.disparity, lambda v: valid_disparity(frame, v), a, b, window)
         if math.isfinite(dw) and abs(dw - d_end[e]) > DISAGREE_REL * abs(d_end[e]):
             d_end[e] = dw
-            cov[e, :] = 0.0
-            cov[:, e] = 0.0
-            cov[e, e] = (CLEAN_SPREAD * abs(dw)) ** 2 / window
+            _independent(cov, e, (CLEAN_SPREAD * abs(dw)) ** 2 / window)
             own[e] = True
     if own == list(ends.own):
         return ends

@@ -118,14 +118,20 @@ def line_fit_sigma(
     return float(math.sqrt(var)) if np.isfinite(var) else math.inf
 
 
-def window_depth_sigma(window_disparities: np.ndarray, depth: float, fb: float, quantum: float) -> float:
-    """Standard error (m) of the depth from a window's median disparity."""
+def window_disparity_se(window_disparities: np.ndarray, quantum: float) -> float:
+    """Standard error (px) of a window's median disparity (NaN for an empty window)."""
     d = np.asarray(window_disparities, dtype=np.float64)
-    if d.size == 0 or not math.isfinite(depth):
+    if d.size == 0:
         return math.nan
     mad = 1.4826 * median(np.abs(d - median(d)))
-    sd = max(1.2533 * mad / math.sqrt(d.size), quantum / math.sqrt(12.0))
-    return depth * depth / fb * sd
+    return max(1.2533 * mad / math.sqrt(d.size), quantum / math.sqrt(12.0))
+
+
+def window_depth_sigma(window_disparities: np.ndarray, depth: float, fb: float, quantum: float) -> float:
+    """Standard error (m) of the depth from a window's median disparity."""
+    if not math.isfinite(depth):
+        return math.nan
+    return depth * depth / fb * window_disparity_se(window_disparities, quantum)
 
 
 def endpoint_depth_sigma(p1: np.ndarray, p2: np.ndarray, sigma_z1: float, sigma_z2: float) -> float:
