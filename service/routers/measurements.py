@@ -127,10 +127,14 @@ def measurements(
     return Response(state.store.list_slim_json(limit, before), media_type="application/json")
 
 
+def _no_measurement(mid: int) -> HTTPException:
+    return HTTPException(404, f"no measurement {mid}; GET /api/measurements lists them")
+
+
 def _record(state: ServiceState, mid: int) -> dict[str, Any]:
     record = state.store.get(mid)
     if record is None:
-        raise HTTPException(404, f"no measurement {mid}; GET /api/measurements lists them")
+        raise _no_measurement(mid)
     return record
 
 
@@ -145,14 +149,14 @@ def annotate(state: State, mid: MeasurementId, body: AnnotationIn) -> dict[str, 
     """Name and/or note a measurement."""
     record = state.store.annotate(mid, body.name, body.note)
     if record is None:
-        raise HTTPException(404, f"no measurement {mid}; GET /api/measurements lists them")
+        raise _no_measurement(mid)
     return record
 
 
 @router.delete("/measurements/{mid}", **json_doc(DeletedOut))
 def delete_measurement(state: State, mid: MeasurementId) -> dict[str, Any]:
     if not state.store.delete(mid):
-        raise HTTPException(404, f"no measurement {mid}; GET /api/measurements lists them")
+        raise _no_measurement(mid)
     return {"deleted": mid}
 
 
@@ -161,7 +165,7 @@ def _thumb(state: ServiceState, mid: int) -> bytes:
     its saved file) and kept in memory."""
     where = state.store.segment(mid)
     if where is None:
-        raise HTTPException(404, f"no measurement {mid}; GET /api/measurements lists them")
+        raise _no_measurement(mid)
     data = state.store.thumb(mid)
     if data is None:
         uid, p1, p2 = where
