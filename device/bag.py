@@ -951,6 +951,7 @@ def options_from_spec(spec: SourceSpec) -> BagOptions:
         start = int(spec.params.get("start", "0"))
     except ValueError:
         raise SourceError(f"bag option start={spec.params['start']!r} must be a frame index") from None
+    speed = spec.number("speed")
     return BagOptions(
         topics=tuple((k, spec.params[k]) for k in ("depth", "color", "depth_info", "color_info") if spec.params.get(k)),
         baseline_m=spec.number("baseline"),
@@ -959,7 +960,7 @@ def options_from_spec(spec: SourceSpec) -> BagOptions:
         registered=spec.flag("registered", False),
         loop=spec.flag("loop", False),
         realtime=spec.flag("realtime", False),
-        speed=spec.number("speed") or 1.0,
+        speed=1.0 if speed is None else speed,  # not `or 1.0`: speed=0 is refused, not played at 1
         start=start,
     )
 
