@@ -130,6 +130,25 @@ def wall_length(p1, p2) -> float:
     return float(np.hypot(p2[0] - p1[0], p2[1] - p1[1]) * WALL_Z / SMALL_F)
 
 
+class FakeClock:
+    """Stands in for the ``time`` module of a paced source (monkeypatch it over ``module.time``): the
+    clock moves only when slept on or when the test moves ``now``, and ``sleeps`` lists every requested
+    sleep (s), so pacing is asserted without wall-clock time. A negative sleep raises, as time.sleep does."""
+
+    def __init__(self, now: float = 1000.0) -> None:
+        self.now = now
+        self.sleeps: list[float] = []
+
+    def monotonic(self) -> float:
+        return self.now
+
+    def sleep(self, s: float) -> None:
+        if s < 0:
+            raise ValueError(f"sleep length must be non-negative (asked for {s} s)")
+        self.sleeps.append(s)
+        self.now += s
+
+
 class PlaneSource(SourceBase):
     """The fake source: frame n is ``frame(n)`` (the wall at 2 m by default). It optionally disconnects
     after ``fail_after`` frames, refuses ``state["refuse"]`` reopenings, and with ``state["gate"]`` (a

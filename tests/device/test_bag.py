@@ -19,7 +19,7 @@ from rosbags.rosbag2 import StoragePlugin  # noqa: E402
 from rosbags.rosbag2 import Writer as Writer2  # noqa: E402
 from rosbags.typesys import Stores, get_typestore  # noqa: E402
 
-from device import SourceError, make_source, open_source  # noqa: E402
+from device import SourceError, SourceTimeout, make_source, open_source  # noqa: E402
 from device.bag import (  # noqa: E402
     BagError,
     BagLayoutError,
@@ -31,6 +31,7 @@ from device.bag import (  # noqa: E402
 )
 from device.recording import EndOfRecording, RecordingWriter  # noqa: E402
 from device.base import SourceInfo  # noqa: E402
+from factories import FakeClock  # noqa: E402
 from measure import MeasureOptions, PinholeCamera, measure_distance  # noqa: E402
 from sim.raycast import Pose, cast  # noqa: E402
 from sim.scenario import make_model, simulate_frame  # noqa: E402
@@ -144,6 +145,26 @@ class BagOut:
 
     def close(self) -> None:
         self.w.close()
+
+
+TINY_CAM = PinholeCamera(fx=50.0, fy=50.0, cx=15.5, cy=11.5, width=32, height=24)
+
+
+def write_timed_bag(path: Path, kind: str, times_ns, stamps_ns=None, no_depth=()) -> Path:
+    """depthai-ros topics with tiny frames: colour message k (every pixel k % 256) and its registered depth
+    (2 m) recorded at ``times_ns[k]`` and stamped ``stamps_ns[k]`` (default: the record time), written in
+    the order given; the colour messages numbered in ``no_depth`` have no depth."""
+    out = BagOut(path, kind)
+    out.write("/oak/rgb/camera_info", T0, info_msg(out.ts, out.ros1, T0, "rgb", TINY_CAM))
+    out.write("/oak/stereo/camera_info", T0, info_msg(out.ts, out.ros1, T0, "rgb", TINY_CAM))
+    z = np.full((TINY_CAM.height, TINY_CAM.width), 2000, np.uint16)
+    for k, (t, st) in enumerate(zip(times_ns, times_ns if stamps_ns is None else stamps_ns)):
+        img = np.full((TINY_CAM.height, TINY_CAM.width, 3), k % 256, np.uint8)
+        out.write("/oak/rgb/image_raw", int(t), image_msg(out.ts, out.ros1, int(st), "rgb", img, "bgr8"))
+        if k not in no_depth:
+            out.write("/oak/stereo/image_raw", int(t), image_msg(out.ts, out.ros1, int(st), "rgb", z, "16UC1"))
+    out.close()
+    return path
 
 
 def write_viewer_bag(path: Path, cap: Capture, *, depth_delay_ns: int = 2_000_000, color_tf_x: float = DEPTH_SHIFT_M,
@@ -469,7 +490,9 @@ def test_summary_and_replay_command(capture, tmp_path: Path) -> None:
     assert res.exit_code == 0 and "25.0 ms after colour" in res.output, res.output
 
 
-def test_measure_command_on_a_bag(capture, tmp_path: Path) -> None:
+@pytest.mark.parametrize("options", ["", "?realtime=1"])
+def test_measure_command_on_a_bag(capture, tmp_path: Path, clock: FakeClock, options: str) -> None:
+    """`measure --frame 2` reads frame 2 directly: realtime=1 makes it wait for no frame before it."""
     from typer.testing import CliRunner
 
     from service.cli import app
@@ -477,24 +500,118 @@ def test_measure_command_on_a_bag(capture, tmp_path: Path) -> None:
     bag = write_ros_bag(tmp_path / "rs", capture, "mcap", "realsense-ros")
     truth = capture.frames[2].meta["truth"]
     p1, p2 = (f"{x:g},{y:g}" for x, y in (truth.p1_px, truth.p2_px))
-    res = CliRunner().invoke(app, ["measure", f"bag:{bag}", "--p1", p1, "--p2", p2, "--frame", "2", "--json"])
+    res = CliRunner().invoke(app, ["measure", f"bag:{bag}{options}", "--p1", p1, "--p2", p2, "--frame", "2", "--json"])
     assert res.exit_code == 0, res.output
     assert abs(json.loads(res.output)["distance_m"] - truth.length_m) < 0.02
+    assert clock.sleeps == []  # reading frames 0-2 in turn would have slept 2 x 33 ms
+
+
+# ---------------------------------------------------------------------------------------------
+# realtime playback: device/pacing.py's Pacer on a fake clock (no wall-clock time)
+
+MS = 1_000_000
+PACED_MS = (0, 125, 250, 750, 875)  # 125 ms apart with one 500 ms gap (binary fractions: exact due times)
+
+
+@pytest.fixture
+def clock(monkeypatch) -> FakeClock:
+    import device.pacing as pacing
+
+    fake = FakeClock()
+    monkeypatch.setattr(pacing, "time", fake)
+    return fake
+
+
+def play(src, clock: FakeClock, n: int, timeout_s: float = 1.0) -> list[tuple[int, float]]:
+    """Read ``n`` frames: each one's number (its pixel value) and when it came (s after the first read)."""
+    t0, out = clock.now, []
+    for _ in range(n):
+        f = src.read(timeout_s)
+        out.append((int(f.image[0, 0, 0]), clock.now - t0))
+    return out
+
+
+@pytest.mark.parametrize("kind", ["ros1", "mcap", "sqlite3"])
+def test_realtime_paces_on_record_times(clock: FakeClock, tmp_path: Path, kind: str) -> None:
+    """realtime=1 waits out each gap between the frames' record times, the 500 ms one too; the header
+    stamps (here 1/30 s apart) are what the frames carry, not what sets the pace."""
+    stamps = [T0 + k * PERIOD for k in range(5)]
+    bag = write_timed_bag(tmp_path / ("b.bag" if kind == "ros1" else "b"), kind, [T0 + t * MS for t in PACED_MS], stamps)
+    with open_source(f"bag:{bag}?realtime=1") as src:
+        assert play(src, clock, 5) == [(0, 0.0), (1, 0.125), (2, 0.25), (3, 0.75), (4, 0.875)]
+        assert clock.sleeps == [0.125, 0.125, 0.5, 0.125]
+        assert [src.frame(k).timestamp for k in range(5)] == [t / 1e9 for t in stamps]
+    assert clock.sleeps == [0.125, 0.125, 0.5, 0.125]  # frame(k) waits for nothing
+
+
+def test_realtime_speed_start_loop_and_off(clock: FakeClock, tmp_path: Path) -> None:
+    bag = write_timed_bag(tmp_path / "b", "mcap", [T0 + t * MS for t in PACED_MS])
+    with open_source(f"bag:{bag}?realtime=1&speed=2") as src:
+        assert play(src, clock, 5) == [(0, 0.0), (1, 0.0625), (2, 0.125), (3, 0.375), (4, 0.4375)]
+    # start=3: frame 3 is due at once; at the end the loop starts again with frame 0 due at once
+    with open_source(f"bag:{bag}?realtime=1&loop=1&start=3") as src:
+        assert play(src, clock, 6) == [(3, 0.0), (4, 0.125), (0, 0.125), (1, 0.25), (2, 0.375), (3, 0.875)]
+    clock.sleeps.clear()
+    with open_source(f"bag:{bag}?loop=1") as src:
+        assert play(src, clock, 7) == [(k % 5, 0.0) for k in range(7)]
+    assert clock.sleeps == []
+    with pytest.raises(SourceError, match="speed=0.0 must be a positive number"):
+        open_source(f"bag:{bag}?realtime=1&speed=0")
+
+
+def test_realtime_gap_past_the_timeout_times_out_then_plays_on(clock: FakeClock, tmp_path: Path) -> None:
+    """A frame due after the read's timeout raises SourceTimeout after that timeout, as a live camera
+    with no frame would, and is the next frame read: no frame skipped, the pace kept."""
+    bag = write_timed_bag(tmp_path / "b", "mcap", [T0 + t * MS for t in PACED_MS])
+    with open_source(f"bag:{bag}?realtime=1") as src:
+        assert play(src, clock, 3) == [(0, 0.0), (1, 0.125), (2, 0.25)]
+        with pytest.raises(SourceTimeout, match="due in 0.50 s, after the 0.25 s timeout"):
+            src.read(timeout_s=0.25)
+        assert play(src, clock, 2) == [(3, 0.25), (4, 0.375)]
+    assert clock.sleeps == [0.125, 0.125, 0.25, 0.25, 0.125]
+
+
+def test_realtime_seek_and_slow_reader(clock: FakeClock, tmp_path: Path) -> None:
+    """seek(k) makes frame k due at once; a reader slower than the bag gets the frames already due without
+    a wait, and the pace holds to the record times (frame k at PACED_MS[k] after the start), not drifting."""
+    bag = write_timed_bag(tmp_path / "b", "mcap", [T0 + t * MS for t in PACED_MS])
+    with open_source(f"bag:{bag}?realtime=1") as src:
+        assert play(src, clock, 1) == [(0, 0.0)]
+        src.seek(3)
+        assert play(src, clock, 2) == [(3, 0.0), (4, 0.125)]
+        src.seek(0)
+        t0 = clock.now
+        src.read()
+        clock.now += 0.375  # processing frame 0 took 0.375 s: frames 1 and 2 are late, frame 3 is due at 0.75
+        assert play(src, clock, 3) == [(1, 0.0), (2, 0.0), (3, 0.375)]
+        assert clock.now - t0 == 0.75
+
+
+def test_realtime_unpaired_colour_message_keeps_its_neighbours_times(clock: FakeClock, tmp_path: Path) -> None:
+    """Colour message 2 has no depth, so it is no frame: frame 2 is message 3, due at message 3's time."""
+    bag = write_timed_bag(tmp_path / "b", "mcap", [T0 + t * MS for t in PACED_MS], no_depth=(2,))
+    with open_source(f"bag:{bag}?realtime=1") as src:
+        assert len(src) == 4
+        assert play(src, clock, 4) == [(0, 0.0), (1, 0.125), (3, 0.75), (4, 0.875)]
+
+
+@pytest.mark.parametrize("kind", ["ros1", "mcap", "sqlite3"])
+def test_realtime_record_times_out_of_order_or_repeated(clock: FakeClock, tmp_path: Path, kind: str) -> None:
+    """Messages written out of record-time order play in record-time order; two frames with one record time
+    come together; header stamps going backwards change nothing. No wait is negative (FakeClock refuses
+    one, as time.sleep does) and none is added."""
+    rec_ms = (0, 125, 500, 250, 250, 625)  # message 2 recorded after 3 and 4 but written before them
+    stamp_ms = (0, 100, 50, 300, 300, 10)  # stamps going back twice
+    bag = write_timed_bag(tmp_path / ("b.bag" if kind == "ros1" else "b"), kind,
+                          [T0 + t * MS for t in rec_ms], [T0 + t * MS for t in stamp_ms])
+    with open_source(f"bag:{bag}?realtime=1") as src:
+        assert play(src, clock, 6) == [(0, 0.0), (1, 0.125), (3, 0.25), (4, 0.25), (2, 0.5), (5, 0.625)]
+    assert clock.sleeps == [0.125, 0.125, 0.25, 0.125]
 
 
 def test_open_time_many_messages(tmp_path: Path) -> None:
     """A bag of 6000 small image messages opens without reading them (timed for information, not asserted)."""
-    out = BagOut(tmp_path / "many", "mcap")
-    cam = PinholeCamera(fx=50.0, fy=50.0, cx=15.5, cy=11.5, width=32, height=24)
-    img = np.zeros((24, 32, 3), np.uint8)
-    z = np.full((24, 32), 2000, np.uint16)
-    out.write("/oak/rgb/camera_info", T0, info_msg(out.ts, False, T0, "rgb", cam))
-    out.write("/oak/stereo/camera_info", T0, info_msg(out.ts, False, T0, "rgb", cam))
-    for k in range(3000):
-        t = T0 + k * PERIOD
-        out.write("/oak/rgb/image_raw", t, image_msg(out.ts, False, t, "rgb", img, "bgr8"))
-        out.write("/oak/stereo/image_raw", t, image_msg(out.ts, False, t, "rgb", z, "16UC1"))
-    out.close()
+    write_timed_bag(tmp_path / "many", "mcap", T0 + np.arange(3000) * PERIOD)
     t0 = time.perf_counter()
     with BagReader(tmp_path / "many") as br:
         assert len(br.contents) == 3000

@@ -18,7 +18,7 @@ from device.middlebury import load_scene
 from device.sgbm import SGBMConfig, round_up_disparities
 from device.stereo_pair import StereoProcessor
 from device.video import config_from_spec, restore_odd_size, split_eyes
-from factories import rendered_pair
+from factories import FakeClock, rendered_pair
 from device.base import SourceSpec
 from measure import MeasureOptions, measure_distance
 
@@ -233,18 +233,7 @@ def test_realtime_paces_reads_to_the_video_times(tmp_path, monkeypatch):
     """realtime=1 sleeps until each frame's time has come (a fake clock: no wall-clock assertion)."""
     import device.video as video
 
-    class Clock:
-        def __init__(self):
-            self.now, self.sleeps = 100.0, []
-
-        def monotonic(self):
-            return self.now
-
-        def sleep(self, s):
-            self.sleeps.append(round(s, 6))
-            self.now += s
-
-    clock = Clock()
+    clock = FakeClock()
     monkeypatch.setattr(video, "time", clock)
     frames = [np.full((8, 16, 3), v, np.uint8) for v in (10, 20, 30, 40)]
     path = write_video(tmp_path / "v.mkv", frames, fps=20.0)
