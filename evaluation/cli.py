@@ -34,7 +34,7 @@ def _progress():
 @app.command("sim")
 def sim_command(
     out: Path = typer.Option(..., "--out", help="Output folder for report.md, results.json, measurements.csv and plots."),
-    measurements: int = typer.Option(1800, "--measurements", "-n", min=1, help="Non-gap measurements, spread evenly over 36 (target, distance, lighting) cells."),
+    measurements: int = typer.Option(1800, "--measurements", "-n", min=1, help="Non-gap measurements, spread evenly over 84 (measurement, distance, lighting) cells: the paper's set of seven (3 poster widths, 3 lengths, a person's height)."),
     seed: int = typer.Option(0, "--seed", help="Base seed; each measurement's scene, sensor noise and clicks derive from it."),
     gap_fraction: float = typer.Option(0.1, "--gap-fraction", min=0.0, max=1.0, help="Extra gap-scene measurements, as a fraction of --measurements."),
     workers: int = typer.Option(2, "--workers", "-j", min=1, help="Worker processes (1 = in this process); with --ray local, Ray's CPUs."),
@@ -42,7 +42,7 @@ def sim_command(
     quantization: float | None = typer.Option(None, "--quantization", help="Disparity step of the simulated sensor in px (default: the profile's: 1/4 px stress, 1 px paper)."),
     profile: str = typer.Option("stress", "--profile", help="Simulator profile: 'stress' (harsh end points) or 'paper' (the paper's tablet; see sim/sensor.py)."),
 ) -> None:
-    """The paper's protocol on the simulated rig: 3 targets x 4 distances x 3 lightings, 4 methods."""
+    """The paper's protocol on the simulated rig: its 7 measurements x 4 distances x 3 lightings, 4 methods."""
     from .executors import make_executor
     from .sim_study import plan_sim, run_sim, sim_protocol, summarize_sim, write_sim_report
     from .report import EvalError

@@ -36,7 +36,8 @@ REFERENCE_FX_AT_1280 = 1000.0  # focal length (px) of the reference camera at 12
 
 SCENES: tuple[str, ...] = ("poster", "person", "doorway", "boxes", "table", "charuco")
 TARGETS: dict[str, tuple[str, ...]] = {  # the first one is the scene's default target
-    "poster": ("poster-width", "poster-length"),
+    "poster": ("poster-width", "poster-length", "poster-width-upper", "poster-width-lower", "poster-length-left",
+               "poster-length-right"),
     "person": ("person-height",),
     "doorway": ("doorway",),
     "boxes": ("box-gap", "box-width"),
@@ -160,10 +161,16 @@ def _poster(p: SceneParams) -> SceneSpec:
     prims, c, u, v = _printed_board(p, p.board_w_m, p.board_l_m, "poster", "poster")
     w, l = p.board_w_m, p.board_l_m
     place = _Placer(p.distance_m, p.yaw_deg)
-    targets = {
-        "poster-width": TargetSpec("poster-width", place.vec(c - w / 2 * u), place.vec(c + w / 2 * u), ("poster",), ("poster",), False),
-        "poster-length": TargetSpec("poster-length", place.vec(c - l / 2 * v), place.vec(c + l / 2 * v), ("poster",), ("poster",), False),
-    }
+    def across(name: str, mid: np.ndarray, half: np.ndarray) -> TargetSpec:
+        return TargetSpec(name, place.vec(mid - half), place.vec(mid + half), ("poster",), ("poster",), False)
+
+    # The paper measured each dimension three times "by clicking on different points on the target"
+    # (Fig. 1: 3 lengths, 3 widths): through the centre and a quarter of the board either side.
+    targets = {}
+    for tag, f in (("", 0.0), ("-upper", -0.25), ("-lower", 0.25)):  # v runs down the board
+        targets["poster-width" + tag] = across("poster-width" + tag, c + f * l * v, w / 2 * u)
+    for tag, f in (("", 0.0), ("-left", -0.25), ("-right", 0.25)):
+        targets["poster-length" + tag] = across("poster-length" + tag, c + f * w * u, l / 2 * v)
     return SceneSpec(prims, targets, CAMERA_HEIGHT_M)
 
 

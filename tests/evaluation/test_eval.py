@@ -12,7 +12,7 @@ from typer.testing import CliRunner
 
 from evaluation.cli import app
 from evaluation.middlebury import ContentionModel, contended_disparity, contended_regions
-from evaluation.sim_study import DISTANCES_M, LIGHTINGS, TARGETS, plan_sim
+from evaluation.sim_study import DISTANCES_M, LIGHTINGS, MEASUREMENT_SET, dimension, plan_sim
 from evaluation.report import METHODS, PNG_SIGNATURE, EvalError, accuracy, summary
 
 SIM_N = 240  # the reduced run: 36 cells x 6-7, plus 24 gap measurements
@@ -33,8 +33,11 @@ def test_plan_spreads_evenly_over_cells():
     gaps = [j for j in jobs if j.gap_scene]
     assert len(plain) == 1800 and len(gaps) == 180
     cells = Counter((j.target, j.distance_m, j.lighting) for j in plain)
-    assert len(cells) == len(TARGETS) * len(DISTANCES_M) * len(LIGHTINGS)
-    assert set(cells.values()) == {50}
+    assert len(cells) == len(MEASUREMENT_SET) * len(DISTANCES_M) * len(LIGHTINGS) == 84
+    assert set(cells.values()) == {21, 22}  # 1800 = 21 x 84 + 36
+    # The paper's set of seven: each dimension of the poster three times for one person's height.
+    assert Counter(dimension(j.target) for j in plain) == {"poster-width": 772, "poster-length": 771, "person-height": 257}
+    assert Counter(j.distance_m for j in plain) == {2.0: 455, 4.0: 449, 6.0: 448, 7.0: 448}
     assert Counter(j.scene for j in gaps) == {"doorway": 90, "boxes": 90}
     assert len({j.seed for j in jobs}) == len(jobs)
     assert plan_sim(1800, seed=3) == jobs
