@@ -27,9 +27,9 @@ from device.calibration import StereoCalibration  # noqa: E402
 from device.sgbm import SGBMConfig, compute_disparity  # noqa: E402
 from results_file import cpu_name, replace_section  # noqa: E402
 from device.stereo_pair import StereoProcessor  # noqa: E402
+from evaluation.middlebury import default_data_dir  # noqa: E402
 
-SHARED = Path(os.environ.get("DEPTHRULER_SHARED", ROOT.parent / "shared"))
-SCENE = SHARED / "data" / "middlebury" / "Motorcycle"
+SCENE = default_data_dir() / "Motorcycle"
 SIZES = ((640, 480), (1280, 720))
 MODES = ("sgbm", "sgbm_3way", "hh", "hh4")
 
@@ -108,7 +108,7 @@ def accuracy() -> list[dict]:
     (all eight shared scenes at their own disparity range): what each speed buys."""
     from device.middlebury import load_scene, scene_sgbm_config
 
-    scenes = [load_scene(p) for p in sorted((SHARED / "data" / "middlebury").iterdir()) if (p / "im0.png").is_file()]
+    scenes = [load_scene(p) for p in sorted(default_data_dir().iterdir()) if (p / "im0.png").is_file()]
     rows = []
     for mode in MODES:
         for wls in (False, True):

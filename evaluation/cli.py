@@ -7,8 +7,6 @@ from pathlib import Path
 
 import typer
 
-ROOT = Path(__file__).resolve().parents[1]
-DEFAULT_MIDDLEBURY = ROOT.parent / "shared" / "data" / "middlebury"
 
 RAY_HELP = "Run on Ray: 'auto' (the cluster running here or at RAY_ADDRESS), 'local' (start one here) or an address (HOST:6379, ray://HOST:10001)."
 
@@ -100,7 +98,7 @@ def stress_sim_command(
 @app.command("middlebury")
 def middlebury_command(
     out: Path = typer.Option(..., "--out", help="Output folder for report.md, results.json and plots."),
-    data: Path = typer.Option(DEFAULT_MIDDLEBURY, "--data", help="Folder of Middlebury scenes (each with im0.png, im1.png, calib.txt, disp0GT.pfm)."),
+    data: Path = typer.Option(None, "--data", help="Folder of Middlebury scenes (each with im0.png, im1.png, calib.txt, disp0GT.pfm); default $DEPTHRULER_SHARED/data/middlebury."),
     scene: list[str] = typer.Option(None, "--scene", help="Only this scene (repeatable)."),
     max_segments: int = typer.Option(0, "--max-segments", min=0, help="At most this many segments per scene (0 = all selected)."),
     seed: int = typer.Option(0, "--seed", help="Seed of the click jitter and the contention outliers (segment selection is deterministic)."),
@@ -112,6 +110,10 @@ def middlebury_command(
     """Real stereo: SGBM and contended ground-truth disparity, ground-truth segment lengths."""
     if protocol not in ("edge", "stress"):
         raise typer.BadParameter(f"--protocol {protocol!r} is unknown; use edge or stress")
+    if data is None:
+        from .middlebury import default_data_dir
+
+        data = default_data_dir()
     if protocol == "stress":
         from .middlebury import scene_dirs
         from .report import EvalError

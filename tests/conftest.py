@@ -9,6 +9,8 @@ from pathlib import Path
 import pytest
 from hypothesis import HealthCheck, settings
 
+from evaluation.middlebury import default_data_dir
+
 # Property-based tests (tests/fuzz/): a small, reproducible budget in the default run; a nightly-style
 # exploration with `--hypothesis-profile=long` (README "Fuzzing"; DEPTHRULER_FUZZ_EXAMPLES sets its examples per test). No example database: the tree stays
 # clean, and a failure prints the example and `@reproduce_failure` blob to replay it.
@@ -23,9 +25,7 @@ settings.register_profile(
 )
 settings.load_profile("default")
 
-ROOT = Path(__file__).resolve().parents[1]
-SHARED = Path(os.environ.get("DEPTHRULER_SHARED", ROOT.parent / "shared"))
-MIDDLEBURY = SHARED / "data" / "middlebury"
+MIDDLEBURY = default_data_dir()
 CHROMIUM = "/usr/bin/chromium"
 
 

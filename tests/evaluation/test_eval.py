@@ -206,6 +206,14 @@ def test_middlebury_bad_arguments(tmp_path, middlebury_dir):
     assert not (tmp_path / "o").exists()
 
 
+def test_middlebury_data_defaults_to_depthruler_shared(tmp_path, monkeypatch):
+    monkeypatch.setenv("DEPTHRULER_SHARED", "/no-such-dr")  # short: the error box must not wrap it
+    for protocol in ("edge", "stress"):
+        res = CliRunner().invoke(app, ["middlebury", "--protocol", protocol, "--out", str(tmp_path / "o")])
+        assert res.exit_code != 0 and "/no-such-dr/data/middlebury does not exist" in _said(res.output)
+    assert not (tmp_path / "o").exists()
+
+
 def test_sim_bad_arguments(tmp_path):
     res = CliRunner().invoke(app, ["sim", "--out", str(tmp_path), "--measurements", "0"])
     assert res.exit_code != 0
