@@ -5,9 +5,9 @@ each, at different places on the board, and a person's height), at 2, 4, 6 and 7
 mixed and outdoor lighting, each measurement a fresh ``sim.scenario`` (its own seed: sensor noise,
 contention outliers, holes and the simulated human clicks all vary; the camera pose cycles through
 ``POSES``). Measurements cycle through the 84 (measurement, distance, lighting) cells so every cell
-gets the same count (±1). Every (frame, clicks) is measured by all four methods on the same frame. A further set of gap scenes (doorway, the space
-between two boxes) measures the gap detector's detection rate; the non-gap set gives its false
-positives.
+gets the same count (±1). Every (frame, clicks) is measured by all four methods on the same frame.
+A further set of gap scenes (doorway, the space between two boxes) measures the gap detector's
+detection rate; the non-gap set gives its false positives.
 """
 
 from __future__ import annotations
@@ -118,8 +118,8 @@ def plan_sim(
     profile: str = "stress",
 ) -> list[SimJob]:
     """The jobs of a run: ``n_measurements`` non-gap ones spread evenly over (measurement of
-    ``MEASUREMENT_SET``, distance, lighting), then ``round(gap_fraction * n_measurements)`` gap ones spread over (gap scene,
-    distance, lighting). Seeds are distinct per job and derived from ``seed``. ``quantization``
+    ``MEASUREMENT_SET``, distance, lighting), then ``round(gap_fraction * n_measurements)`` gap ones
+    spread over (gap scene, distance, lighting). Seeds are distinct per job and derived from ``seed``. ``quantization``
     (px) overrides the simulator's disparity step; ``profile`` is the simulator's profile ("stress" or
     "paper", sim.sensor.PROFILES)."""
     if n_measurements < 1:
@@ -132,8 +132,8 @@ def plan_sim(
 
     if profile not in PROFILES:
         raise EvalError(f"--profile={profile} is unknown; use one of {', '.join(PROFILES)}")
-    # Target varies fastest, then distance, then lighting: a count that is not a multiple of the
-    # cell count still leaves every target and every distance balanced.
+    # Measurement varies fastest, then distance, then lighting: a count that is not a multiple of the
+    # cell count still leaves every measurement balanced and every distance within one set of seven.
     cells = [(t, d, li) for li, d, t in itertools.product(LIGHTINGS, DISTANCES_M, MEASUREMENT_SET)]
     gap_cells = [(s, d, li) for li, d, s in itertools.product(LIGHTINGS, DISTANCES_M, GAP_SCENES)]
     n_gap = int(round(gap_fraction * n_measurements))

@@ -161,6 +161,7 @@ def _poster(p: SceneParams) -> SceneSpec:
     prims, c, u, v = _printed_board(p, p.board_w_m, p.board_l_m, "poster", "poster")
     w, l = p.board_w_m, p.board_l_m
     place = _Placer(p.distance_m, p.yaw_deg)
+
     def across(name: str, mid: np.ndarray, half: np.ndarray) -> TargetSpec:
         return TargetSpec(name, place.vec(mid - half), place.vec(mid + half), ("poster",), ("poster",), False)
 

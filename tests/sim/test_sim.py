@@ -309,14 +309,21 @@ def test_rendered_stereo_through_real_sgbm(scene, mount, lighting, min_within_1p
 
 @pytest.mark.parametrize("yaw,roll", [(40.0, 0.0), (-25.0, 30.0)])
 def test_posed_poster_keeps_its_true_size(yaw, roll):
-    for target, size in (("poster-width", sim.BOARD_M[0]), ("poster-length", sim.BOARD_M[1])):
+    mids = {}
+    for target in sim.TARGETS["poster"]:  # each dimension through the centre and a quarter either side
+        size = sim.BOARD_M[0] if target.startswith("poster-width") else sim.BOARD_M[1]
         frame, truth, _ = sim.scenario("poster", target=target, distance_m=3.0, yaw_deg=yaw, roll_deg=roll,
                                        width=640, height=360)
         p1, p2 = backproject(truth, truth.p1_px, frame.camera), backproject(truth, truth.p2_px, frame.camera)
         assert abs(np.linalg.norm(p1 - p2) - truth.length_m) < 1e-6
         assert abs(truth.length_m - size) <= 0.04 * size
-        if target == "poster-width":  # turned about the vertical, the width's ends lie at different depths
+        if target.startswith("poster-width"):  # turned about the vertical, the width's ends lie at different depths
             assert abs(truth.p1_m[2] - truth.p2_m[2]) > 0.1
+        mids[target] = (p1 + p2) / 2
+    for centre, sides, across in (("poster-width", ("-upper", "-lower"), sim.BOARD_M[1]),
+                                  ("poster-length", ("-left", "-right"), sim.BOARD_M[0])):
+        for side in sides:  # a quarter of the other dimension away, within the pixel-centre truth
+            assert abs(np.linalg.norm(mids[centre + side] - mids[centre]) - across / 4) < 0.03
 
 
 @pytest.mark.slow
