@@ -15,7 +15,7 @@ from evaluation.middlebury import ContentionModel, contended_disparity, contende
 from evaluation.sim_study import DISTANCES_M, LIGHTINGS, MEASUREMENT_SET, dimension, plan_sim
 from evaluation.report import METHODS, PNG_SIGNATURE, EvalError, accuracy, summary
 
-SIM_N = 240  # the reduced run: 36 cells x 6-7, plus 24 gap measurements
+SIM_N = 252  # the reduced run: 84 cells x 3 (equal counts per distance), plus 25 gap measurements
 
 
 def test_accuracy_is_eq8():
