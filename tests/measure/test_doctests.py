@@ -7,7 +7,7 @@ import importlib
 
 import pytest
 
-MODULES = ["measure.types", "measure.distance", "measure.sequence", "measure.dline"]
+MODULES = ["measure.types", "measure.distance", "measure.sequence", "measure.dline", "measure.censored"]
 
 
 @pytest.mark.parametrize("name", MODULES)
