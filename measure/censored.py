@@ -81,8 +81,7 @@ def few_levels(d: np.ndarray, quantum: float) -> bool:
     return 2 <= np.unique(np.round(np.asarray(d, dtype=np.float64) / quantum)).size <= MAX_LEVELS
 
 
-def censored_line(t: np.ndarray, d: np.ndarray, quantum: float, inflation: float,
-                  start: tuple[float, float]) -> tuple[float, float, np.ndarray] | None:
+def censored_line(t: np.ndarray, d: np.ndarray, quantum: float, inflation: float) -> tuple[float, float, np.ndarray] | None:
     """Posterior mean line d(t) = alpha + beta t of quantized samples (module docstring).
 
     Args:
@@ -90,18 +89,17 @@ def censored_line(t: np.ndarray, d: np.ndarray, quantum: float, inflation: float
         d: (n,) their reported disparities (float, px), multiples of ``quantum`` up to an offset.
         quantum: the disparity quantum q (px, > 0).
         inflation: correlation inflation of the residuals (>= 1): n samples count as n / inflation².
-        start: (alpha, beta) to start each Newton run from, e.g. the least-squares line (px, px per px).
 
     Returns:
         (alpha, beta, cov) with cov the (2, 2) covariance of (alpha, beta) before correlation
         inflation (px², px²/px, px²/px²), or None when the samples span fewer than two levels or more
-        than ``MAX_LEVELS``, or the fit fails.
+        than ``MAX_LEVELS``, or the fit fails (no noise value's Newton run settles).
 
     Example:
         >>> import numpy as np
         >>> t = np.arange(100.0)  # true line 8.3 + 0.004 t: 0.40 px over the span, levels 8 and 9
         >>> d = np.round(8.3 + 0.004 * t + 0.15 * np.random.default_rng(0).standard_normal(100))
-        >>> alpha, beta, cov = censored_line(t, d, 1.0, 1.0, (8.0, 0.01))
+        >>> alpha, beta, cov = censored_line(t, d, 1.0, 1.0)
         >>> print(round(alpha, 2), round(beta * 99, 2), round(np.polyfit(t, d, 1)[0] * 99, 2))  # vs least squares
         8.2 0.61 0.9
     """
@@ -114,10 +112,14 @@ def censored_line(t: np.ndarray, d: np.ndarray, quantum: float, inflation: float
     half = max(0.5 * float(np.ptp(t)), 1.0)
     u = (t - t0) / half
     s = quantum * (np.arange(_GRID) + 0.5) / _GRID  # (J,)
-    alpha = np.full(_GRID, start[0] + start[1] * t0)
-    beta = np.full(_GRID, start[1] * half)
+    # Every Newton run starts from the samples' own least-squares line: inside their levels, whatever
+    # line the caller had (the likelihood is log-concave, so the start only decides how soon it settles).
+    uu = float((u * u).sum())
+    alpha = np.full(_GRID, float(d.mean()))
+    beta = np.full(_GRID, float((u * (d - d.mean())).sum()) / uu if uu > 0 else 0.0)
     hi_edge, lo_edge = d + 0.5 * quantum, d - 0.5 * quantum
     inv_s = (1.0 / s)[:, None]
+    converged = np.zeros(_GRID, dtype=bool)
     for _ in range(_NEWTON):
         mu = alpha[:, None] + beta[:, None] * u  # (J, n)
         a, b = (hi_edge - mu) * inv_s, (lo_edge - mu) * inv_s
@@ -139,8 +141,9 @@ def censored_line(t: np.ndarray, d: np.ndarray, quantum: float, inflation: float
         step_b = np.clip(step_b, -quantum, quantum)
         alpha = alpha - step_a
         beta = beta - step_b
-        # Converged when no line moves by 1e-3 of a level anywhere on the span.
-        if float(np.abs(step_a).max() + np.abs(step_b).max()) < 1e-3 * quantum:
+        # Converged when the line moves by less than 1e-3 of a level anywhere on the span.
+        converged = np.abs(step_a) + np.abs(step_b) < 1e-3 * quantum
+        if converged.all():
             break
     mu = alpha[:, None] + beta[:, None] * u
     a, b = (hi_edge - mu) * inv_s, (lo_edge - mu) * inv_s
@@ -153,7 +156,9 @@ def censored_line(t: np.ndarray, d: np.ndarray, quantum: float, inflation: float
     info00, info01, info11 = -h.sum(1) / k, -(h * u).sum(1) / k, -(h * u * u).sum(1) / k
     det = info00 * info11 - info01 * info01
     loglik = logp.sum(1) / k
-    good = np.isfinite(loglik) & (det > 0) & np.isfinite(alpha) & np.isfinite(beta)
+    # A noise value whose Newton run has not settled within _NEWTON damped steps has no maximum to
+    # approximate around.
+    good = converged & np.isfinite(loglik) & (det > 0) & np.isfinite(alpha) & np.isfinite(beta)
     if not good.any():
         return None
     # Laplace: the integral over (alpha, beta) of the tempered likelihood is exp(loglik) 2 pi / sqrt(det).

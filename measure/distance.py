@@ -471,7 +471,7 @@ def _censored(t: np.ndarray, d: np.ndarray, line: DisparityLine, quantum: float)
     if int(sup.sum()) < MIN_FIT_SAMPLES or not few_levels(d[sup], quantum):
         return line
     inflate = correlation_inflation(d[sup] - line.at(t[sup]))
-    fit = censored_line(t[sup], d[sup], quantum, inflate, (line.alpha, line.beta))
+    fit = censored_line(t[sup], d[sup], quantum, inflate)
     if fit is None:
         return line
     alpha, beta, cov = fit

@@ -15,7 +15,7 @@ import numpy as np
 from hypothesis import event, given
 from hypothesis import strategies as st
 
-from fuzzing import EDGE_FLOATS, finite, typed_or_answer
+from fuzzing import EDGE_FLOATS, finite, no_warnings, typed_or_answer
 from measure import Frame, MeasureError, MeasureOptions, Measurement, PinholeCamera, measure_distance
 from measure.mcd import fast_mcd
 from measure.types import METHODS
@@ -276,3 +276,44 @@ def test_frame_numbers_out_of_range_name_the_field(field, value):
         Frame(**kw)
     except MeasureError as exc:
         assert field in str(exc), str(exc)
+
+
+@st.composite
+def staircases(draw: st.DrawFn) -> tuple[np.ndarray, np.ndarray, float, float]:
+    """Quantized samples along a segment: a line of any slope with noise, rounded to a quantum, and
+    sometimes a few samples on far levels (wrong matches); positions with gaps (holes) and repeats."""
+    rng = np.random.default_rng(draw(st.integers(0, 2**32 - 1)))
+    q = draw(st.sampled_from([1 / 16, 0.25, 1.0, 4.0]))
+    n = draw(st.integers(3, 400))
+    t = np.sort(rng.uniform(0.0, draw(st.sampled_from([2.0, 30.0, 1280.0])), n))
+    if draw(st.booleans()):
+        t = np.round(t)  # integer pixel positions, repeats possible
+    level0 = draw(st.floats(0.5, 200.0)) / q
+    rise = draw(st.one_of(st.just(0.0), st.floats(-3.0, 3.0), st.floats(-1.0, 1.0)))  # quanta over the span
+    noise = draw(st.sampled_from([0.0, 0.05, 0.15, 0.3, 1.0]))  # in quanta, before rounding
+    d = np.round(level0 + rise * (t - t.min()) / max(float(np.ptp(t)), 1.0) + rng.normal(0.0, noise, n)) * q
+    wrong = rng.random(n) < draw(st.sampled_from([0.0, 0.0, 0.02, 0.2]))
+    d[wrong] += q * rng.choice([-2.0, 2.0, 5.0], size=int(wrong.sum()))
+    inflation = draw(st.sampled_from([1.0, 1.7, 6.0]))
+    return t, d, q, inflation
+
+
+@given(staircases())
+def test_censored_line_is_finite_and_stays_near_its_levels(case):
+    """The interval-censored line (measure/censored.py) on any few-level samples: None, or a finite line
+    that at the support's ends stays within two quanta of the levels seen, with a symmetric positive
+    semi-definite covariance; never a warning."""
+    from measure.censored import censored_line, few_levels
+
+    t, d, q, inflation = case
+    with no_warnings():
+        fit = censored_line(t, d, q, inflation)
+    event("few levels" if few_levels(d, q) else "many levels")
+    if fit is None:
+        return
+    alpha, beta, cov = fit
+    assert math.isfinite(alpha) and math.isfinite(beta) and np.isfinite(cov).all()
+    for te in (t.min(), t.max()):
+        assert d.min() - 2 * q <= alpha + beta * te <= d.max() + 2 * q
+    np.testing.assert_allclose(cov, cov.T, rtol=1e-9, atol=1e-12)
+    assert np.linalg.eigvalsh(cov).min() >= -1e-9 * max(1.0, float(np.abs(cov).max()))
