@@ -75,10 +75,12 @@ def _log_interval(a: np.ndarray, b: np.ndarray) -> np.ndarray:
 
 
 def few_levels(d: np.ndarray, quantum: float) -> bool:
-    """Disparities ``d`` (px) on 2 to MAX_LEVELS distinct multiples of ``quantum`` (px): the staircase case."""
-    if not quantum > 0:
+    """Disparities ``d`` (px) on 2 to MAX_LEVELS neighbouring multiples of ``quantum`` (px): the
+    staircase case. Levels further apart are not rounding of one line (a wrong match, another surface)."""
+    if not quantum > 0 or np.size(d) == 0:
         return False
-    return 2 <= np.unique(np.round(np.asarray(d, dtype=np.float64) / quantum)).size <= MAX_LEVELS
+    r = np.round(np.asarray(d, dtype=np.float64) / quantum)
+    return 1 <= float(r.max() - r.min()) <= MAX_LEVELS - 1
 
 
 def censored_line(t: np.ndarray, d: np.ndarray, quantum: float, inflation: float) -> tuple[float, float, np.ndarray] | None:
@@ -107,6 +109,8 @@ def censored_line(t: np.ndarray, d: np.ndarray, quantum: float, inflation: float
     d = np.asarray(d, dtype=np.float64)
     if t.size < 3 or not few_levels(d, quantum):
         return None
+    if not float(np.abs(d).max()) * 1e-9 < quantum:
+        return None  # a quantum lost in the values' rounding: the levels' intervals have no width
     # Centred, unit-span positions keep the 2x2 systems well conditioned.
     t0 = float(t.mean())
     half = max(0.5 * float(np.ptp(t)), 1.0)

@@ -95,3 +95,7 @@ def test_many_levels_or_one_level_are_left_to_least_squares():
     t = np.arange(50.0)
     assert censored_line(t, np.round(8.0 + 0.1 * t), 1.0, 1.0) is None  # six levels
     assert censored_line(t, np.full(50, 8.0), 1.0, 1.0) is None
+    # Levels that are not neighbours are not one line's rounding (wrong matches between two surfaces). Found
+    # by fuzzing: 0, 1e-30 and 3 px read with a 1e-30 px quantum as three levels, and a divide-by-zero.
+    assert censored_line(t, np.where(t % 3 == 0, 11.0, 8.0), 1.0, 1.0) is None
+    assert censored_line(t, np.choose(t.astype(int) % 3, [0.0, 1e-30, 3.0]), 1e-30, 1.0) is None
