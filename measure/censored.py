@@ -23,7 +23,8 @@ bounds the slope to (0, 2 q / span) and the posterior puts the line in that rang
 near least squares; flicker over a wide zone with no third level brings it down to the slope
 the zone implies.
 
-Used on the robust line's support when its samples take at most ``MAX_LEVELS`` levels: with more,
+Used on the robust line's support when its samples lie on 2 to ``MAX_LEVELS`` neighbouring levels
+(levels further apart are wrong matches or two surfaces, not one line's rounding): with more,
 the line crosses several half-levels, whose positions pin its slope, and least squares is within a
 fraction 1 / (levels - 1) of a step of it (and this model's cost grows with nothing in return).
 ``measure.distance`` takes this line only where it is flatter than the least-squares one: the bias
@@ -59,7 +60,7 @@ from __future__ import annotations
 import numpy as np
 from scipy.special import log_ndtr
 
-MAX_LEVELS = 3  # more distinct levels on the support: least squares already follows the half-level crossings
+MAX_LEVELS = 3  # neighbouring levels; over more, least squares already follows the half-level crossings
 _GRID = 12  # values of the noise sd s on (0, q], uniform (a flat prior on s)
 _NEWTON = 10  # most Newton steps per s (log-concave likelihood; from the least-squares line)
 _LOG_2PI = float(np.log(2.0 * np.pi))
