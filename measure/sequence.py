@@ -53,12 +53,12 @@ length in 340 still 10-frame scenes at 6-7 m and 120 at 2-5 m, half with a repea
 pattern; human clicks stated as ``click_px`` = 3.15, their rms; Wilson 95 % intervals in brackets).
 At 6-7 m, N = 1 -> 10, 680 cases per click kind:
 
-- clicks on the true end pixels (``click_px=0``): std of A 0.64 -> 0.07, mean A 99.54 -> 99.92;
-  one-sigma coverage 98 (97-99) -> 92 (89-94) %, 95 % interval 100 -> 100 %;
+- clicks on the true end pixels (``click_px=0``): std of A 0.68 -> 0.07, mean A 99.53 -> 99.92;
+  one-sigma coverage 98 (97-99) -> 94 (92-95) %, 95 % interval 100 -> 100 %;
 - simulated human clicks: std of A 2.09 -> 1.88, mean A 97.29 -> 97.48; one-sigma coverage
-  71 (67-74) -> 66 (63-70) %, 95 % interval 98 (97-99) -> 95 (93-96) %.
+  70 (66-73) -> 66 (63-70) %, 95 % interval 98 (97-99) -> 95 (93-96) %.
 
-At 2-5 m (240 cases): exact 99 -> 90 % / 100 -> 100 %, human 64 -> 65 % / 94 -> 93 %. The sensor part
+At 2-5 m (240 cases): exact 98 -> 92 % / 100 -> 100 %, human 64 -> 65 % / 95 -> 93 %. The sensor part
 is over-wide by the same factor with one frame and with ten (its error over it: 68 % quantile 0.38-0.40
 at N = 1, 0.41-0.44 at N = 10): pooling is modelled as it happens, and what remains is the
 single-frame model's calibration on real stereo (Middlebury, ``measure.uncertainty``), which the
