@@ -75,6 +75,21 @@ def _log_interval(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     return lh + np.log1p(-np.exp(np.minimum(ll - lh, -1e-300)))
 
 
+def _derivatives(mu: np.ndarray, lo_edge: np.ndarray, hi_edge: np.ndarray, inv_s: np.ndarray
+                 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Per sample and noise value, for lines ``mu`` (J, n) and noise 1 / ``inv_s`` (J, 1): log P of the
+    sample's level interval, and its first and second derivatives in mu (the second capped below zero:
+    the likelihood is log-concave)."""
+    a, b = (hi_edge - mu) * inv_s, (lo_edge - mu) * inv_s
+    logp = _log_interval(a, b)
+    # phi(x) / P for both ends, in logs (P underflows far outside a sample's interval).
+    ra = np.exp(-0.5 * a * a - 0.5 * _LOG_2PI - logp)
+    rb = np.exp(-0.5 * b * b - 0.5 * _LOG_2PI - logp)
+    g = (rb - ra) * inv_s
+    h = np.minimum((b * rb - a * ra) * inv_s * inv_s - g * g, -1e-12)
+    return logp, g, h
+
+
 def few_levels(d: np.ndarray, quantum: float) -> bool:
     """Disparities ``d`` (px) on 2 to MAX_LEVELS neighbouring multiples of ``quantum`` (px): the
     staircase case. Levels further apart are not rounding of one line (a wrong match, another surface)."""
@@ -126,15 +141,7 @@ def censored_line(t: np.ndarray, d: np.ndarray, quantum: float, inflation: float
     inv_s = (1.0 / s)[:, None]
     converged = np.zeros(_GRID, dtype=bool)
     for _ in range(_NEWTON):
-        mu = alpha[:, None] + beta[:, None] * u  # (J, n)
-        a, b = (hi_edge - mu) * inv_s, (lo_edge - mu) * inv_s
-        logp = _log_interval(a, b)
-        # phi(x) / P for both ends, in logs (P underflows far outside a sample's interval).
-        ra = np.exp(-0.5 * a * a - 0.5 * _LOG_2PI - logp)
-        rb = np.exp(-0.5 * b * b - 0.5 * _LOG_2PI - logp)
-        g = (rb - ra) * inv_s  # d log P / d mu
-        h = (b * rb - a * ra) * inv_s * inv_s - g * g  # d² log P / d mu² (<= 0: log-concave)
-        h = np.minimum(h, -1e-12)
+        _, g, h = _derivatives(alpha[:, None] + beta[:, None] * u, lo_edge, hi_edge, inv_s)
         g0, g1 = g.sum(1), (g * u).sum(1)
         h00, h01, h11 = h.sum(1), (h * u).sum(1), (h * u * u).sum(1)
         det = h00 * h11 - h01 * h01
@@ -150,13 +157,7 @@ def censored_line(t: np.ndarray, d: np.ndarray, quantum: float, inflation: float
         converged = np.abs(step_a) + np.abs(step_b) < 1e-3 * quantum
         if converged.all():
             break
-    mu = alpha[:, None] + beta[:, None] * u
-    a, b = (hi_edge - mu) * inv_s, (lo_edge - mu) * inv_s
-    logp = _log_interval(a, b)
-    ra = np.exp(-0.5 * a * a - 0.5 * _LOG_2PI - logp)
-    rb = np.exp(-0.5 * b * b - 0.5 * _LOG_2PI - logp)
-    g = (rb - ra) * inv_s
-    h = np.minimum((b * rb - a * ra) * inv_s * inv_s - g * g, -1e-12)
+    logp, _, h = _derivatives(alpha[:, None] + beta[:, None] * u, lo_edge, hi_edge, inv_s)
     k = max(1.0, inflation) ** 2
     info00, info01, info11 = -h.sum(1) / k, -(h * u).sum(1) / k, -(h * u * u).sum(1) / k
     det = info00 * info11 - info01 * info01
