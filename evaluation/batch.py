@@ -22,6 +22,7 @@ from typing import Any, Protocol
 
 from measure import Frame, MeasureError, MeasureOptions, measure_distance
 
+from .result_schema import encode_rows, extra_column, measurement_column, result_schema
 from .tasks import Task, TaskError, TaskGroup, group_tasks, measure_options, source_kind
 
 _READER_CACHE = 2  # open sources kept per worker process
@@ -147,10 +148,6 @@ def flatten(value: Any) -> Any:
     return value
 
 
-TASK_COLUMNS = ("task", "task_key", "source", "frame", "p1_x", "p1_y", "p2_x", "p2_y")
-RUN_COLUMNS = ("run", "version", "worker", "finished", "frame_read_ms", "error", "error_type")
-
-
 def task_row(task: Task, run: str, defaults: dict[str, Any]) -> dict[str, Any]:
     row: dict[str, Any] = {
         "task": task.index,
@@ -164,7 +161,7 @@ def task_row(task: Task, run: str, defaults: dict[str, Any]) -> dict[str, Any]:
         "run": run,
     }
     for k, v in task.extra.items():
-        row[k if k not in row else f"task_{k}"] = flatten(v)
+        row[extra_column(k)] = flatten(v)
     return row
 
 
@@ -184,7 +181,7 @@ def measure_task(task: Task, frame: Frame | None, defaults: dict[str, Any]) -> d
     except Exception as exc:  # noqa: BLE001 — bad clicks (MeasureError) or a bug: this task's error row, not a lost run
         return {**out, "error": str(exc) or repr(exc), "error_type": type(exc).__name__}
     for k, v in m.to_dict().items():
-        out[k if k not in TASK_COLUMNS + RUN_COLUMNS else f"m_{k}"] = flatten(v)
+        out[measurement_column(k)] = flatten(v)
     return out
 
 
@@ -199,16 +196,19 @@ class GroupResult:
 
 
 def run_group(group: TaskGroup) -> GroupResult:
-    """Measure a group (worker side) and encode its rows; never raises for a bad task or source."""
-    import io
-
-    import pyarrow as pa
-    import pyarrow.parquet as pq
-
+    """Measure a group (worker side) and encode its rows in the run's schema; never raises for a bad task or source."""
     rows = measure_group(group)
-    buf = io.BytesIO()
-    pq.write_table(pa.Table.from_pylist(rows), buf)
-    return GroupResult(len(rows), sum(1 for r in rows if r["error"] is not None), buf.getvalue())
+    schema = group.schema if group.schema is not None else result_schema(_extras(group.tasks))
+    return GroupResult(len(rows), sum(1 for r in rows if r["error"] is not None), encode_rows(rows, schema))
+
+
+def _extras(tasks: Iterable[Task]) -> dict[str, list[Any]]:
+    """Each carried-through column of ``tasks`` and its values (for the run's result schema)."""
+    cols: dict[str, list[Any]] = {}
+    for t in tasks:
+        for k, v in t.extra.items():
+            cols.setdefault(k, []).append(flatten(v))
+    return cols
 
 
 def measure_group(group: TaskGroup) -> list[dict[str, Any]]:
@@ -314,7 +314,7 @@ def run_batch(
         )
     todo = [t for t in tasks if t.index not in done]
     run = uuid.uuid4().hex[:12]
-    groups = group_tasks(todo, getattr(executor, "workers", 1), defaults, run)
+    groups = group_tasks(todo, getattr(executor, "workers", 1), defaults, run, schema=result_schema(_extras(tasks)))
     if on_start:
         on_start(len(todo), len(tasks) - len(todo))
     t0 = time.perf_counter()

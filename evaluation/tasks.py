@@ -196,9 +196,12 @@ class TaskGroup:
     tasks: tuple[Task, ...]
     defaults: dict[str, Any] = field(default_factory=dict)
     run: str = ""
+    schema: Any = None  # the run's pyarrow result schema (evaluation.result_schema); None: built from these tasks
 
 
-def group_tasks(tasks: list[Task], workers: int, defaults: dict[str, Any], run: str = "", max_group: int = 256) -> list[TaskGroup]:
+def group_tasks(
+    tasks: list[Task], workers: int, defaults: dict[str, Any], run: str = "", max_group: int = 256, schema: Any = None
+) -> list[TaskGroup]:
     """Tasks grouped by source, each group sorted by frame so every frame is read once.
 
     A random-access source (a recording, the history) is cut further, at frame boundaries, into
@@ -214,16 +217,16 @@ def group_tasks(tasks: list[Task], workers: int, defaults: dict[str, Any], run: 
     for source, items in by_source.items():
         items.sort(key=lambda t: (str(type(t.frame)), t.frame, t.index))
         if source_kind(source) not in RANDOM_ACCESS_KINDS:
-            groups.append(TaskGroup(source, tuple(items), defaults, run))
+            groups.append(TaskGroup(source, tuple(items), defaults, run, schema))
             continue
         chunk: list[Task] = []
         for t in items:
             if len(chunk) >= target and t.frame != chunk[-1].frame:
-                groups.append(TaskGroup(source, tuple(chunk), defaults, run))
+                groups.append(TaskGroup(source, tuple(chunk), defaults, run, schema))
                 chunk = []
             chunk.append(t)
         if chunk:
-            groups.append(TaskGroup(source, tuple(chunk), defaults, run))
+            groups.append(TaskGroup(source, tuple(chunk), defaults, run, schema))
     # The biggest first: a long group started last would leave the other workers idle at the end.
     groups.sort(key=lambda g: len(g.tasks), reverse=True)
     return groups

@@ -384,20 +384,49 @@ def test_groups_read_each_frame_once_and_new_fields_flow_through(archive, tmp_pa
     (group,) = group_tasks(seq, 2, {})
     assert [t.frame for t in group.tasks] == sorted(t.frame for t in seq)
 
-    # fields the Measurement gains later reach the Parquet file without a change here
-    real = batch.measure_distance
+    # every Measurement field has its column in the fixed result schema, with the type its values have
+    from evaluation.result_schema import MEASUREMENT_TYPES, encode_rows, result_schema
 
-    class Later:
-        def __init__(self, m):
-            self.m = m
-
-        def to_dict(self):
-            return {**self.m.to_dict(), "quality": "good", "interval_m": (0.5, float("nan")), "reasons": [], "detail": {"k": 1}}
-
-    monkeypatch.setattr(batch, "measure_distance", lambda *a, **k: Later(real(*a, **k)))
     out = tmp_path / "r.parquet"
     run_batch(tasks[:3], out, InProcessExecutor())
     t = pq.read_table(out)
-    assert str(t.schema.field("interval_m").type) == "list<element: double>" and str(t.schema.field("reasons").type).startswith("list<")
     row = t.to_pylist()[0]
-    assert row["quality"] == "good" and row["interval_m"] == [0.5, None] and row["reasons"] == [] and json.loads(row["detail"]) == {"k": 1}
+    assert set(MEASUREMENT_TYPES) == set(row) & set(MEASUREMENT_TYPES)
+    real = batch.measure_distance(open_recording(tasks[0].source.partition(":")[2]).frame(0), tasks[0].p1, tasks[0].p2)
+    assert set(real.to_dict()) == set(MEASUREMENT_TYPES)
+    assert str(t.schema.field("interval_m").type) == "list<element: double>" and str(t.schema.field("reasons").type).startswith("list<")
+    assert row["quality"] in ("good", "check", "unreliable") and len(row["interval_m"]) == 2
+    # a column outside the schema is refused loudly, never dropped
+    with pytest.raises(ValueError, match="outside the result schema"):
+        encode_rows([{**row, "detail": 1}], result_schema())
+
+
+def test_a_group_that_starts_with_an_error_row_keeps_its_valid_rows(archive, tmp_path):
+    """Columns once came from a group's first row: an error row first lost every valid row's answer."""
+    rec = archive / "rec_poster"
+    t = truth(rec, 0)
+    (x1, y1), (x2, y2) = t["p1_px"], t["p2_px"]
+    rows = [[str(rec), 0, 5000, 10, 100, 100, "", "outside"]]  # a pixel outside the image, first in its frame
+    rows += [[str(rec), 0, x1 + d, y1, x2 - d, y2, m, f"ok{d}{m}"] for d in range(4) for m in ("robust", "basic")]
+    table = tmp_path / "nine.csv"
+    with table.open("w", newline="") as fh:
+        w = csv.writer(fh)
+        w.writerow(["source", "frame", "p1_x", "p1_y", "p2_x", "p2_y", "method", "label"])
+        w.writerows(rows)
+    frame = open_recording(rec).frame(0)
+    from measure import MeasureOptions, measure_distance
+
+    want = {f"ok{d}{m}": measure_distance(frame, (x1 + d, y1), (x2 - d, y2), MeasureOptions(method=m)).distance_m
+            for d in range(4) for m in ("robust", "basic")}  # fmt: skip
+    results = {}
+    for name, ex in (("inproc", InProcessExecutor()), ("pool", PoolExecutor(2))):
+        with ex:
+            run_batch(read_tasks(table), tmp_path / f"{name}.parquet", ex)
+        results[name] = stable(tmp_path / f"{name}.parquet")
+    close_readers()
+    ref = results["inproc"]
+    assert len(ref) == 9 and results["pool"] == ref
+    by_label = {r["label"]: r for r in ref}
+    assert by_label["outside"]["error_type"] == "MeasureError" and by_label["outside"]["distance_m"] is None
+    for label, d in want.items():
+        assert by_label[label]["error"] is None and by_label[label]["distance_m"] == d, label
