@@ -4,7 +4,7 @@ Run: ``.venv/bin/python bench/bench_batch.py`` or ``depthruler bench batch`` (``
 table in bench/RESULTS.md; needs ``pip install 'depthruler[ray]'`` for the Ray rows, else they are
 left out). The archive is made first: ``--recordings`` recordings of the simulated rig at 1280x720
 (``--frames`` frames each, recorded with the recorder), and ``--clicks`` robust measurements per
-frame. Every run is the whole batch through :func:`evaluation.batch.run_batch` (read the frames,
+frame. Every run is the whole batch through :func:`batch.run.run_batch` (read the frames,
 measure, stream the Parquet parts, merge), timed from the first group submitted to the file
 written, on workers that have already run one batch (process start-up and imports are reported
 separately, not in the rate). The reference is the same batch in this process; runs of the
@@ -23,7 +23,7 @@ import time
 from datetime import datetime, timezone
 from pathlib import Path
 
-from results_file import machine, replace_section
+from bench.results_file import machine, replace_section
 
 SECTION = "## Batch re-measurement"
 
@@ -31,7 +31,7 @@ SECTION = "## Batch re-measurement"
 def make_archive(root: Path, recordings: int, frames: int, clicks: int) -> Path:
     """``recordings`` simulated recordings and a task table of ``clicks`` measurements per frame."""
     from device import open_source
-    from device.recording import RecordingWriter
+    from device.formats.recording import RecordingWriter
 
     rows = []
     for r in range(recordings):
@@ -68,7 +68,7 @@ def timed_run(tasks, executor, out: Path, pids: set[int]) -> tuple[float, float,
     (a worker first seen in this run counts from its start)."""
     import pyarrow.parquet as pq
 
-    from evaluation.batch import run_batch
+    from batch.run import run_batch
 
     before = {p: cpu_s(p) or 0.0 for p in pids | {os.getpid()}}
     t0 = time.perf_counter()
@@ -81,9 +81,9 @@ def timed_run(tasks, executor, out: Path, pids: set[int]) -> tuple[float, float,
 
 
 def run(recordings: int, frames: int, clicks: int, repeat: int) -> tuple[dict[str, dict], dict]:
-    from evaluation.batch import close_readers
-    from evaluation.executors import InProcessExecutor, PoolExecutor, RayExecutor
-    from evaluation.tasks import read_tasks
+    from batch.run import close_readers
+    from batch.executors import InProcessExecutor, PoolExecutor, RayExecutor
+    from batch.tasks import read_tasks
 
     tmp = Path(tempfile.mkdtemp(prefix="bench_batch_"))
     executors: dict = {}

@@ -18,7 +18,7 @@ from contextlib import contextmanager
 from unittest import mock
 
 import numpy as np
-from results_file import machine, replace_section
+from bench.results_file import machine, replace_section
 
 W, H, FX, BASELINE = 1280, 720, 1000.0, 0.08
 

@@ -32,7 +32,7 @@ from pathlib import Path
 
 import httpx
 import numpy as np
-from results_file import RESULTS, machine, replace_section
+from bench.results_file import RESULTS, machine, replace_section
 
 ROOT = Path(__file__).resolve().parents[1]
 SECTION = "## Service load"
@@ -49,7 +49,9 @@ def free_port() -> int:
 def start_server(code: Path, spec: str, db: Path) -> tuple[subprocess.Popen, str]:
     """`depthruler serve` of the code in ``code`` on a free loopback port; waits for a first frame."""
     port = free_port()
-    cmd = [sys.executable, "-m", "service.cli", "serve", "--source", spec, "--port", str(port), "--db", str(db)]
+    # the command-line module of that revision (it moved from service/ to cli/)
+    entry = next(m for m in ("cli/main.py", "service/cli.py") if (code / m).is_file())
+    cmd = [sys.executable, "-m", entry.removesuffix(".py").replace("/", "."), "serve", "--source", spec, "--port", str(port), "--db", str(db)]
     log = open(db.with_suffix(".log"), "w+b")  # a file, not a pipe nobody drains
     env = {**os.environ, "PYTHONPATH": str(code)}
     proc = subprocess.Popen(cmd, cwd=code, stdout=log, stderr=subprocess.STDOUT, env=env)

@@ -23,10 +23,10 @@ import numpy as np
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
-from device.calibration import StereoCalibration  # noqa: E402
-from device.sgbm import SGBMConfig, compute_disparity  # noqa: E402
-from results_file import cpu_name, replace_section  # noqa: E402
-from device.stereo_pair import StereoProcessor  # noqa: E402
+from device.calibration.stereo import StereoCalibration  # noqa: E402
+from device.sources.sgbm import SGBMConfig, compute_disparity  # noqa: E402
+from bench.results_file import cpu_name, replace_section  # noqa: E402
+from device.sources.stereo_pair import StereoProcessor  # noqa: E402
 from evaluation.middlebury import default_data_dir  # noqa: E402
 
 SCENE = default_data_dir() / "Motorcycle"
@@ -106,7 +106,7 @@ def run(repeats: int) -> tuple[list[dict], dict]:
 def accuracy() -> list[dict]:
     """Share of non-occluded Middlebury pixels within 1 px of ground truth, per mode and WLS setting
     (all eight shared scenes at their own disparity range): what each speed buys."""
-    from device.middlebury import load_scene, scene_sgbm_config
+    from device.sources.middlebury import load_scene, scene_sgbm_config
 
     scenes = [load_scene(p) for p in sorted(default_data_dir().iterdir()) if (p / "im0.png").is_file()]
     rows = []

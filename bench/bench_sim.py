@@ -15,7 +15,7 @@ import time
 from datetime import datetime, timezone
 
 import numpy as np
-from results_file import machine, replace_section
+from bench.results_file import machine, replace_section
 
 SECTION = "## Simulated rig"
 

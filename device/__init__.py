@@ -10,8 +10,8 @@ from __future__ import annotations
 import importlib
 from collections.abc import Mapping
 
-from .base import BACKENDS, Backend, Source, SourceBase, SourceInfo, SourceSpec, backend, spec_from_table
-from .errors import (
+from device.base import BACKENDS, Backend, Source, SourceBase, SourceInfo, SourceSpec, backend, spec_from_table
+from device.errors import (
     CalibrationError,
     RecordingError,
     SourceDisconnected,
@@ -64,7 +64,7 @@ def open_source(spec: str | SourceSpec | object) -> Source:
 
 def list_devices() -> list[SourceInfo]:
     """Attached cameras: DepthAI devices, V4L2 nodes and USB ids (via pyusb)."""
-    from .discovery import list_devices as _list
+    from device.discovery import list_devices as _list
 
     return _list()
 

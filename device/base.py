@@ -16,7 +16,7 @@ from urllib.parse import parse_qsl, quote, unquote
 
 from measure import Frame
 
-from .errors import SourceError
+from device.errors import SourceError
 
 
 @dataclass(frozen=True)
@@ -173,23 +173,62 @@ class Backend:
     target: str
 
 
-# The only list of source kinds. Modules are imported when a kind is used, so ``import device``
+# The device layer's own source kinds. Modules are imported when a kind is used, so ``import device``
 # needs no SDK (depthai, rosbags) and no camera.
-BACKENDS: dict[str, Backend] = {
-    "sim": Backend("sim.source", "SimConfig", "SimSource", "scene"),
-    "oak": Backend("device.oak", "OakConfig", "OakSource", "mxid"),
-    "v4l2": Backend("device.stereo_pair", "StereoPairConfig", "StereoPairSource", "device"),
-    "video": Backend("device.video", "VideoConfig", "VideoSource", "path"),
-    "replay": Backend("device.recording.replay", "ReplayConfig", "ReplaySource", "path"),
-    "middlebury": Backend("device.middlebury", "MiddleburyConfig", "MiddleburySource", "path"),
-    "depthpng": Backend("device.depth_folder", "DepthFolderConfig", "DepthFolderSource", "path"),
-    "bag": Backend("device.bag", "BagConfig", "BagSource", "path"),
+BUILTIN_BACKENDS: dict[str, Backend] = {
+    "oak": Backend("device.sources.oak", "OakConfig", "OakSource", "mxid"),
+    "v4l2": Backend("device.sources.stereo_pair", "StereoPairConfig", "StereoPairSource", "device"),
+    "video": Backend("device.sources.video", "VideoConfig", "VideoSource", "path"),
+    "replay": Backend("device.formats.recording.replay", "ReplayConfig", "ReplaySource", "path"),
+    "middlebury": Backend("device.sources.middlebury", "MiddleburyConfig", "MiddleburySource", "path"),
+    "depthpng": Backend("device.sources.depth_folder", "DepthFolderConfig", "DepthFolderSource", "path"),
+    "bag": Backend("device.sources.bag", "BagConfig", "BagSource", "path"),
 }
+ENTRY_POINT_GROUP = "depthruler.sources"
+
+
+class _Registry(Mapping[str, Backend]):
+    """Every source kind: the built-in ones, and those that packages above ``device`` (the simulator,
+    a package of your own) register under the entry-point group ``depthruler.sources`` as a
+    :class:`Backend` object. An entry point is loaded the first time its kind is looked up."""
+
+    def __init__(self, builtin: dict[str, Backend]) -> None:
+        self._builtin = builtin
+        self._loaded: dict[str, Backend] = {}
+        self._points: dict | None = None
+
+    def _entry_points(self) -> dict:
+        if self._points is None:
+            from importlib.metadata import entry_points
+
+            self._points = {ep.name: ep for ep in entry_points(group=ENTRY_POINT_GROUP) if ep.name not in self._builtin}
+        return self._points
+
+    def __getitem__(self, kind: str) -> Backend:
+        if kind in self._builtin:
+            return self._builtin[kind]
+        if kind not in self._loaded:
+            ep = self._entry_points()[kind]  # KeyError for an unknown kind, as a Mapping must
+            entry = ep.load()
+            if not isinstance(entry, Backend):
+                raise SourceError(f"entry point {ep.value} of source kind {kind!r} is not a device.base.Backend")
+            self._loaded[kind] = entry
+        return self._loaded[kind]
+
+    def __iter__(self):
+        return iter([*self._entry_points(), *self._builtin])
+
+    def __len__(self) -> int:
+        return len(self._builtin) + len(self._entry_points())
+
+
+# The one list of source kinds (lookups by kind; iteration lists every kind).
+BACKENDS: Mapping[str, Backend] = _Registry(BUILTIN_BACKENDS)
 
 
 def backend(kind: str, shown: str = "") -> Backend:
     """The registry entry of ``kind``; SourceNotFound lists the kinds there are."""
-    from .errors import SourceNotFound
+    from device.errors import SourceNotFound
 
     found = BACKENDS.get(kind)
     if found is None:

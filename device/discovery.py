@@ -10,7 +10,7 @@ from __future__ import annotations
 import os
 from pathlib import Path
 
-from .base import SourceInfo
+from device.base import SourceInfo
 
 MOVIDIUS_VENDOR = 0x03E7  # Intel Movidius: every OAK (RVC2) enumerates with this vendor id
 USB_CLASS_VIDEO = 14  # bInterfaceClass of UVC cameras

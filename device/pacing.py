@@ -7,7 +7,7 @@ import time
 
 import numpy as np
 
-from .errors import SourceTimeout
+from device.errors import SourceTimeout
 
 
 class Pacer:

@@ -35,8 +35,8 @@ from typing import Any
 
 import numpy as np
 
-from .executors import make_executor
-from .report import accuracy
+from batch.executors import make_executor
+from measure.metrics import accuracy
 
 BANDS: dict[str, tuple[float, ...]] = {"2-5 m": (2.0, 3.5, 5.0), "6-7 m": (6.0, 7.0)}
 DISTANCES_M: tuple[float, ...] = tuple(d for ds in BANDS.values() for d in ds)
@@ -198,7 +198,7 @@ def plan(trials: int = 85, near_trials: int = 20, seed: int = 0, moving: int = 4
 
 
 def run(jobs: Sequence[FramesJob], workers: int = 1) -> list[dict[str, Any]]:
-    """All jobs' records in job order, on ``workers`` processes (evaluation.executors)."""
+    """All jobs' records in job order, on ``workers`` processes (batch.executors)."""
     ex = make_executor(workers)
     try:
         done = dict(ex.imap(run_job, list(jobs)))

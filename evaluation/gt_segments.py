@@ -135,7 +135,7 @@ def find_segments(
 
 
 def scene_segments(scene, rules: SegmentRules = SegmentRules()) -> list[GTSegment]:
-    """:func:`find_segments` for a ``device.middlebury.MiddleburyScene``."""
+    """:func:`find_segments` for a ``device.sources.middlebury.MiddleburyScene``."""
     return find_segments(scene.name, scene.gt_disparity, scene.nonocc_mask, scene.camera, scene.baseline_m, scene.doffs, rules)
 
 

@@ -2,7 +2,7 @@
 
 For each scene two disparity conditions are measured with the same segments:
 
-- ``sgbm``: OpenCV SGBM on the rectified pair (device/sgbm.py, the scene's ``ndisp`` rounded up to
+- ``sgbm``: OpenCV SGBM on the rectified pair (device/sources/sgbm.py, the scene's ``ndisp`` rounded up to
   a multiple of 16, every other parameter the SGBMConfig default; written into the report).
 - ``gt_contended``: the paper's sensor conditions on real geometry: the ground truth rounded to whole
   pixels, and in contended regions half of the pixels replaced by a wrong match
@@ -25,9 +25,10 @@ from typing import Any
 
 import numpy as np
 
-from . import report
-from .sim_study import MethodOutcome, measure_all, warm_up
-from .report import METHODS, EvalError
+from evaluation import report
+from measure.metrics import accuracy, signed_error_pct
+from evaluation.sim_study import MethodOutcome, measure_all, warm_up
+from evaluation.report import METHODS, EvalError
 
 
 def default_data_dir() -> Path:
@@ -173,7 +174,7 @@ def clicks_for(
 
 def _segments(scene: Any, max_segments: int | None) -> list[tuple[tuple[float, float], tuple[float, float], float]]:
     """(p1_px, p2_px, true length m) of the scene's evaluation segments, from evaluation/gt_segments.py."""
-    from .gt_segments import scene_segments
+    from evaluation.gt_segments import scene_segments
 
     segs = scene_segments(scene)
     return [
@@ -195,8 +196,8 @@ class ScenePlan:
 
 def run_scene(plan: ScenePlan) -> tuple[str, dict[str, Any], list[SegmentResult]]:
     """SGBM and the contended ground truth of one scene, and every click pair measured on both."""
-    from device.middlebury import load_scene, scene_frame, scene_sgbm_config
-    from device.sgbm import compute_disparity
+    from device.sources.middlebury import load_scene, scene_frame, scene_sgbm_config
+    from device.sources.sgbm import compute_disparity
 
     scene = load_scene(plan.path)
     config = scene_sgbm_config(scene)
@@ -236,11 +237,11 @@ def run_middlebury(
 ) -> tuple[dict[str, Any], list[SegmentResult]]:
     """Measure every selected segment of every scene under both conditions; (setup, results).
 
-    Scenes run on ``executor`` (evaluation/executors.py; default: in this process), one scene per
+    Scenes run on ``executor`` (batch/executors.py; default: in this process), one scene per
     worker call; the results are the serial run's whatever the executor."""
-    from .executors import InProcessExecutor
-    from .gt_segments import SegmentRules
-    from device.middlebury import load_scene
+    from batch.executors import InProcessExecutor
+    from evaluation.gt_segments import SegmentRules
+    from device.sources.middlebury import load_scene
 
     rng = np.random.default_rng(clicks.seed)
     setup: dict[str, Any] = {
@@ -289,7 +290,7 @@ def summarize_middlebury(setup: dict[str, Any], results: Sequence[SegmentResult]
         common = np.logical_and.reduce([np.isfinite(measured[m]) for m in METHODS]) if rows else np.zeros(0, bool)
         methods = {}
         for m in METHODS:
-            acc = report.accuracy(truth, measured[m])[common]
+            acc = accuracy(truth, measured[m])[common]
             methods[m] = {
                 "overall": report.summary(acc),
                 "by_scene": report.grouped(scene[common], acc, names),
@@ -321,7 +322,7 @@ def write_middlebury_report(out_dir: Path, summary: dict[str, Any], results: Seq
         truth = np.array([r.truth_m for r in rows])
         paths[f"hist_{cond}"] = report.plot_error_histograms(
             out_dir / f"error_histogram_{cond}.png",
-            {m: report.signed_error_pct(truth, np.array([r.outcome(m).distance_m for r in rows])) for m in METHODS},
+            {m: signed_error_pct(truth, np.array([r.outcome(m).distance_m for r in rows])) for m in METHODS},
             title=f"Middlebury, {CONDITION_LABELS[cond]}: signed relative error",
         )
     paths["segments"] = plot_segments(out_dir / "segments.png", Path(summary["setup"]["data"]), names, results)
@@ -350,7 +351,7 @@ def plot_segments(path: Path, data_dir: Path, names: Sequence[str], results: Seq
         for r in results:
             if r.scene != name or r.condition != "sgbm":
                 continue
-            a = report.accuracy(r.truth_m, r.outcome("robust").distance_m)
+            a = accuracy(r.truth_m, r.outcome("robust").distance_m)
             ok = bool(np.isfinite(a) and a >= 95.0)
             ax.plot([r.p1_px[0], r.p2_px[0]], [r.p1_px[1], r.p2_px[1]], "-", color="#2ca02c" if ok else "#d62728", lw=1.6)
         ax.set_title(name, fontsize=9)
@@ -407,7 +408,7 @@ def middlebury_markdown(summary: dict[str, Any], plots: dict[str, str]) -> str:
         "columns). The end pixels are the surface's last pixels before its edges, where a person "
         "would click. The true length is the distance between their ground-truth 3D points "
         "(`disp0GT.pfm`, calib.txt, Eq. 2).",
-        "- **SGBM** (`device/sgbm.py`, OpenCV `StereoSGBM`): "
+        "- **SGBM** (`device/sources/sgbm.py`, OpenCV `StereoSGBM`): "
         + ", ".join(f"{k}={v}" for k, v in any_cfg.items() if k != "num_disparities")
         + "; num_disparities = the scene's `ndisp` rounded up to a multiple of 16 (per scene below). "
         "P1/P2 None means 8·3·bs² and 32·3·bs².",

@@ -6,7 +6,7 @@ from typing import Any
 
 import numpy as np
 
-from . import report
+from evaluation import report
 
 
 def paper_beside_ours(results: dict[str, Any]) -> list[list[str]]:

@@ -30,19 +30,6 @@ class EvalError(ValueError):
     """Bad evaluation arguments; the message says what to change."""
 
 
-def accuracy(truth_m: np.ndarray | float, measured_m: np.ndarray | float) -> np.ndarray:
-    """Eq. 8: accuracy in percent points of measured lengths against true lengths (both metres, g > 0)."""
-    g = np.asarray(truth_m, dtype=np.float64)
-    m = np.asarray(measured_m, dtype=np.float64)
-    return 100.0 - 100.0 * np.abs(g - m) / g
-
-
-def signed_error_pct(truth_m: np.ndarray, measured_m: np.ndarray) -> np.ndarray:
-    """Signed relative error 100 (m - g) / g in percent (positive = measured too long)."""
-    g = np.asarray(truth_m, dtype=np.float64)
-    return 100.0 * (np.asarray(measured_m, dtype=np.float64) - g) / g
-
-
 def summary(values: np.ndarray) -> dict[str, float | int | None]:
     """Mean, sample standard deviation, median, share within 5 % of the truth (A >= 95) and count
     of accuracies; None where undefined."""

@@ -23,9 +23,10 @@ from typing import Any
 
 import numpy as np
 
-from . import report
-from .paper_figures import paper_beside_ours
-from .report import METHODS, EvalError
+from evaluation import report
+from measure.metrics import accuracy, signed_error_pct
+from evaluation.paper_figures import paper_beside_ours
+from evaluation.report import METHODS, EvalError
 
 TARGETS: tuple[tuple[str, str], ...] = (  # what is measured, as the report groups it
     ("poster", "poster-width"),
@@ -230,13 +231,13 @@ def run_group(jobs: Sequence[SimJob]) -> list[SimRecord]:
 def run_sim(
     jobs: Sequence[SimJob], *, workers: int = 2, on_result: Callable[[SimRecord], None] | None = None, executor: Any = None
 ) -> list[SimRecord]:
-    """Run ``jobs`` on ``executor`` (evaluation/executors.py; default: a pool of ``workers``
+    """Run ``jobs`` on ``executor`` (batch/executors.py; default: a pool of ``workers``
     processes, 1 = in this process); results in job order, the same whatever the executor.
 
     Jobs are dispatched in groups sharing one simulated view, largest first, so that each worker
     renders a view's geometry once (about a second) and then only draws noise and clicks.
     """
-    from .executors import make_executor
+    from batch.executors import make_executor
 
     groups: dict[tuple, list[SimJob]] = {}
     for job in jobs:
@@ -287,7 +288,7 @@ def summarize_sim(records: Sequence[SimRecord], protocol: dict[str, Any] | None 
 
     methods: dict[str, Any] = {}
     for m in METHODS:
-        acc = report.accuracy(truth, measured[m])
+        acc = accuracy(truth, measured[m])
         a, dk, lk, tk = acc[common], dist[common], light[common], target[common]
         methods[m] = {
             "overall": report.summary(a),
@@ -295,7 +296,7 @@ def summarize_sim(records: Sequence[SimRecord], protocol: dict[str, Any] | None 
             "by_lighting": report.grouped(lk, a, LIGHTINGS),
             "by_target": report.grouped(tk, a, target_keys),
             "failed": int(np.sum(~np.isfinite(measured[m]))),
-            "signed_error_pct_median": float(np.median(report.signed_error_pct(truth[common], measured[m][common])))
+            "signed_error_pct_median": float(np.median(signed_error_pct(truth[common], measured[m][common])))
             if common.any()
             else None,
         }
@@ -347,7 +348,7 @@ def _gap_figures(plain: Sequence[SimRecord], gaps: Sequence[SimRecord], dist_key
     if gaps:
         truth = np.array([r.truth_m for r in gaps])
         out["gap_scene_accuracy"] = {
-            m: report.summary(report.accuracy(truth, np.array([r.outcome(m).distance_m for r in gaps]))) for m in METHODS
+            m: report.summary(accuracy(truth, np.array([r.outcome(m).distance_m for r in gaps]))) for m in METHODS
         }
     return out
 
@@ -405,7 +406,7 @@ def write_sim_report(out_dir: Path, results: dict[str, Any], records: Sequence[S
         ),
         "hist": report.plot_error_histograms(
             out_dir / "error_histogram.png",
-            {m: report.signed_error_pct(truth[common], measured[m][common]) for m in METHODS},
+            {m: signed_error_pct(truth[common], measured[m][common]) for m in METHODS},
             title="Simulated rig: signed relative error per method",
         ),
     }

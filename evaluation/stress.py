@@ -18,7 +18,8 @@ from typing import Any
 
 import numpy as np
 
-from . import report
+from evaluation import report
+from measure.metrics import accuracy
 
 
 @dataclass(frozen=True)
@@ -83,8 +84,8 @@ def figures(records: Sequence[StressRecord]) -> dict[str, Any]:
     hi = np.array([r.hi_m for r in records])
     b = np.array([r.basic_m for r in records])
     ok = np.isfinite(m)
-    a = report.accuracy(g, m)
-    ab = report.accuracy(g, b)
+    a = accuracy(g, m)
+    ab = accuracy(g, b)
     err = np.abs(m - g)
     good = np.array([r.quality == "good" for r in records])
     gap = np.array([r.gap for r in records])

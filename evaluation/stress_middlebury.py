@@ -18,7 +18,7 @@ For each ground-truth segment of ``evaluation.gt_segments`` (one straight surfac
   at the edges of such a surface are ambiguous; the gap rule answering across the gap is reported
   as its own rate, not as a false positive.
 
-Disparities: ``sgbm`` (device/sgbm.py, as in the edge protocol), ``bm`` (OpenCV StereoBM, block 15,
+Disparities: ``sgbm`` (device/sources/sgbm.py, as in the edge protocol), ``bm`` (OpenCV StereoBM, block 15,
 left band filled the same way), ``gt_out50`` (the ground truth with 50 % of all pixels replaced by a
 value drawn uniformly from the scene's disparity range).
 
@@ -36,7 +36,7 @@ from typing import Any
 
 import numpy as np
 
-from .stress import StressCase, StressRecord, measure_case
+from evaluation.stress import StressCase, StressRecord, measure_case
 
 DISPARITIES: tuple[str, ...] = ("sgbm", "bm", "gt_out50")
 DEV_SCENES: tuple[str, ...] = ("Adirondack", "Piano", "Playroom", "Shelves")
@@ -88,8 +88,8 @@ def _gt_truth(scene: Any, p1: tuple[float, float], p2: tuple[float, float]) -> f
 
 
 def stress_cases(scene: Any, rng: np.random.Generator, max_segments: int | None = None) -> list[StressCase]:
-    """The click pairs of the module docstring for one ``device.middlebury.MiddleburyScene``."""
-    from .gt_segments import SegmentRules, scene_segments
+    """The click pairs of the module docstring for one ``device.sources.middlebury.MiddleburyScene``."""
+    from evaluation.gt_segments import SegmentRules, scene_segments
 
     w, h = scene.camera.width, scene.camera.height
     hi = np.array([w - 1, h - 1, w - 1, h - 1], float)
@@ -151,8 +151,8 @@ def nearer_beyond_both_ends(scene: Any, p1: tuple[int, int], p2: tuple[int, int]
 
 def scene_frames(scene: Any, rng: np.random.Generator, disparities: Sequence[str] = DISPARITIES) -> dict[str, Any]:
     """One measure.Frame per disparity source of the module docstring."""
-    from device.middlebury import scene_frame, scene_sgbm_config
-    from device.sgbm import compute_disparity
+    from device.sources.middlebury import scene_frame, scene_sgbm_config
+    from device.sources.sgbm import compute_disparity
 
     config = scene_sgbm_config(scene)
     out = {}
@@ -179,9 +179,9 @@ def run_stress_middlebury(
     on_progress=None,
 ) -> list[StressRecord]:
     """Every stress case of every selected scene under every disparity source."""
-    from device.middlebury import load_scene
+    from device.sources.middlebury import load_scene
 
-    from .middlebury import scene_dirs
+    from evaluation.middlebury import scene_dirs
 
     records: list[StressRecord] = []
     for path in scene_dirs(data_dir, scenes):
@@ -196,7 +196,7 @@ def run_stress_middlebury(
 
 
 def write_stress_middlebury(out_dir: Path, records: Sequence[StressRecord], setup: dict[str, Any]) -> dict[str, Path]:
-    from .stress import write_stress_report
+    from evaluation.stress import write_stress_report
 
     names = sorted({r.case.group for r in records})
     splits = {

@@ -22,7 +22,7 @@ from typing import Any
 
 import numpy as np
 
-from .stress import StressCase, StressRecord, measure_case
+from evaluation.stress import StressCase, StressRecord, measure_case
 
 DISTANCES_M: tuple[float, ...] = (2.0, 3.0, 4.0, 5.0, 6.0, 7.0)
 POSES: tuple[tuple[float, float], ...] = ((0.0, 0.0), (-20.0, 3.0), (20.0, -3.0))
@@ -96,7 +96,7 @@ def run_stress_sim(seeds: Sequence[int], distances: Sequence[float] = DISTANCES_
 
 
 def write_stress_sim(out_dir: Path, dev: Sequence[StressRecord], held_out: Sequence[StressRecord], setup: dict[str, Any]) -> dict[str, Path]:
-    from .stress import write_stress_report
+    from evaluation.stress import write_stress_report
 
     notes = [
         "Simulated stress study (evaluation/stress_sim.py, issue #12): room segments across wall, board "

@@ -3,7 +3,7 @@
 Pure numpy/scipy; imports nothing else of ours, prints nothing.
 """
 
-from .distance import measure_distance
-from .types import Frame, MeasureError, MeasureOptions, Measurement, PinholeCamera
+from measure.distance import measure_distance
+from measure.types import Frame, MeasureError, MeasureOptions, Measurement, PinholeCamera
 
 __all__ = ["Frame", "MeasureError", "MeasureOptions", "Measurement", "PinholeCamera", "measure_distance"]

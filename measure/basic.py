@@ -7,10 +7,10 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .robust_range import median
-from .sampling import backproject, window_disparities
-from .types import Frame
-from .uncertainty import disparity_quantum, endpoint_depth_sigma, window_disparity_se, window_depth_sigma
+from measure.robust_range import median
+from measure.sampling import backproject, window_disparities
+from measure.types import Frame
+from measure.uncertainty import disparity_quantum, endpoint_depth_sigma, window_disparity_se, window_depth_sigma
 
 
 @dataclass(frozen=True)

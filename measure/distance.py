@@ -128,7 +128,7 @@ Why these choices (A = 100 - 100 |g - m| / g, mean over measurements unless note
   posters at 6-7 m a point (all targets 97.54 -> 97.26, std 2.45 -> 4.29); beyond two standard
   errors of that median and one disparity quantum (``measure.surfaces``) it costs 0.05 points and
   brings the person height within 2 %.
-- Confidence maps: not used. The default SGBM confidence of ``device.sgbm`` is 1.0 on every
+- Confidence maps: not used. The default SGBM confidence of ``device.sources.sgbm`` is 1.0 on every
   valid pixel, so weighting by it equals dropping invalid pixels, which sampling already does.
   The left-right consistency (``lr_confidence=1``) is graded, but dropping samples below it
   hurts: on the 147 Middlebury clicks robust mean 97.51 -> 93.4 at thresholds 0.3-0.75 and
@@ -151,13 +151,13 @@ from dataclasses import replace
 
 import numpy as np
 
-from .basic import BasicEnds, basic_ends
-from .gap import end_surface, extension_depth, is_clear_gap, is_gap, leading_run
-from .geometry import project_on_line, project_on_plane
-from .censored import censored_line, few_levels
-from .dline import DisparityLine, fit_disparity_line
-from .linefit import LineModel, fit_line
-from .sampling import (
+from measure.basic import BasicEnds, basic_ends
+from measure.gap import end_surface, extension_depth, is_clear_gap, is_gap, leading_run
+from measure.geometry import project_on_line, project_on_plane
+from measure.censored import censored_line, few_levels
+from measure.dline import DisparityLine, fit_disparity_line
+from measure.linefit import LineModel, fit_line
+from measure.sampling import (
     SegmentSamples,
     backproject,
     backproject_depth,
@@ -167,10 +167,10 @@ from .sampling import (
     valid_disparity,
     window_median_disparity,
 )
-from .neighbourhood import end_plane
-from .surfaces import CLEAN_SPREAD, DISAGREE_REL, LOCAL_ROUGHNESS, EndModels, clean_window_disparity, extrapolated, on_depth_edge, select_end_models
-from .types import Frame, MeasureError, MeasureOptions, Measurement, validate_frame
-from .uncertainty import (
+from measure.neighbourhood import end_plane
+from measure.surfaces import CLEAN_SPREAD, DISAGREE_REL, LOCAL_ROUGHNESS, EndModels, clean_window_disparity, extrapolated, on_depth_edge, select_end_models
+from measure.types import Frame, MeasureError, MeasureOptions, Measurement, validate_frame
+from measure.uncertainty import (
     MODEL_SHARE,
     calibrated_sigma,
     click_sigma,
@@ -181,7 +181,7 @@ from .uncertainty import (
     line_fit_sigma,
     quantization_sigma,
 )
-from .verdict import EDGE_PX, EDGE_STEP, EXTRAPOLATED_PX, FEW_SAMPLES, FEW_SHARE, disagreement, judge
+from measure.verdict import EDGE_PX, EDGE_STEP, EXTRAPOLATED_PX, FEW_SAMPLES, FEW_SHARE, disagreement, judge
 
 __all__ = ["backproject", "measure_distance", "window_median_disparity"]
 

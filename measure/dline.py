@@ -47,8 +47,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .mcd import McdResult, fast_mcd, starts_for
-from .robust_range import TUKEY_C, median
+from measure.mcd import McdResult, fast_mcd, starts_for
+from measure.robust_range import TUKEY_C, median
 
 # See the module docstring: FAST-MCD supplies the start, the IRLS the answer.
 _STARTS = starts_for(2, failure=1e-6)

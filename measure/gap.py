@@ -47,10 +47,10 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .robust_range import tukey_location
-from .sampling import depth_of, extension_pixels, valid_disparity
-from .types import Frame
-from .uncertainty import correlation_inflation
+from measure.robust_range import tukey_location
+from measure.sampling import depth_of, extension_pixels, valid_disparity
+from measure.types import Frame
+from measure.uncertainty import correlation_inflation
 
 
 @dataclass(frozen=True)

@@ -20,7 +20,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .mcd import McdResult, fast_mcd
+from measure.mcd import McdResult, fast_mcd
 
 _DEGENERATE_D = 1e-7  # |d| / |T| below which a plane passes through the camera centre
 _FLAT_AB = 1e-9  # |(a, b)| below which a plane's normal is the optical axis (a = b = 0)

@@ -46,8 +46,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .robust_range import median
-from .types import MeasureError
+from measure.robust_range import median
+from measure.types import MeasureError
 
 _SUBSAMPLE = 300  # R&VD nested scheme: subsample size
 _MAX_GROUPS = 5

@@ -22,7 +22,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .robust_range import TUKEY_C, median
+from measure.robust_range import TUKEY_C, median
 
 RADIUS = 12  # px: half-window size around the click
 MIN_PIXELS = 40  # valid pixels the half-window needs

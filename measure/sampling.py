@@ -11,7 +11,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .types import Frame, MeasureError
+from measure.types import Frame, MeasureError
 
 
 def check_point(frame: Frame, p: object, name: str) -> tuple[float, float]:

@@ -81,12 +81,12 @@ from dataclasses import replace
 
 import numpy as np
 
-from .distance import robust_with_terms
-from .robust_range import median, tukey_location
-from .sampling import SegmentSamples, ray, sample_segment, segment_pixels
-from .types import Frame, MeasureError, MeasureOptions, Measurement
-from .uncertainty import INTERVAL_SCALE, SIGMA_SCALE, calibrated_sigma, disparity_quantum, interval
-from .verdict import judge
+from measure.distance import robust_with_terms
+from measure.robust_range import median, tukey_location
+from measure.sampling import SegmentSamples, ray, sample_segment, segment_pixels
+from measure.types import Frame, MeasureError, MeasureOptions, Measurement
+from measure.uncertainty import INTERVAL_SCALE, SIGMA_SCALE, calibrated_sigma, disparity_quantum, interval
+from measure.verdict import judge
 
 __all__ = ["MAX_FRAMES", "POOLS", "measure_sequence", "still_frames"]
 

@@ -48,9 +48,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .dline import DisparityLine, fit_disparity_line
-from .robust_range import median
-from .uncertainty import correlation_inflation
+from measure.dline import DisparityLine, fit_disparity_line
+from measure.robust_range import median
+from measure.uncertainty import correlation_inflation
 
 MIN_LOCAL = 10  # fewer valid samples than this in an end's piece: no line of its own
 MIN_PIECE_PX = 15  # a shorter piece is a click that slipped off the surface, not a surface of its own

@@ -59,7 +59,7 @@ from collections.abc import Callable
 
 import numpy as np
 
-from .robust_range import median
+from measure.robust_range import median
 
 
 def disparity_quantum(disparities: np.ndarray) -> float:

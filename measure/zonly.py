@@ -27,14 +27,14 @@ import time
 
 import numpy as np
 
-from .basic import basic_ends
-from .distance import MIN_FIT_SAMPLES, NO_DEPTH, validate_request
-from .dline import mcd_line
-from .gap import extension_depth, is_gap
-from .mcd import fast_mcd
-from .sampling import backproject_depth, sample_segment
-from .types import Frame, MeasureError, MeasureOptions, Measurement
-from .uncertainty import disparity_quantum, endpoint_depth_sigma
+from measure.basic import basic_ends
+from measure.distance import MIN_FIT_SAMPLES, NO_DEPTH, validate_request
+from measure.dline import mcd_line
+from measure.gap import extension_depth, is_gap
+from measure.mcd import fast_mcd
+from measure.sampling import backproject_depth, sample_segment
+from measure.types import Frame, MeasureError, MeasureOptions, Measurement
+from measure.uncertainty import disparity_quantum, endpoint_depth_sigma
 
 
 def measure_z_only(

@@ -26,13 +26,13 @@ from fastapi.staticfiles import StaticFiles
 from device import Source, make_source
 from measure import Frame, MeasureOptions, PinholeCamera, measure_distance
 
-from .frames import Capture, FrameRing
-from .config import ServerConfig
-from .guard import RequestGuard, allowed_hosts_for
-from .recorder import Recorder
-from .routers import checks, frames, health, measurements, recordings
-from .state import ServiceState
-from .store import Store
+from service.frames import Capture, FrameRing
+from service.config import ServerConfig
+from service.guard import RequestGuard, allowed_hosts_for
+from service.recorder import Recorder
+from service.routers import checks, frames, health, measurements, recordings
+from service.state import ServiceState
+from history.store import Store
 
 STATIC_DIR = Path(__file__).resolve().parent / "static"
 

@@ -16,7 +16,7 @@ from typing import Any
 
 from pydantic import BaseModel, ConfigDict, Field, ValidationError
 
-from .guard import MAX_BODY_BYTES
+from service.guard import MAX_BODY_BYTES
 
 
 class ConfigError(ValueError):

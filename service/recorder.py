@@ -15,12 +15,12 @@ from fastapi import HTTPException
 
 from measure import Frame
 
-from .frames import Capture
-from .schemas import PLAIN_NAME
+from service.frames import Capture
+from service.schemas import PLAIN_NAME
 
 
 class Recorder:
-    """Writes the live frames to a recording (device.recording.RecordingWriter) while started."""
+    """Writes the live frames to a recording (device.formats.recording.RecordingWriter) while started."""
 
     def __init__(self, capture: Capture, root: Path) -> None:
         self.capture = capture
@@ -42,7 +42,7 @@ class Recorder:
 
     def start(self, out: str | None) -> dict[str, Any]:
         try:
-            from device.recording import RecordingWriter
+            from device.formats.recording import RecordingWriter
         except ImportError as exc:
             raise HTTPException(503, f"recording is not available in this build ({exc})") from exc
         info = self.capture.info

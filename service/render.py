@@ -11,7 +11,7 @@ import cv2
 import numpy as np
 
 
-from .frames import RingFrame
+from service.frames import RingFrame
 
 THUMB_WIDTH = 240
 LIVE_JPEG_QUALITY = 85

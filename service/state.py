@@ -12,9 +12,9 @@ from typing import Annotated
 
 from fastapi import Depends, HTTPException, Request
 
-from .frames import Capture, FrameGone, FrameRing, FrameUnknown, RingFrame
-from .recorder import Recorder
-from .store import Store
+from service.frames import Capture, FrameGone, FrameRing, FrameUnknown, RingFrame
+from service.recorder import Recorder
+from history.store import Store
 
 
 @dataclass

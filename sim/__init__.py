@@ -6,11 +6,11 @@ streams frames (see sim.source). Nothing heavy is imported until used.
 
 from __future__ import annotations
 
-from .scenario import scenario, simulate_frame
-from .scenes import BOARD_M, MOUNTS, SCENES, STANDOFFS_M, TARGETS, SceneError, SceneParams
-from .sensor import SensorError, SensorModel
-from .textures import LIGHTING
-from .truth import ClickModel, Truth
+from sim.scenario import scenario, simulate_frame
+from sim.scenes import BOARD_M, MOUNTS, SCENES, STANDOFFS_M, TARGETS, SceneError, SceneParams
+from sim.sensor import SensorError, SensorModel
+from sim.textures import LIGHTING
+from sim.truth import ClickModel, Truth
 
 __all__ = [
     "BOARD_M",

@@ -19,8 +19,8 @@ import numpy as np
 
 from measure import PinholeCamera
 
-from .raycast import Pose, Rect, Surface
-from .scenes import SceneParams, board_frame, charuco_corner_offsets, charuco_sheet_m, get_view
+from sim.raycast import Pose, Rect, Surface
+from sim.scenes import SceneParams, board_frame, charuco_corner_offsets, charuco_sheet_m, get_view
 
 SUPERSAMPLE = 4
 TEXELS_PER_SQUARE = 96
@@ -29,7 +29,7 @@ TEXELS_PER_SQUARE = 96
 @lru_cache(maxsize=4)
 def board_texture(board: tuple[int, int, float, float, str]) -> tuple[np.ndarray, float]:
     """The sheet as a float32 grey image in [0, 1] and its texels per metre."""
-    from device.calibration import BoardSpec
+    from device.calibration.stereo import BoardSpec
 
     sx, sy, square, marker, dictionary = board
     spec = BoardSpec(sx, sy, square, marker, dictionary)

@@ -11,10 +11,10 @@ import numpy as np
 
 from measure import Frame
 
-from .scenes import BOARD_M, STANDOFFS_M, SceneParams, get_view, resolve_target
-from .sensor import SensorError, SensorModel, get_profile, sense
-from .textures import LIGHTING
-from .truth import ClickModel, Truth
+from sim.scenes import BOARD_M, STANDOFFS_M, SceneParams, get_view, resolve_target
+from sim.sensor import SensorError, SensorModel, get_profile, sense
+from sim.textures import LIGHTING
+from sim.truth import ClickModel, Truth
 
 SENSOR_FIELDS = frozenset(f.name for f in fields(SensorModel))
 

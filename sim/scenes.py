@@ -27,9 +27,9 @@ import numpy as np
 
 from measure import PinholeCamera
 
-from .raycast import Box, Capsule, Pose, Primitive, Rect, Surface, cast
-from .textures import LIGHTING, albedo, pattern
-from .truth import Truth
+from sim.raycast import Box, Capsule, Pose, Primitive, Rect, Surface, cast
+from sim.textures import LIGHTING, albedo, pattern
+from sim.truth import Truth
 
 CAMERA_HEIGHT_M = 1.4
 REFERENCE_FX_AT_1280 = 1000.0  # focal length (px) of the reference camera at 1280 px long side: 65 deg HFOV
@@ -409,7 +409,7 @@ def _shade(surfaces: tuple[Surface, ...], patterns: list[np.ndarray], shape: tup
 
 
 def _charuco_pattern(surface: Surface, camera: PinholeCamera, pose: Pose, board: tuple) -> np.ndarray:
-    from .charuco import board_pattern  # OpenCV's ArUco module, only for this scene
+    from sim.charuco import board_pattern  # OpenCV's ArUco module, only for this scene
 
     return board_pattern(surface, camera, pose, board)
 

@@ -125,9 +125,9 @@ from functools import lru_cache
 
 import numpy as np
 
-from .scenes import View
-from .textures import LIGHTING, noise_tile
-from .truth import ClickModel
+from sim.scenes import View
+from sim.textures import LIGHTING, noise_tile
+from sim.truth import ClickModel
 
 OUTLIER_MODELS = ("mismatch", "baseline", "other-surface")
 CONTENTION_AT = ("edges", "disagreement")

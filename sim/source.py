@@ -20,14 +20,14 @@ from typing import Any
 
 import numpy as np
 
-from device.base import SourceBase, SourceInfo, SourceSpec, parse_flag
+from device.base import Backend, SourceBase, SourceInfo, SourceSpec, parse_flag
 from device.errors import SourceError, SourceNotFound, SourceTimeout
 from measure import Frame
 
-from .scenario import make_model, simulate_frame
-from .scenes import BOARD_M, CHARUCO_BOARD, SCENES, SceneError, SceneParams, get_view, resolve_target
-from .sensor import SensorError, SensorModel, get_profile
-from .textures import LIGHTING
+from sim.scenario import make_model, simulate_frame
+from sim.scenes import BOARD_M, CHARUCO_BOARD, SCENES, SceneError, SceneParams, get_view, resolve_target
+from sim.sensor import SensorError, SensorModel, get_profile
+from sim.textures import LIGHTING
 
 MODES = ("model", "stereo")
 
@@ -216,7 +216,7 @@ class SimSource(SourceBase):
         rng = np.random.default_rng([cfg.seed, i])
         meta = {"frame_index": i, "seed": cfg.seed, "mode": cfg.mode}
         if cfg.mode == "stereo":
-            from .stereo import stereo_frame
+            from sim.stereo import stereo_frame
 
             frame, _ = stereo_frame(cfg.scene_params(), self.model, rng, target=cfg.target, meta=meta)
         else:
@@ -229,3 +229,6 @@ class SimSource(SourceBase):
 def _with_state(info: SourceInfo, state: str) -> SourceInfo:
     return replace(info, state=state)
 
+
+# Registered under the entry-point group depthruler.sources (pyproject.toml): the kind "sim".
+BACKEND = Backend("sim.source", "SimConfig", "SimSource", "scene")

@@ -1,6 +1,6 @@
 """Rendered-stereo mode: ray-cast a rectified left/right pair of the textured scene and run OpenCV SGBM.
 
-This exercises the V4L2 stereo pipeline (device/sgbm.py) end to end without hardware, against exact
+This exercises the V4L2 stereo pipeline (device/sources/sgbm.py) end to end without hardware, against exact
 ground truth. The pair is the reference camera (left) and a camera ``model.baseline_wide_m`` to its
 right with the same intrinsics and orientation, so the true disparity is ``fx * B / Z``.
 """
@@ -13,11 +13,11 @@ import numpy as np
 
 from measure import Frame
 
-from .scenario import noisy_image
-from .scenes import SceneParams, get_view
-from .sensor import SensorModel, _occluded
-from .textures import LIGHTING
-from .truth import Truth
+from sim.scenario import noisy_image
+from sim.scenes import SceneParams, get_view
+from sim.sensor import SensorModel, _occluded
+from sim.textures import LIGHTING
+from sim.truth import Truth
 
 
 def stereo_pair(params: SceneParams, model: SensorModel, rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray]:
@@ -38,8 +38,8 @@ def stereo_frame(
     params: SceneParams, model: SensorModel, rng: np.random.Generator, *, target: str | None = None,
     meta: dict[str, Any] | None = None, sgbm: Any = None,
 ) -> tuple[Frame, Truth]:
-    """A frame whose disparity comes from real SGBM on the rendered pair (``sgbm``: a device.sgbm.SGBMConfig)."""
-    from device.sgbm import SGBMConfig, compute_disparity, round_up_disparities
+    """A frame whose disparity comes from real SGBM on the rendered pair (``sgbm``: a device.sources.sgbm.SGBMConfig)."""
+    from device.sources.sgbm import SGBMConfig, compute_disparity, round_up_disparities
 
     view = get_view(params)
     truth = view.truth(target)

@@ -22,8 +22,8 @@ import numpy as np
 import pytest
 
 from device import SourceBase, SourceDisconnected, SourceInfo, SourceNotFound, SourceTimeout
-from device.recording import RecordingWriter
-from device.sgbm import round_up_disparities
+from device.formats.recording import RecordingWriter
+from device.sources.sgbm import round_up_disparities
 from measure import Frame, PinholeCamera
 from sim import Truth
 

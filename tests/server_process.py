@@ -27,7 +27,7 @@ def start_serve(
     appended to ``log``; return the process and its base URL once the first frame is served. Raises
     AssertionError (with the log) when the server exits or gives no frame within ``timeout_s``."""
     port = free_port()
-    cmd = [*prefix, sys.executable, "-m", "service.cli", "serve", "--source", source, "--port", str(port), "--db", str(db), *args]
+    cmd = [*prefix, sys.executable, "-m", "cli.main", "serve", "--source", source, "--port", str(port), "--db", str(db), *args]
     env = {**os.environ, "PYTHONPATH": str(ROOT), "PYTHONUNBUFFERED": "1"}
     with open(log, "ab") as out:  # the child keeps its own handle
         proc = subprocess.Popen(cmd, cwd=ROOT, stdout=out, stderr=subprocess.STDOUT, env=env)

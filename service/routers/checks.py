@@ -6,10 +6,10 @@ from typing import Annotated, Any
 
 from fastapi import APIRouter, Query
 
-from device.check_history import checks_path, read_checks
+from history.checks import checks_path, read_checks
 
-from ..schemas import ChecksOut, json_doc
-from ..state import State
+from service.schemas import ChecksOut, json_doc
+from service.state import State
 
 router = APIRouter(prefix="/api", tags=["checks"])
 

@@ -8,10 +8,10 @@ import numpy as np
 from fastapi import APIRouter, HTTPException, Path, Query
 from fastapi.responses import Response
 
-from ..frames import TooManyWaiters
-from ..render import colorize_disparity, disparity_range, encode_jpeg, encode_png, frame_json, turbo_colors
-from ..schemas import MAX_ID, DepthOut, DepthScaleOut, FrameOut, json_doc, media_doc
-from ..state import State
+from service.frames import TooManyWaiters
+from service.render import colorize_disparity, disparity_range, encode_jpeg, encode_png, frame_json, turbo_colors
+from service.schemas import MAX_ID, DepthOut, DepthScaleOut, FrameOut, json_doc, media_doc
+from service.state import State
 
 router = APIRouter(prefix="/api/frames", tags=["frames"])
 FrameId = Annotated[int, Path(ge=0, le=MAX_ID)]

@@ -8,9 +8,9 @@ from typing import Any
 from fastapi import APIRouter, HTTPException
 from starlette.concurrency import run_in_threadpool
 
-from ..frames import ReplayControlError
-from ..schemas import HealthOut, ReplayIn, ReplayStatusOut, SourceStatusOut, json_doc
-from ..state import State
+from service.frames import ReplayControlError
+from service.schemas import HealthOut, ReplayIn, ReplayStatusOut, SourceStatusOut, json_doc
+from service.state import State
 
 router = APIRouter(prefix="/api", tags=["health"])
 

@@ -11,8 +11,8 @@ from fastapi.responses import JSONResponse, PlainTextResponse, Response
 from measure import MeasureError, MeasureOptions, measure_distance
 from measure.sequence import measure_sequence
 
-from ..render import encode_png, frame_json, make_thumb, png_from_jpeg, quarter
-from ..schemas import (
+from service.render import encode_png, frame_json, make_thumb, png_from_jpeg, quarter
+from service.schemas import (
     MAX_ID,
     AnnotationIn,
     DeletedOut,
@@ -23,8 +23,8 @@ from ..schemas import (
     json_doc,
     media_doc,
 )
-from ..state import ServiceState, State
-from ..store import FrameDropped, StoreError, StoreFull
+from service.state import ServiceState, State
+from history.store import FrameDropped, StoreError, StoreFull
 
 router = APIRouter(prefix="/api", tags=["measurements"])
 MeasurementId = Annotated[int, Path(ge=0, le=MAX_ID)]

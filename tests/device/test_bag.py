@@ -20,7 +20,7 @@ from rosbags.rosbag2 import Writer as Writer2  # noqa: E402
 from rosbags.typesys import Stores, get_typestore  # noqa: E402
 
 from device import SourceError, SourceTimeout, make_source, open_source  # noqa: E402
-from device.bag import (  # noqa: E402
+from device.sources.bag import (  # noqa: E402
     BagError,
     BagLayoutError,
     BagReader,
@@ -29,7 +29,7 @@ from device.bag import (  # noqa: E402
     pair_by_time,
     summarize_bag,
 )
-from device.recording import EndOfRecording, RecordingWriter  # noqa: E402
+from device.formats.recording import EndOfRecording, RecordingWriter  # noqa: E402
 from device.base import SourceInfo  # noqa: E402
 from factories import FakeClock  # noqa: E402
 from measure import MeasureOptions, PinholeCamera, measure_distance  # noqa: E402
@@ -470,7 +470,7 @@ def test_explicit_topics(capture, tmp_path: Path) -> None:
 def test_summary_and_replay_command(capture, tmp_path: Path) -> None:
     from typer.testing import CliRunner
 
-    from service.cli import app
+    from cli.main import app
 
     bag = write_viewer_bag(tmp_path / "viewer.bag", capture)
     s = summarize_bag(bag)
@@ -495,7 +495,7 @@ def test_measure_command_on_a_bag(capture, tmp_path: Path, clock: FakeClock, opt
     """`measure --frame 2` reads frame 2 directly: realtime=1 makes it wait for no frame before it."""
     from typer.testing import CliRunner
 
-    from service.cli import app
+    from cli.main import app
 
     bag = write_ros_bag(tmp_path / "rs", capture, "mcap", "realsense-ros")
     truth = capture.frames[2].meta["truth"]

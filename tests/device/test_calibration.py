@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 from typer.testing import CliRunner
 
-from device.calibration import (
+from device.calibration.stereo import (
     FORMAT,
     BoardSpec,
     calibrate_stereo,
@@ -20,8 +20,8 @@ from device.calibration import (
     render_board_view,
 )
 from device.errors import CalibrationError
-from device.stereo_pair import ImagePairGrabber
-from service.cli import app
+from device.sources.stereo_pair import ImagePairGrabber
+from cli.main import app
 
 SIZE = (1280, 720)
 K_LEFT = np.array([[1000.0, 0, 640.5], [0, 1002.0, 359.5], [0, 0, 1]])
@@ -186,7 +186,7 @@ def test_folder_layouts_and_cli(views, tmp_path):
     assert "[8/8]" in result.output and "RMS" in result.output and f"wrote {out}" in result.output
     assert load_calibration(out).baseline_m == pytest.approx(np.linalg.norm(T_LR), rel=0.01)
     # The same calibration as ROS camera_info files, read back through the source-spec path.
-    from device.calibration_files import load_any
+    from device.calibration.files import load_any
 
     result = CliRunner().invoke(app, ["calibrate", "--images", str(tmp_path / "lr"), "--out", str(tmp_path / "rig.yaml"),
                                       "--format", "ros"])
@@ -223,7 +223,7 @@ def test_calibration_rectifies_and_measures_the_board(views):
     Rows must align (epipolar lines horizontal) and the 3D distance between far-apart corners,
     from disparity alone, must match the printed board.
     """
-    from device.stereo_pair import StereoProcessor
+    from device.sources.stereo_pair import StereoProcessor
 
     calib = calibrate_stereo(views, BOARD)
     proc = StereoProcessor(calib)

@@ -10,9 +10,9 @@ import numpy as np
 import pytest
 
 from device import open_source
-from device.depth_folder import DEFAULT_BASELINE_M
+from device.sources.depth_folder import DEFAULT_BASELINE_M
 from device.errors import CalibrationError, RecordingError, SourceError, SourceNotFound
-from device.recording import EndOfRecording, RecordingWriter, open_recording
+from device.formats.recording import EndOfRecording, RecordingWriter, open_recording
 
 W, H = 80, 60
 FX, FY, CX, CY = 70.0, 71.0, 39.5, 29.25

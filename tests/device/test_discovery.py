@@ -10,7 +10,7 @@ from typer.testing import CliRunner
 
 import device.discovery as discovery
 from device import SourceInfo
-from service.cli import app
+from cli.main import app
 
 runner = CliRunner()
 
@@ -168,7 +168,7 @@ def test_devices_json_stdout_is_clean_in_a_fresh_process():
     from pathlib import Path
 
     env = {k: v for k, v in os.environ.items() if not k.startswith("DEPTHAI_")}
-    out = subprocess.run([sys.executable, "-m", "service.cli", "devices", "--json"], capture_output=True, text=True,
+    out = subprocess.run([sys.executable, "-m", "cli.main", "devices", "--json"], capture_output=True, text=True,
                          cwd=Path(__file__).resolve().parents[2], env=env, timeout=60)
     assert out.returncode == 0, out.stderr
     assert json.loads(out.stdout)["count"] >= 0

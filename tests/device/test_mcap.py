@@ -14,7 +14,7 @@ from factories import record
 from typer.testing import CliRunner
 
 from device.errors import RecordingError
-from device.mcap_export import (
+from device.formats.mcap import (
     TOPIC_ANNOTATIONS,
     TOPIC_CALIBRATION,
     TOPIC_COLOR,
@@ -23,8 +23,8 @@ from device.mcap_export import (
     TOPIC_MEASUREMENTS,
     export_mcap,
 )
-from device.recording import open_recording
-from device.recording_cli import export
+from device.formats.recording import open_recording
+from cli.recording import export
 
 MEASUREMENT = {
     "frame_index": 1,

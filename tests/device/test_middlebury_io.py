@@ -3,8 +3,8 @@ import pytest
 
 from device import SourceNotFound, open_source
 from device.errors import CalibrationError
-from device.middlebury import load_scene, read_pfm, scene_sgbm_config
-from device.sgbm import SGBMConfig, compute_disparity
+from device.sources.middlebury import load_scene, read_pfm, scene_sgbm_config
+from device.sources.sgbm import SGBMConfig, compute_disparity
 
 
 def test_pfm_roundtrip(tmp_path):
@@ -43,7 +43,7 @@ def test_sgbm_matches_ground_truth_on_most_pixels(middlebury_dir):
     assert set(np.unique(conf)) <= {0.0, 1.0}
 
 
-# Measured 2026-11-23 (device/sgbm.py docstring): in SGBM's left band (the first
+# Measured 2026-11-23 (device/sources/sgbm.py docstring): in SGBM's left band (the first
 # num_disparities columns), share of non-occluded pixels within 1 px of ground truth with the
 # band filled. OpenCV alone leaves the band empty.
 BAND_WITHIN_1PX = {"Adirondack": 0.90, "Motorcycle": 0.91, "Piano": 0.75, "Pipes": 0.92,

@@ -15,7 +15,7 @@ import pytest
 
 from device import SourceDisconnected, SourceError, SourceNotFound, SourceSpec, SourceTimeout, open_source
 from device.errors import CalibrationError
-from device.oak import (
+from device.sources.oak import (
     PRESETS,
     UDEV_RULE,
     OakConfig,
@@ -33,7 +33,7 @@ from device.oak import (
     read_group,
 )
 
-import depthai as dai  # noqa: E402  (device.oak has set DEPTHAI_LEVEL / DEPTHAI_SEARCH_TIMEOUT)
+import depthai as dai  # noqa: E402  (device.sources.oak has set DEPTHAI_LEVEL / DEPTHAI_SEARCH_TIMEOUT)
 
 FIXTURE = Path(__file__).resolve().parents[1] / "fixtures" / "oak_calib.json"
 A, B, C = dai.CameraBoardSocket.CAM_A, dai.CameraBoardSocket.CAM_B, dai.CameraBoardSocket.CAM_C
@@ -65,7 +65,7 @@ def test_open_without_device_raises_not_found_fast():
 
 
 def test_busy_and_wrong_devices_named(monkeypatch):
-    from device.oak import find_device
+    from device.sources.oak import find_device
 
     def info(mxid, state):
         i = dai.DeviceInfo(mxid)
@@ -310,7 +310,7 @@ def test_real_oak_delivers_registered_frames():
 
 def test_permission_denied_device_prints_the_udev_rule(monkeypatch):
     """Defect 6: a device without USB permission is named, with the rule to install, not hidden."""
-    from device.oak import find_device
+    from device.sources.oak import find_device
 
     denied = dai.DeviceInfo("1.1")
     denied.status = dai.XLinkError_t.X_LINK_INSUFFICIENT_PERMISSIONS
@@ -328,7 +328,7 @@ def test_permission_denied_device_prints_the_udev_rule(monkeypatch):
     assert calls == [False]
     assert UDEV_RULE in str(err.value) and "udevadm" in str(err.value) and "plug an OAK" not in str(err.value)
     # XLink lists nothing at all, but pyusb sees the Movidius vendor id (what lsusb shows): the same advice.
-    import device.oak as oak
+    import device.sources.oak as oak
     from device import SourceInfo
 
     monkeypatch.setattr(dai.XLinkConnection, "getAllConnectedDevices", staticmethod(lambda skipInvalidDevices=True: []))
@@ -495,12 +495,12 @@ def test_pipeline_default_auto_calibration_is_on_start():
 
 
 def test_oak_module_type_checks_against_depthai_stubs():
-    """Defect 9: mypy on device/oak.py against the stubs depthai ships catches v2-era calls."""
+    """Defect 9: mypy on device/sources/oak.py against the stubs depthai ships catches v2-era calls."""
     pytest.importorskip("mypy")
     root = Path(__file__).resolve().parents[2]
     result = subprocess.run(
         [sys.executable, "-m", "mypy", "--follow-imports=silent", "--ignore-missing-imports",
-         "--no-incremental", "--cache-dir", os.devnull, str(root / "device" / "oak.py")],
+         "--no-incremental", "--cache-dir", os.devnull, str(root / "device" / "sources" / "oak.py")],
         capture_output=True, text=True, cwd=root, timeout=300,
     )
     assert result.returncode == 0, result.stdout + result.stderr

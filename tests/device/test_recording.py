@@ -13,7 +13,7 @@ import pytest
 from device import SourceDisconnected, SourceNotFound, SourceTimeout, open_source
 from device.base import SourceInfo
 from device.errors import RecordingError, SourceError
-from device.recording import (
+from device.formats.recording import (
     FRAMES,
     MANIFEST,
     EndOfRecording,
@@ -151,7 +151,7 @@ def test_sim_round_trip(tmp_path: Path) -> None:
 
 
 def test_middlebury_round_trip(tmp_path: Path, middlebury_dir: Path) -> None:
-    mb = pytest.importorskip("device.middlebury")
+    mb = pytest.importorskip("device.sources.middlebury")
     scene = mb.load_scene(middlebury_dir / "Adirondack")
     frame = mb.scene_frame(scene, scene.gt_disparity)
     with RecordingWriter(tmp_path / "rec", SourceInfo(kind="middlebury", name=scene.name), keep_raw=True) as w:
@@ -171,7 +171,7 @@ def test_middlebury_round_trip(tmp_path: Path, middlebury_dir: Path) -> None:
 
 
 def test_middlebury_source_recorded_and_replayed(tmp_path: Path, middlebury_dir: Path) -> None:
-    pytest.importorskip("device.middlebury")
+    pytest.importorskip("device.sources.middlebury")
     with open_source(f"middlebury:{middlebury_dir / 'Teddy'}?disparity=gt") as src:
         want = src.read()
         with RecordingWriter(tmp_path / "rec", src.info) as w:
@@ -314,7 +314,7 @@ def test_missing_or_damaged_manifest(tmp_path: Path) -> None:
 
 
 def _fail_on(monkeypatch: pytest.MonkeyPatch, target: str, when: str, partial: bool = False) -> None:
-    import device.recording.writer as r  # where the writer looks these up
+    import device.formats.recording.writer as r  # where the writer looks these up
 
     real = getattr(r, target)
 

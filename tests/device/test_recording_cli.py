@@ -11,9 +11,9 @@ import typer
 from factories import assert_same_frame, record
 from typer.testing import CliRunner
 
-from device.recording import open_recording
-from device.recording_cli import record as record_cmd
-from device.recording_cli import replay as replay_cmd
+from device.formats.recording import open_recording
+from cli.recording import record as record_cmd
+from cli.recording import replay as replay_cmd
 
 app = typer.Typer()
 app.command("record")(record_cmd)

@@ -12,7 +12,7 @@ from pathlib import Path
 import pytest
 from factories import assert_same_frame, record, synthetic_frame
 
-from device.recording import FRAMES, open_recording
+from device.formats.recording import FRAMES, open_recording
 
 ROOT = Path(__file__).resolve().parents[2]
 
@@ -20,7 +20,7 @@ WRITER_SCRIPT = """
 import sys
 sys.path[:0] = [{root!r}, {tests!r}]
 from factories import SYNTH_INFO, synthetic_frame
-from device.recording import RecordingWriter
+from device.formats.recording import RecordingWriter
 w = RecordingWriter({out!r}, SYNTH_INFO)
 k = 0
 while True:
@@ -83,7 +83,7 @@ def test_ctrl_c_stops_the_record_command_cleanly(tmp_path: Path) -> None:
     cmd = [
         sys.executable,
         "-c",
-        "import sys, typer; from device.recording_cli import record; typer.run(record)",
+        "import sys, typer; from cli.recording import record; typer.run(record)",
         "--source",
         f"replay:{src}?loop=1",
         "--frames",

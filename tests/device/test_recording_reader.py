@@ -10,7 +10,7 @@ import pytest
 from factories import assert_same_frame, record
 
 from device.errors import RecordingError
-from device.recording import FRAMES, MANIFEST, ReplaySource, open_recording
+from device.formats.recording import FRAMES, MANIFEST, ReplaySource, open_recording
 
 
 def _edit_line(rec: Path, n: int, change) -> None:

@@ -13,11 +13,11 @@ import pytest
 
 from device import CalibrationError, SourceDisconnected, SourceError, SourceNotFound, SourceSpec, SourceTimeout
 from device import open_source
-from device.calibration import StereoCalibration, render_board_view
-from device.calibration_files import CalibrationRef
-from device.middlebury import load_scene, read_calib
-from device.sgbm import SGBMConfig, round_up_disparities
-from device.stereo_pair import (
+from device.calibration.stereo import StereoCalibration, render_board_view
+from device.calibration.files import CalibrationRef
+from device.sources.middlebury import load_scene, read_calib
+from device.sources.sgbm import SGBMConfig, round_up_disparities
+from device.sources.stereo_pair import (
     ImagePairGrabber,
     StereoPairConfig,
     StereoPairSource,
@@ -309,7 +309,7 @@ def test_format_and_rate_fallbacks_are_read_back_and_warned(tmp_path, caplog, mi
                               sgbm=SGBMConfig(num_disparities=round_up_disparities(scene.ndisp)))
     src = StereoPairSource(config, grabber=V4L2Grabber(config, capture_factory=lambda _d: cap),
                            calibration=_scene_calibration(middlebury_dir / "Teddy", scene, rectified=True))
-    with caplog.at_level("WARNING", logger="device.stereo_pair"), src:
+    with caplog.at_level("WARNING", logger="device.sources.stereo_pair"), src:
         frame = src.read()
     warnings = src.info.extra["warnings"]
     assert any("YUYV although MJPG" in x for x in warnings) and any("10 fps although 30" in x for x in warnings)
@@ -324,7 +324,7 @@ def test_permission_denied_is_not_busy(tmp_path, monkeypatch):
     """A node this user may not open is a permission problem (fix: the video group), not "busy"."""
     import errno
 
-    from device import stereo_pair
+    from device.sources import stereo_pair
 
     (dev,) = _nodes(tmp_path, "video9")
 

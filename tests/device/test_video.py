@@ -13,11 +13,11 @@ import pytest
 from typer.testing import CliRunner
 
 from device import SourceEnded, SourceError, SourceNotFound, open_source
-from device.calibration_files import load_any
-from device.middlebury import load_scene
-from device.sgbm import SGBMConfig, round_up_disparities
-from device.stereo_pair import StereoProcessor
-from device.video import config_from_spec, restore_odd_size, split_eyes
+from device.calibration.files import load_any
+from device.sources.middlebury import load_scene
+from device.sources.sgbm import SGBMConfig, round_up_disparities
+from device.sources.stereo_pair import StereoProcessor
+from device.sources.video import config_from_spec, restore_odd_size, split_eyes
 from factories import FakeClock, rendered_pair
 from device.base import SourceSpec
 from measure import MeasureOptions, measure_distance
@@ -139,7 +139,7 @@ def test_ffv1_video_gives_the_in_memory_disparity_and_the_true_length(middlebury
 def test_cli_measure_on_a_video_with_opencv_yaml(middlebury_dir, tmp_path):
     """Done-when: `depthruler measure "video:pair.mkv?layout=side-by-side&calib=stereo.yaml" --p1 .. --p2 ..`
     is within 2 % of a Middlebury ground-truth segment (calibration: an OpenCV YAML, T in metres)."""
-    from service.cli import app
+    from cli.main import app
 
     rig = make_rig(middlebury_dir, "Motorcycle")
     video, yaml = rig_files(rig, tmp_path, units="m")
@@ -231,7 +231,7 @@ def test_bad_video_specs(tmp_path):
 
 def test_realtime_paces_reads_to_the_video_times(tmp_path, monkeypatch):
     """realtime=1 sleeps until each frame's time has come (a fake clock: no wall-clock assertion)."""
-    import device.video as video
+    import device.sources.video as video
 
     clock = FakeClock()
     monkeypatch.setattr(video, "time", clock)

@@ -10,10 +10,11 @@ import numpy as np
 import pytest
 from typer.testing import CliRunner
 
-from evaluation.cli import app
+from cli.eval import app
 from evaluation.middlebury import ContentionModel, contended_disparity, contended_regions
 from evaluation.sim_study import DISTANCES_M, LIGHTINGS, MEASUREMENT_SET, dimension, plan_sim
-from evaluation.report import METHODS, PNG_SIGNATURE, EvalError, accuracy, summary
+from evaluation.report import METHODS, PNG_SIGNATURE, EvalError, summary
+from measure.metrics import accuracy
 
 SIM_N = 252  # the reduced run: 84 cells x 3 (equal counts per distance), plus 25 gap measurements
 

@@ -156,7 +156,7 @@ def test_stress_protocol_command_writes_tables_and_plots(tmp_path, middlebury_di
 
     from typer.testing import CliRunner
 
-    from evaluation.cli import app
+    from cli.eval import app
     from evaluation.report import PNG_SIGNATURE
 
     out = tmp_path / "stress"

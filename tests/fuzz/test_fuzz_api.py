@@ -60,7 +60,7 @@ def _send(client: TestClient, case) -> httpx.Response:
 # hits one of them ends the operation's test as xfail, so every other operation stays guarded.
 KNOWN = (
     (lambda case, r: r.status_code == 500 and any(_big(v) for v in [*(case.path_parameters or {}).values(), *(case.query or {}).values()]),
-     "service/store.py: a measurement id (/api/measurements/{mid}) or ?limit= beyond SQLite's 64-bit INTEGER "
+     "history/store.py: a measurement id (/api/measurements/{mid}) or ?limit= beyond SQLite's 64-bit INTEGER "
      "raises OverflowError (500); the routes should bound them (404 or 422)"),
 )
 # Also found, and kept out of the generated requests because it depends on timing (a flaky answer):

@@ -23,7 +23,7 @@ from hypothesis import strategies as st
 
 from device.base import SourceInfo
 from device.errors import RecordingError
-from device.recording import FRAMES, MANIFEST, Recording, RecordingWriter, open_recording, summarize
+from device.formats.recording import FRAMES, MANIFEST, Recording, RecordingWriter, open_recording, summarize
 from fuzzing import EDGE_FLOATS, ODD_TEXT, typed_or_answer
 from measure import Frame, PinholeCamera
 

@@ -14,7 +14,7 @@ from measure.linefit import fit_line
 from measure.sampling import backproject_depth, sample_segment
 from measure.zonly import measure_z_only
 
-from evaluation.report import accuracy
+from measure.metrics import accuracy
 from factories import SMALL_B, SMALL_CAM, SMALL_F, SMALL_H, SMALL_W, doorway_frame, plane_frame, true_length
 from measure_synth import poster_case
 

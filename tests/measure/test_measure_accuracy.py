@@ -9,7 +9,7 @@ import pytest
 from measure import MeasureOptions, measure_distance
 
 from measure_synth import poster_case
-from evaluation.report import accuracy
+from measure.metrics import accuracy
 
 DISTANCES = (2.0, 4.0, 6.0, 7.0)
 PER_DISTANCE = 20

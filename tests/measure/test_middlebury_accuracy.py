@@ -16,7 +16,7 @@ import pytest
 from evaluation.gt_segments import SegmentRules, find_segments, scene_segments
 from factories import camera
 from measure import MeasureError, MeasureOptions, measure_distance
-from evaluation.report import accuracy
+from measure.metrics import accuracy
 
 METHODS = ("basic", "paper", "robust")
 JITTERS = 2  # seeded click jitter (sigma 1.5 px) per segment, besides the exact end pixels
@@ -28,8 +28,8 @@ def _scenes(root: Path) -> list[Path]:
 
 @pytest.fixture(scope="module")
 def middlebury_results(middlebury_dir):
-    from device.middlebury import load_scene, scene_frame, scene_sgbm_config
-    from device.sgbm import compute_disparity
+    from device.sources.middlebury import load_scene, scene_frame, scene_sgbm_config
+    from device.sources.sgbm import compute_disparity
 
     rng = np.random.default_rng(14)
     out: dict[str, dict[str, list[float]]] = {}
@@ -116,7 +116,7 @@ def test_find_segments_rejects_curved_surfaces():
 
 
 def test_segments_of_the_shared_scenes_are_straight_and_long(middlebury_dir):
-    from device.middlebury import load_scene
+    from device.sources.middlebury import load_scene
 
     total = 0
     for path in _scenes(middlebury_dir):

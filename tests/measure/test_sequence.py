@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 from evaluation.frames_study import FramesJob, run_job, trial_frames
-from evaluation.report import accuracy
+from measure.metrics import accuracy
 from measure import MeasureError, MeasureOptions
 from measure.sequence import MAX_FRAMES, measure_sequence, static_share, still_frames
 

@@ -130,7 +130,7 @@ def test_serve_help_states_the_settings_defaults():
     import inspect
     import re
 
-    from service.cli_serve import serve
+    from cli.serve import serve
     from service.config import ServerConfig
 
     defaults = ServerConfig()

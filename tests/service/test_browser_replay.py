@@ -21,7 +21,7 @@ FRAMES = 6
 def server(tmp_path_factory):
     folder = tmp_path_factory.mktemp("replay")
     rec = folder / "shelf-take-1"
-    cmd = [sys.executable, "-m", "service.cli", "record", "--source", "sim:poster?distance=2&fps=0&width=640&height=360",
+    cmd = [sys.executable, "-m", "cli.main", "record", "--source", "sim:poster?distance=2&fps=0&width=640&height=360",
            "--out", str(rec), "--frames", str(FRAMES)]  # fmt: skip
     subprocess.run(cmd, cwd=ROOT, check=True, capture_output=True, timeout=120)
     with serve(folder, f"replay:{rec}?loop=1&realtime=1") as base:

@@ -8,7 +8,7 @@ import pytest
 from typer.testing import CliRunner
 
 from device import SourceSpec, make_source
-from service.cli import app
+from cli.main import app
 from device import source_config
 from service.config import ConfigError, load_config, parse_config
 

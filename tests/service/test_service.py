@@ -230,7 +230,7 @@ def test_concurrent_measurements_no_errors(tmp_path):
 
 
 def test_recording_start_stop(tmp_path):
-    from device.recording import open_recording
+    from device.formats.recording import open_recording
 
     with make_client(tmp_path, capture_fps=50.0) as c:
         latest(c)
@@ -272,7 +272,7 @@ def test_ring_evicts_oldest_live_and_bounds_frozen():
 
 
 def test_replay_without_loop_ends_instead_of_starting_over(tmp_path):
-    from device.recording import RecordingWriter
+    from device.formats.recording import RecordingWriter
 
     with RecordingWriter(tmp_path / "rec", PlaneSource().info) as w:
         for i in range(1, 4):

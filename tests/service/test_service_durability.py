@@ -105,7 +105,7 @@ def _enospc(*_a, **_k):
 
 
 def test_full_disk_is_507_degraded_and_recovers(tmp_path, monkeypatch):
-    from service import store as store_module
+    from history import store as store_module
 
     with make_client(tmp_path) as c:
         f = latest(c)
@@ -207,7 +207,7 @@ def test_frame_is_durable_when_the_measurement_answers(tmp_path):
         m = measure(c, f["id"], (10, 10), (300, 200), method="basic").json()
         files = list((tmp_path / "h-frames").iterdir())
         assert len(files) == 1 and files[0].stat().st_size < 0.25 * (SMALL_W * SMALL_H * 7)  # 3 B colour + 4 B disparity raw
-        from service.store import load_frame
+        from history.store import load_frame
 
         saved = load_frame(files[0])
         want = wall_frame(frame_index(c, f))
@@ -242,7 +242,7 @@ def test_source_timeout_is_retried_not_reopened(tmp_path):
 def test_replay_with_a_corrupt_frame_skips_it_and_ends(tmp_path):
     from fastapi.testclient import TestClient
 
-    from device.recording import RecordingWriter
+    from device.formats.recording import RecordingWriter
     from service.app import create_app
 
     with RecordingWriter(tmp_path / "rec", PlaneSource().info) as w:

@@ -12,10 +12,10 @@ import cv2
 import numpy as np
 import pytest
 
-from device.mcap_export import export_mcap, load_measurements
-from device.recording import RecordingWriter
+from device.formats.mcap import export_mcap, load_measurements
+from device.formats.recording import RecordingWriter
 from service.frames import FrameRing
-from service.store import CSV_COLUMNS, Store, supported_decimals
+from history.store import CSV_COLUMNS, Store, supported_decimals
 from factories import SMALL_B, SMALL_F, SMALL_H, SMALL_W, PlaneSource, hilly_frame, wall_frame
 from service_client import latest, make_client, measure
 

@@ -177,7 +177,7 @@ def test_exposed_without_token_refuses_to_start(tmp_path, monkeypatch):
     import uvicorn
     from typer.testing import CliRunner
 
-    from service.cli import app
+    from cli.main import app
 
     calls = {}
     monkeypatch.setattr(uvicorn, "run", lambda app, **kw: calls.update(app=app, **kw))
@@ -195,7 +195,7 @@ def test_recordings_flag_sets_the_root(tmp_path, monkeypatch):
     import uvicorn
     from typer.testing import CliRunner
 
-    from service.cli import app
+    from cli.main import app
 
     calls = {}
     monkeypatch.setattr(uvicorn, "run", lambda app, **kw: calls.update(app=app, **kw))

@@ -81,7 +81,7 @@ def _freeze_and_wait_for_presave(c, tmp_path, fid: int):
 
 
 def test_frozen_frame_is_saved_before_the_measurement(tmp_path, monkeypatch):
-    from service import store as store_module
+    from history import store as store_module
 
     with make_client(tmp_path) as c:
         f = latest(c)
@@ -130,7 +130,7 @@ def test_concurrent_measurements_share_one_commit(tmp_path):
     next one: 8 requests, 2 commits, each request answered with its own durable record."""
     import threading
 
-    from service.store import Store
+    from history.store import Store
 
     store = Store(tmp_path / "h.db")
     frame = wall_frame(0)
@@ -182,8 +182,8 @@ def test_checkpoints_run_beside_the_commits(tmp_path, monkeypatch):
     """No measurement's commit copies the WAL into the database (SQLite's automatic checkpoint did,
     every ~1000 pages, ~140 measurements, for 50-350 ms); the checkpoint thread does, once the
     commits pause."""
-    from service import store as store_module
-    from service.store import Store
+    from history import store as store_module
+    from history.store import Store
 
     monkeypatch.setattr(store_module, "_CHECKPOINT_QUIET_S", 3600.0)  # no checkpoint thread pass
     monkeypatch.setattr(store_module, "_CHECKPOINT_ROWS", 10**9)

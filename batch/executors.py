@@ -1,0 +1,184 @@
+"""Where the evaluation and the batch runner do their work: this process, a local process pool or a
+Ray cluster, behind one call, :meth:`Executor.imap`.
+
+Each item handed to an executor is a *group* of work that belongs together (one recording's tasks,
+one simulated view's jobs), so a worker opens a recording or renders a view once. ``imap`` yields
+``(index, result)`` as each group finishes, in completion order, so a caller can stream results to
+disk and a crash keeps what was done. ``fn`` must be a module-level function (it is pickled by name)
+and should turn its own failures into results: an exception that escapes it ends the run.
+
+Ray is optional (``pip install 'depthruler[ray]'``) and imported only when a Ray executor is made.
+"""
+
+from __future__ import annotations
+
+import os
+from collections.abc import Callable, Iterator, Sequence
+from typing import Any, Protocol, TypeVar
+
+from batch.errors import BatchError
+
+T = TypeVar("T")
+R = TypeVar("R")
+
+
+class ExecutorError(BatchError):
+    """An executor cannot be made as asked (bad worker count, Ray missing or unreachable)."""
+
+
+class Executor(Protocol):
+    name: str
+    workers: int
+
+    def imap(self, fn: Callable[[T], R], items: Sequence[T]) -> Iterator[tuple[int, R]]: ...
+
+    def close(self) -> None: ...
+
+    def describe(self) -> str: ...
+
+
+class InProcessExecutor:
+    """Runs every group in this process, in order: no start-up cost, for small jobs and debugging."""
+
+    name = "in-process"
+    workers = 1
+
+    def imap(self, fn: Callable[[T], R], items: Sequence[T]) -> Iterator[tuple[int, R]]:
+        for i, item in enumerate(items):
+            yield i, fn(item)
+
+    def close(self) -> None:
+        pass
+
+    def describe(self) -> str:
+        return "in this process"
+
+    def __enter__(self) -> InProcessExecutor:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
+
+class PoolExecutor:
+    """A pool of ``workers`` local processes (spawned, not forked: the caller may run a progress-bar
+    thread, and forked threads deadlock). The pool starts on first use and is reused until close()."""
+
+    name = "pool"
+
+    def __init__(self, workers: int) -> None:
+        if workers < 1:
+            raise ExecutorError(f"--workers={workers} must be at least 1")
+        self.workers = workers
+        self._pool = None
+
+    def imap(self, fn: Callable[[T], R], items: Sequence[T]) -> Iterator[tuple[int, R]]:
+        import multiprocessing as mp
+        from concurrent.futures import ProcessPoolExecutor, as_completed
+
+        if self._pool is None:
+            self._pool = ProcessPoolExecutor(max_workers=self.workers, mp_context=mp.get_context("spawn"))
+        futures = {self._pool.submit(fn, item): i for i, item in enumerate(items)}
+        try:
+            for fut in as_completed(futures):
+                yield futures[fut], fut.result()
+        finally:
+            for fut in futures:
+                fut.cancel()
+
+    def close(self) -> None:
+        if self._pool is not None:
+            self._pool.shutdown(wait=True, cancel_futures=True)
+            self._pool = None
+
+    def describe(self) -> str:
+        return f"on a pool of {self.workers} local processes"
+
+    def __enter__(self) -> PoolExecutor:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
+
+class RayExecutor:
+    """Groups as Ray tasks on a Ray cluster, each reserving ``task_cpus`` CPUs (default 1).
+
+    ``address``: ``"local"`` starts a Ray instance on this machine (``num_cpus`` CPUs, default all);
+    ``"auto"`` joins the cluster already running here or named by ``RAY_ADDRESS``; anything else is
+    a cluster address (``HOST:6379`` or ``ray://HOST:10001``). When Ray is already initialised in
+    this process (a test's ``ray.init(num_cpus=2)``, a notebook) that connection is used as it is.
+    Every node needs depthruler installed at the same version and the inputs at the same paths.
+    """
+
+    name = "ray"
+
+    def __init__(self, address: str = "auto", num_cpus: int | None = None, task_cpus: int = 1) -> None:
+        try:
+            import ray
+        except ImportError as exc:
+            raise ExecutorError("--ray needs Ray; install it with: pip install 'depthruler[ray]'") from exc
+        self._ray = ray
+        self._started = False
+        if not ray.is_initialized():
+            kwargs: dict[str, Any] = {"include_dashboard": False, "log_to_driver": False}
+            if address == "local":
+                kwargs["num_cpus"] = num_cpus
+            else:
+                kwargs["address"] = address
+            try:
+                ray.init(**kwargs)
+            except (ConnectionError, RuntimeError, ValueError) as exc:
+                raise ExecutorError(
+                    f"cannot reach a Ray cluster at {address!r} ({exc}); start one with `ray start --head`, "
+                    "give its address (HOST:6379 or ray://HOST:10001), or use --ray local"
+                ) from exc
+            self._started = True
+        self.task_cpus = task_cpus
+        self.workers = max(1, int(ray.cluster_resources().get("CPU", 1)) // task_cpus)
+        self._remote: dict[Callable, Any] = {}
+
+    def imap(self, fn: Callable[[T], R], items: Sequence[T]) -> Iterator[tuple[int, R]]:
+        ray = self._ray
+        remote = self._remote.get(fn)
+        if remote is None:
+            # Ray retries a group whose worker or node died (its rows reach the caller only once it finished).
+            remote = self._remote[fn] = ray.remote(num_cpus=self.task_cpus)(fn)
+        refs = {remote.remote(item): i for i, item in enumerate(items)}
+        pending = list(refs)
+        try:
+            while pending:
+                ready, pending = ray.wait(pending, num_returns=1)
+                for ref in ready:
+                    yield refs[ref], ray.get(ref)
+        finally:
+            for ref in pending:
+                ray.cancel(ref)
+
+    def close(self) -> None:
+        if self._started:
+            self._ray.shutdown()
+            self._started = False
+
+    def describe(self) -> str:
+        nodes = sum(1 for n in self._ray.nodes() if n.get("Alive"))
+        cpus = int(self._ray.cluster_resources().get("CPU", 1))
+        return f"on Ray ({cpus} CPUs on {nodes} node(s), {self.workers} groups at a time)"
+
+    def __enter__(self) -> RayExecutor:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
+
+def make_executor(workers: int | None = None, ray: str | None = None) -> InProcessExecutor | PoolExecutor | RayExecutor:
+    """The executor the command line asks for: ``--ray ADDRESS`` -> Ray (``workers`` caps a local
+    instance's CPUs); else ``--workers 1`` -> this process; ``--workers N`` -> a pool of N processes;
+    no ``--workers`` -> a pool of one process per CPU."""
+    if ray:
+        return RayExecutor(ray, num_cpus=workers)
+    n = workers if workers is not None else (os.cpu_count() or 1)
+    if n < 1:
+        raise ExecutorError(f"--workers={n} must be at least 1")
+    return InProcessExecutor() if n == 1 else PoolExecutor(n)

@@ -1,0 +1,1 @@
+"""The `depthruler` command line: :mod:`cli.main` assembles one module per group of commands."""

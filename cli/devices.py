@@ -1,0 +1,112 @@
+"""`depthruler devices` and `depthruler calibrate`. Heavy imports stay inside the commands."""
+
+from __future__ import annotations
+
+import json
+from dataclasses import asdict
+from pathlib import Path
+
+import typer
+
+
+def devices(json_out: bool = typer.Option(False, "--json", help="Print machine-readable JSON.")) -> None:
+    """List attached cameras: OAK devices (DepthAI), V4L2 nodes and USB cameras."""
+    from device.discovery import list_devices
+
+    found = list_devices()
+    if json_out:
+        typer.echo(json.dumps({"devices": [asdict(d) for d in found], "count": len(found)}, indent=2))
+        return
+    if not found:
+        typer.echo("no cameras found (no OAK over DepthAI, no /dev/video* nodes, no USB video devices).")
+        typer.echo("Plug in an OAK or a UVC stereo camera, or try the simulated rig:")
+        typer.echo("  depthruler serve --source sim")
+        return
+    for d in found:
+        size = f" {d.width}x{d.height}" if d.width else ""
+        state = f" [{d.state}]" if d.state else ""
+        spec = d.extra.get("spec", "")
+        usb_id = d.extra.get("usb_id", "")
+        details = "  ".join(x for x in (d.serial, usb_id, f"spec: {spec}" if spec else "") if x)
+        typer.echo(f"{d.kind:5} {d.name}{size}{state}  {details}".rstrip())
+        if d.extra.get("fix"):
+            typer.echo(f"      no permission to open it; fix:\n      {d.extra['fix']}")
+
+
+def parse_squares(text: str) -> tuple[int, int]:
+    try:
+        x, _, y = text.lower().partition("x")
+        return int(x), int(y)
+    except ValueError as exc:
+        raise typer.BadParameter(f"{text!r} is not COLSxROWS, e.g. 11x8") from exc
+
+
+def calibrate(
+    images: Path | None = typer.Option(None, "--images", help="Folder of view pairs: left/ + right/, "
+                                       "NAME_left/NAME_right, or side-by-side images with --side-by-side."),
+    live: str | None = typer.Option(None, "--live", help="Capture from a stereo pair or video, e.g. "
+                                    "v4l2:/dev/video0 or video:board.mkv?layout=side-by-side."),
+    out: Path = typer.Option(Path("calibration.json"), "--out", "-o", help="Calibration file to write."),
+    fmt: str = typer.Option("json", "--format", help="json (depthruler's own), opencv-yaml, opencv-xml, or ros "
+                            "(writes OUT_left.yaml + OUT_right.yaml camera_info files)."),
+    board_png: Path | None = typer.Option(None, "--board-png", help="Only write the printable board PNG here "
+                                          "(print at 100 %, then measure a square) and exit."),
+    dpi: float = typer.Option(300.0, "--dpi", help="Resolution of --board-png."),
+    squares: str = typer.Option("11x8", "--squares", help="ChArUco squares across x down."),
+    square_mm: float = typer.Option(30.0, "--square-mm", help="Printed square side in mm (measure it)."),
+    marker_mm: float = typer.Option(22.0, "--marker-mm", help="Printed marker side in mm."),
+    dictionary: str = typer.Option("DICT_5X5_100", "--dictionary", help="ArUco dictionary of the board."),
+    side_by_side: bool = typer.Option(False, "--side-by-side", help="Each image holds left | right halves."),
+    views: int = typer.Option(20, "--views", help="Live capture: how many distinct board views to collect."),
+    save_views: Path | None = typer.Option(None, "--save-views", help="Live capture: also save the pairs here."),
+) -> None:
+    """Calibrate a stereo pair from ChArUco board views and write the calibration (or print the board)."""
+    from device.calibration.stereo import BoardSpec, calibrate_stereo, load_image_pairs, write_board_png
+    from device.calibration.files import FORMATS, write
+    from device.errors import SourceError
+
+    sx, sy = parse_squares(squares)
+    if fmt not in FORMATS:
+        raise typer.BadParameter(f"{fmt!r} is not one of {', '.join(FORMATS)}", param_hint="--format")
+    try:
+        board = BoardSpec(sx, sy, square_mm / 1000.0, marker_mm / 1000.0, dictionary)
+        if board_png is not None:
+            path, w_mm, h_mm = write_board_png(board, board_png, dpi=dpi)
+            typer.echo(f"wrote {path}: {sx}x{sy} squares of {square_mm:g} mm, markers {marker_mm:g} mm, {dictionary}; "
+                       f"sheet {w_mm:.1f} x {h_mm:.1f} mm at {dpi:g} dpi. Print at 100 % (actual size), glue it "
+                       "flat, measure a square and pass that as --square-mm.")
+            return
+        if (images is None) == (live is None):
+            raise typer.BadParameter("give exactly one of --images DIR or --live SPEC (or --board-png OUT)")
+        if images is not None:
+            pairs = load_image_pairs(images, side_by_side=side_by_side)
+            typer.echo(f"{len(pairs)} view pairs from {images}")
+        elif live is not None:
+            from device.calibration.stereo import capture_views
+
+            pairs = capture_views(_grabber(live), board, views, save_to=save_views, progress=typer.echo)
+        calib = calibrate_stereo(pairs, board, progress=typer.echo)
+        written = write(calib, out, fmt)
+    except SourceError as exc:
+        typer.echo(f"error: {exc}", err=True)
+        raise typer.Exit(1) from exc
+    used = sum(v.used for v in calib.views)
+    typer.echo(f"wrote {', '.join(map(str, written))}: {used}/{len(calib.views)} views used, RMS {calib.rms:.3f} px, "
+               f"baseline {calib.baseline_m * 1000:.2f} mm")
+
+
+def _grabber(spec: str):
+    """The stereo grabber of a --live spec: a V4L2 pair or a stereo video."""
+    from device.base import SourceSpec
+    from device.errors import SourceError
+
+    parsed = SourceSpec.parse(spec)
+    if parsed.kind == "v4l2":
+        from device.sources.stereo_pair import V4L2Grabber, config_from_spec
+
+        return V4L2Grabber(config_from_spec(parsed))
+    if parsed.kind == "video":
+        from device.sources.video import VideoGrabber, config_from_spec as video_config
+
+        return VideoGrabber(video_config(parsed))
+    raise SourceError(f"--live takes a v4l2: or video: spec, not {parsed.kind!r}")

@@ -1,0 +1,50 @@
+"""The `depthruler` command line: one Typer app that assembles the command modules of :mod:`cli`."""
+
+from __future__ import annotations
+
+import os
+
+import typer
+
+# DepthAI prints a USB banner on import in containers; keep CLI output clean.
+os.environ.setdefault("DEPTHAI_LEVEL", "error")
+
+app = typer.Typer(
+    name="depthruler",
+    help="Measure real objects with depth cameras: click two points, get a robust 3D length.",
+    no_args_is_help=True,
+    add_completion=False,
+    pretty_exceptions_enable=False,
+)
+
+from cli import batch as batch_cmd  # noqa: E402 — after the DepthAI setting
+from cli import bench as bench_cmd  # noqa: E402
+from cli import check as check_cmd  # noqa: E402
+from cli import devices as devices_cmd  # noqa: E402
+from cli import eval as eval_cmd  # noqa: E402
+from cli import recording as recording_cmd  # noqa: E402
+from cli import serve as serve_cmd  # noqa: E402
+
+# Each command module keeps its heavy imports inside the command body, so `--help` stays fast.
+for name, command in {
+    "devices": devices_cmd.devices,
+    "serve": serve_cmd.serve,
+    "measure": serve_cmd.measure,
+    "record": recording_cmd.record,
+    "replay": recording_cmd.replay,
+    "export": recording_cmd.export,
+    "calibrate": devices_cmd.calibrate,
+    "check": check_cmd.check,
+    "bench": bench_cmd.bench,
+}.items():
+    app.command(name, context_settings=getattr(command, "context_settings", None))(command)
+app.add_typer(eval_cmd.app, name="eval")
+app.add_typer(batch_cmd.app, name="batch")
+
+
+def main() -> None:
+    app()
+
+
+if __name__ == "__main__":
+    main()

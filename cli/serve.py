@@ -1,0 +1,193 @@
+"""``depthruler serve`` (the web service) and ``depthruler measure`` (one headless measurement).
+
+Heavy imports (fastapi, uvicorn, cv2, backends) happen inside the commands so ``--help`` stays fast.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import os
+import sys
+from pathlib import Path
+from typing import Any, Optional
+
+import typer
+
+LOOPBACK = ("127.0.0.1", "localhost", "::1")
+
+
+def _fail(message: str, code: int = 2) -> None:
+    typer.echo(f"depthruler: {message}", err=True)
+    raise typer.Exit(code)
+
+
+def check_listen(host: str, port: int) -> None:
+    """Fail with a clear message, before anything starts, when ``host:port`` cannot be served
+    (uvicorn would print the startup banner first and an OSError after it)."""
+    import errno
+    import socket
+
+    try:
+        family = socket.getaddrinfo(host, port, type=socket.SOCK_STREAM)[0][0]
+        with socket.create_server((host, port), family=family):  # SO_REUSEADDR, as uvicorn binds
+            pass
+    except socket.gaierror as exc:
+        _fail(f"cannot resolve --host {host!r} ({exc.strerror}); use 127.0.0.1 or an address of this machine")
+    except OSError as exc:
+        if exc.errno == errno.EADDRINUSE:
+            _fail(f"port {port} on {host} is already in use (another depthruler serve?); pass --port with a free port")
+        _fail(f"cannot listen on {host}:{port} ({exc.strerror or exc}); pass another --host or --port")
+
+
+def auto_source() -> str:
+    """The first attached OAK, else the simulated rig (so ``serve`` always starts)."""
+    try:
+        from device import list_devices
+
+        for info in list_devices():
+            if info.kind == "oak":
+                return str(info.extra.get("spec") or "oak")
+    except Exception:  # noqa: BLE001 — discovery must never stop the service from starting
+        pass
+    return "sim"
+
+
+def serve(
+    source: Optional[str] = typer.Option(None, "--source", "-s", help="Source spec, e.g. sim:poster?distance=3, oak, replay:DIR. Default: the config's source, else an attached OAK, else the simulator."),
+    config: Optional[Path] = typer.Option(None, "--config", "-c", help="TOML config (see configs/*.toml); flags override it."),
+    host: Optional[str] = typer.Option(None, help="Address to bind (default 127.0.0.1). 0.0.0.0 exposes the service: set a token."),
+    port: Optional[int] = typer.Option(None, help="TCP port (default 8000)."),
+    token: Optional[str] = typer.Option(None, envvar="DEPTHRULER_TOKEN", help="Require this token on /api (Bearer header or ?token=)."),
+    db: Optional[Path] = typer.Option(None, help="SQLite history file (default depthruler.db); frames go to <db>-frames/."),
+    recordings: Optional[Path] = typer.Option(None, help="The only folder recordings started from the API go into (default: recordings/ next to the --db file)."),
+    history_max_gb: Optional[float] = typer.Option(None, "--history-max-gb", help="Keep the saved frames under this many GB: the oldest unpinned frames are deleted first (their measurements stay). Default: no cap."),
+    insecure_no_token: bool = typer.Option(False, "--insecure-no-token", help="Serve on a non-loopback --host without a token: anyone who reaches the port can use the API."),
+    allowed_host: Optional[list[str]] = typer.Option(None, "--allowed-host", help="Another Host name to answer (a DNS name of this machine); repeatable."),
+    ring_size: Optional[int] = typer.Option(None, help="Frames kept in the ring buffer (default 32)."),
+) -> None:
+    """Serve the measuring web page and HTTP API on a live source."""
+    import uvicorn
+
+    from service.app import create_app
+    from service.config import ConfigError, ServeConfig, ServerConfig, load_config
+
+    try:
+        cfg = load_config(config) if config else ServeConfig()
+        overrides = {k: v for k, v in {"host": host, "port": port, "token": token, "ring_size": ring_size}.items() if v is not None}
+        if db is not None:
+            overrides["db"] = str(db)
+        if recordings is not None:
+            overrides["recordings"] = str(recordings)
+        if insecure_no_token:
+            overrides["insecure_no_token"] = True
+        if history_max_gb is not None:
+            overrides["history_max_gb"] = history_max_gb
+        if allowed_host:
+            overrides["allowed_hosts"] = tuple(allowed_host)
+        server = ServerConfig.model_validate({**cfg.server.model_dump(), **overrides})
+    except ConfigError as exc:
+        _fail(str(exc))
+    except ValueError as exc:  # a flag out of range (pydantic)
+        _fail(f"bad option: {exc}")
+    spec = source or cfg.source or auto_source()
+    check_listen(server.host, server.port)
+    if server.host not in LOOPBACK and not server.token:
+        if not server.insecure_no_token:
+            _fail(
+                f"--host {server.host} exposes the API to the network: set --token (or DEPTHRULER_TOKEN), "
+                "or pass --insecure-no-token to serve it to anyone who reaches the port"
+            )
+        typer.echo(
+            f"depthruler: warning: serving on {server.host} without a token (--insecure-no-token); "
+            "anyone on the network can use the API.",
+            err=True,
+        )
+    try:
+        app = create_app(
+            spec,
+            server,
+        )
+    except Exception as exc:  # noqa: BLE001 — StoreError etc.: say what, don't dump a trace
+        _fail(str(exc))
+    typer.echo(f"depthruler: source {spec}; history {Path(server.db).resolve()}", err=True)
+    typer.echo(f"depthruler: open http://{server.host}:{server.port}/", err=True)
+    uvicorn.run(app, host=server.host, port=server.port, log_level=os.environ.get("DEPTHRULER_LOG", "warning"), access_log=False)
+
+
+def _point(text: str, name: str) -> tuple[float, float]:
+    try:
+        x, y = (float(v) for v in text.split(","))
+    except ValueError:
+        raise typer.BadParameter(f"{name} must be X,Y in pixels, e.g. 120,340 (got {text!r})") from None
+    if not (math.isfinite(x) and math.isfinite(y)):
+        raise typer.BadParameter(f"{name} must be finite pixel coordinates (got {text!r})")
+    return x, y
+
+
+def measure(
+    source: str = typer.Argument(..., help="Source spec: sim:poster?seed=1, replay:DIR, middlebury:DIR, oak, ..."),
+    p1: str = typer.Option(..., "--p1", help="First point X,Y (pixels of the colour image)."),
+    p2: str = typer.Option(..., "--p2", help="Second point X,Y."),
+    frame: int = typer.Option(0, "--frame", "-n", min=0, help="Measure on this frame index (0 = first)."),
+    method: str = typer.Option("robust", "--method", "-m", help="robust | paper | basic"),
+    as_json: bool = typer.Option(False, "--json", help="Print the measurement as JSON."),
+    timeout: float = typer.Option(5.0, help="Seconds to wait for each frame."),
+    frames: int = typer.Option(1, "--frames", min=1, max=30, help="Measure over this many frames of a still scene: the frame measured and the ones before it (robust method; with --frame K below N-1 the frame measured is N-1)."),
+) -> None:
+    """Measure between two points on one frame of a source, headless; prints distance, uncertainty and method."""
+    from device import SourceError, open_source
+    from device.base import FrameAccess
+    from measure import MeasureError, MeasureOptions, measure_distance
+    from measure.sequence import measure_sequence
+
+    a, b = _point(p1, "--p1"), _point(p2, "--p2")
+    try:
+        options = MeasureOptions(method=method)  # type: ignore[arg-type]
+    except MeasureError as exc:
+        raise typer.BadParameter(str(exc), param_hint="--method") from None
+    frame = max(frame, frames - 1)
+    read: list[Any] = []
+    try:
+        with open_source(source) as src:
+            if isinstance(src, FrameAccess):  # a recording or bag: read the frames asked for, not every one before them
+                if frame >= len(src):
+                    _fail(f"cannot read frame {frame} of {source}: it has {len(src)} frames (0-{len(src) - 1})", 1)
+                read = [src.frame(i) for i in range(frame - frames + 1, frame + 1)]
+            else:
+                for _ in range(frame + 1):
+                    read = (read + [src.read(timeout)])[-frames:]
+    except SourceError as exc:
+        _fail(f"cannot read frame {frame} of {source}: {exc}", 1)
+    f = read[-1]
+    try:
+        result = measure_sequence(read, a, b, options) if frames > 1 else measure_distance(f, a, b, options)
+    except MeasureError as exc:
+        _fail(str(exc), 1)
+    from service.render import truth_json
+
+    truth = truth_json(f.meta.get("truth"))
+    if as_json:
+        out: dict[str, Any] = {"source": source, "frame": frame, "p1": list(a), "p2": list(b), **result.to_dict()}
+        if truth:
+            out["truth"] = truth
+        typer.echo(json.dumps(out))
+        return
+    unc = f" ± {result.uncertainty_m:.4f} m" if math.isfinite(result.uncertainty_m) else " (uncertainty unknown)"
+    typer.echo(f"distance {result.distance_m:.4f} m{unc}")
+    lo, hi = result.interval_m
+    if math.isfinite(lo) and math.isfinite(hi):
+        typer.echo(f"95 % interval {lo:.4f} - {hi:.4f} m")
+    typer.echo(f"quality: {result.quality.upper()}" + (f" ({'; '.join(result.reasons)})" if result.reasons else ""))
+    typer.echo(f"method {result.method}, fit {result.fit}, {result.n_support}/{result.n_valid} samples in support")
+    typer.echo(f"basic estimate {result.basic_distance_m:.4f} m")
+    if frames > 1:
+        gain = result.single_frame_uncertainty_m / result.uncertainty_m if result.uncertainty_m > 0 else math.nan
+        typer.echo(f"frames: {result.frames_used} of {frames} pooled (frames {frame - result.frames_used + 1}-{frame}); "
+                   f"one sigma {result.single_frame_uncertainty_m:.4f} m on the newest frame alone, {gain:.2f}x narrower pooled")
+    for w in result.warnings:
+        typer.echo(f"warning: {w}")
+    if truth and truth.get("length_m") is not None:
+        ends = " and ".join(f"({p[0]:g},{p[1]:g})" for p in (truth.get("p1_px"), truth.get("p2_px")) if p)
+        typer.echo(f"simulated truth: {truth.get('target')} is {truth['length_m']:.4f} m, between pixels {ends}")
+    sys.stdout.flush()

@@ -1,0 +1,257 @@
+"""Stereo calibration in the files people already have: OpenCV FileStorage and ROS camera_info.
+
+Read by :class:`CalibrationRef` (what a source spec's ``calib=`` names) and written by
+``depthruler calibrate --format``; the project's JSON (device/calibration/stereo.py) stays the native form
+and every file is validated through it. Conventions:
+
+- **OpenCV FileStorage** (``.yaml``/``.yml``/``.xml``, as OpenCV's stereo calibration samples write
+  them; the intrinsics and extrinsics may be two files: ``calib=intrinsics.yml,extrinsics.yml``):
+  ``M1``/``K1``/``cameraMatrix1``, ``D1``/``distCoeffs1``, the same with 2 for the right camera,
+  ``R`` and ``T`` with ``X_right = R X_left + T``, and the image size as ``image_size``/``imageSize``
+  ([w, h]) or ``image_width`` + ``image_height`` (the samples do not write it: add it). ``T`` is in the
+  unit of the board's square size given to the calibration: metres unless the file has
+  ``units: "mm"`` or the spec says ``calib_units=mm``. The distortion model is OpenCV's pinhole model
+  unless the file has ``distortion_model`` (or the spec ``distortion=equidistant``); four coefficients
+  without a model are refused (device/calibration/stereo.py).
+- **ROS camera_info pair** (``calib=left.yaml,right.yaml``, camera_calibration_parsers' YAML):
+  ``camera_matrix`` K, ``distortion_model`` (``plumb_bob``/``rational_polynomial`` = opencv,
+  ``equidistant`` = fisheye), ``distortion_coefficients``, ``rectification_matrix`` R_rect and
+  ``projection_matrix`` P. ROS stores the stereo extrinsics through the rectification: with
+  ``X_rect_l = R_rect_l X_l`` and ``X_rect_r = R_rect_r X_r = X_rect_l + (Tx / fx', 0, 0)``
+  (``Tx = P_r[0, 3]``, ``fx' = P_r[0, 0]``), the pair's ``R = R_rect_r^T R_rect_l`` and
+  ``T = R_rect_r^T (Tx / fx', 0, 0)``. ROS works in metres.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, replace
+from pathlib import Path
+
+import cv2
+import numpy as np
+
+from device.calibration.stereo import StereoCalibration, calibration_from_json, load_calibration
+from device.errors import CalibrationError
+
+UNITS = {"m": 1.0, "mm": 1e-3}
+FORMATS = ("json", "opencv-yaml", "opencv-xml", "ros")
+ROS_MODELS = {"plumb_bob": "opencv", "rational_polynomial": "opencv", "equidistant": "equidistant"}
+_ALIASES = {
+    "K1": ("K1", "M1", "cameraMatrix1", "camera_matrix_left"),
+    "D1": ("D1", "distCoeffs1", "dist_coeffs_left"),
+    "K2": ("K2", "M2", "cameraMatrix2", "camera_matrix_right"),
+    "D2": ("D2", "distCoeffs2", "dist_coeffs_right"),
+    "R": ("R",),
+    "T": ("T",),
+}
+
+
+@dataclass(frozen=True)
+class CalibrationRef:
+    """The calibration a source spec names: file(s), the unit of T in them, the distortion model."""
+
+    path: str
+    units: str = "m"
+    distortion_model: str | None = None
+
+    def __post_init__(self) -> None:
+        if self.units not in UNITS:
+            raise CalibrationError(f"calib_units={self.units!r} is unknown; use m or mm (the unit of T in the file)")
+
+    def load(self) -> StereoCalibration:
+        if not self.path:
+            raise CalibrationError(
+                "a stereo pair needs its calibration: add calib=FILE to the source spec (project .json, OpenCV "
+                ".yaml/.xml, or a ROS camera_info pair left.yaml,right.yaml); create one with "
+                "`depthruler calibrate --images DIR --out FILE.json`"
+            )
+        return load_any(self.path, units=self.units, distortion_model=self.distortion_model)
+
+
+def load_any(ref: str, *, units: str = "m", distortion_model: str | None = None) -> StereoCalibration:
+    """A calibration from the project's JSON, OpenCV FileStorage file(s) or a ROS camera_info pair."""
+    paths = [Path(p.strip()) for p in ref.split(",") if p.strip()]
+    for p in paths:
+        if not p.is_file():
+            raise CalibrationError(f"calibration file {str(p)!r} does not exist; fix the calib= path")
+    if len(paths) == 1 and paths[0].suffix.lower() == ".json":
+        if units != "m" or distortion_model:
+            raise CalibrationError(f"{paths[0]}: the project's JSON is in metres with its distortion model "
+                                   "inside; drop calib_units/distortion from the spec")
+        return load_calibration(paths[0])
+    nodes = [_read_storage(p) for p in paths]
+    if len(nodes) == 2 and all("camera_matrix" in n for n in nodes):
+        data = _from_ros(nodes[0], nodes[1], " + ".join(map(str, paths)))
+    elif any("camera_matrix" in n for n in nodes):
+        raise CalibrationError(f"{ref}: a ROS camera_info calibration needs both cameras: calib=left.yaml,right.yaml")
+    else:
+        merged: dict = {}
+        for n in nodes:
+            merged.update(n)
+        data = _from_opencv(merged, ref)
+    unit = units if units != "m" else str(data.pop("units", "m"))
+    data.pop("units", None)
+    if unit not in UNITS:
+        raise CalibrationError(f"{ref}: units {unit!r} is unknown; use m or mm")
+    data["T"] = (np.asarray(data["T"], np.float64).ravel() * UNITS[unit]).tolist()
+    if distortion_model:
+        data["distortion_model"] = distortion_model
+    return calibration_from_json(data, source=ref)
+
+
+def _read_storage(path: Path) -> dict:
+    """Top-level nodes of a FileStorage (YAML or XML; also reads ROS YAML, which has no %YAML header)."""
+    try:
+        fs = cv2.FileStorage(str(path), cv2.FILE_STORAGE_READ | cv2.FILE_STORAGE_FORMAT_AUTO)
+    except cv2.error as exc:
+        raise CalibrationError(f"{path} is not an OpenCV FileStorage / ROS YAML file ({exc.err})") from exc
+    if not fs.isOpened():
+        raise CalibrationError(f"cannot read {path} as OpenCV YAML/XML")
+    try:
+        root = fs.root()
+        return {name: _node_value(root.getNode(name)) for name in root.keys()}
+    finally:
+        fs.release()
+
+
+def _node_value(node: cv2.FileNode):
+    if node.isMap():
+        if {"rows", "cols", "data"} <= set(node.keys()) and not node.getNode("dt").isNone():
+            return node.mat()  # !!opencv-matrix
+        return {k: _node_value(node.getNode(k)) for k in node.keys()}
+    if node.isSeq():
+        return [_node_value(node.at(i)) for i in range(node.size())]
+    if node.isString():
+        return node.string()
+    if node.isInt() or node.isReal():
+        return node.real()
+    mat = node.mat()
+    return mat if mat is not None else None
+
+
+def _matrix(value, rows: int | None = None) -> np.ndarray:
+    """A matrix from an opencv-matrix, a ROS {rows, cols, data} map or a nested list."""
+    if isinstance(value, dict) and "data" in value:
+        a = np.asarray(value["data"], np.float64)
+        r, c = int(value.get("rows", 1)), int(value.get("cols", a.size))
+        return a.reshape(r, c)
+    a = np.asarray(value, np.float64)
+    return a.reshape(rows, -1) if rows else a
+
+
+def _image_size(d: dict, source: str) -> list[int]:
+    for key in ("image_size", "imageSize", "size"):
+        if key in d:
+            return [int(round(v)) for v in np.asarray(_matrix(d[key]), float).ravel()[:2]]
+    for w, h in (("image_width", "image_height"), ("width", "height"), ("imageWidth", "imageHeight")):
+        if w in d and h in d:
+            return [int(round(float(d[w]))), int(round(float(d[h])))]
+    raise CalibrationError(
+        f"{source}: the image size is missing; add image_width and image_height (pixels of one camera's image "
+        "at calibration) to the file: OpenCV's stereo_calib sample does not write them"
+    )
+
+
+def _from_opencv(d: dict, source: str) -> dict:
+    out: dict = {}
+    for field, names in _ALIASES.items():
+        found = next((n for n in names if n in d and d[n] is not None), None)
+        if found is None:
+            raise CalibrationError(f"{source}: no {' / '.join(names)} in the file (OpenCV stereo calibration needs "
+                                   "M1, D1, M2, D2, R, T and the image size)")
+        out[field] = _matrix(d[found]).tolist()
+    R = np.asarray(out["R"], np.float64)
+    if R.size == 3:  # a Rodrigues vector, as some tools write R
+        out["R"] = cv2.Rodrigues(R.reshape(3, 1))[0].tolist()
+    out["image_size"] = _image_size(d, source)
+    if "distortion_model" in d:
+        out["distortion_model"] = ROS_MODELS.get(str(d["distortion_model"]), str(d["distortion_model"]))
+    if "units" in d:
+        out["units"] = str(d["units"])
+    return out
+
+
+def _from_ros(left: dict, right: dict, source: str) -> dict:
+    models = {str(c.get("distortion_model", "")) for c in (left, right)}
+    if len(models) != 1 or next(iter(models)) not in ROS_MODELS:
+        raise CalibrationError(f"{source}: distortion_model {sorted(models)} must be one of "
+                               f"{', '.join(ROS_MODELS)} and the same for both cameras")
+    sizes = [_image_size(c, source) for c in (left, right)]
+    if sizes[0] != sizes[1]:
+        raise CalibrationError(f"{source}: the cameras have different image sizes {sizes[0]} and {sizes[1]}")
+    try:
+        K1, K2 = _matrix(left["camera_matrix"], 3), _matrix(right["camera_matrix"], 3)
+        R1, R2 = _matrix(left["rectification_matrix"], 3), _matrix(right["rectification_matrix"], 3)
+        P2 = _matrix(right["projection_matrix"], 3)
+        D1 = _matrix(left["distortion_coefficients"]).ravel()
+        D2 = _matrix(right["distortion_coefficients"]).ravel()
+    except KeyError as exc:
+        raise CalibrationError(f"{source}: camera_info field {exc} is missing") from exc
+    if abs(P2[0, 3]) <= 0:
+        raise CalibrationError(f"{source}: the right camera's projection_matrix has Tx = 0; the files are not "
+                               "a calibrated stereo pair (left first, then right)")
+    T = R2.T @ np.array([P2[0, 3] / P2[0, 0], 0.0, 0.0])
+    return {
+        "image_size": sizes[0], "K1": K1.tolist(), "K2": K2.tolist(), "D1": D1.tolist(), "D2": D2.tolist(),
+        "R": (R2.T @ R1).tolist(), "T": T.tolist(), "distortion_model": ROS_MODELS[next(iter(models))],
+    }
+
+
+def write(calib: StereoCalibration, out: str | Path, fmt: str) -> list[Path]:
+    """Write ``calib`` as ``fmt`` (:data:`FORMATS`); returns the files written.
+
+    ``ros`` writes ``OUT_left.yaml`` and ``OUT_right.yaml`` (OUT without its suffix), with the
+    rectification and projection of ``cv2.stereoRectify`` (zero disparity, alpha 0) at the image size.
+    """
+    out = Path(out)
+    if fmt not in FORMATS:
+        raise CalibrationError(f"format {fmt!r} is unknown; use one of {', '.join(FORMATS)}")
+    out.parent.mkdir(parents=True, exist_ok=True)
+    if fmt == "json":
+        return [calib.save(out)]
+    if fmt in ("opencv-yaml", "opencv-xml"):
+        suffix = ".xml" if fmt == "opencv-xml" else out.suffix if out.suffix in (".yaml", ".yml") else ".yaml"
+        path = out.with_suffix(suffix)
+        fs = cv2.FileStorage(str(path), cv2.FILE_STORAGE_WRITE)
+        fs.writeComment("depthruler stereo calibration: X_right = R X_left + T, T in metres")
+        fs.write("image_width", int(calib.image_size[0]))
+        fs.write("image_height", int(calib.image_size[1]))
+        for name in ("K1", "D1", "K2", "D2", "R"):
+            fs.write(name, np.asarray(getattr(calib, name), np.float64).reshape(3, -1) if name[0] in "KR"
+                     else np.asarray(getattr(calib, name), np.float64).reshape(1, -1))
+        fs.write("T", np.asarray(calib.T, np.float64).reshape(3, 1))
+        fs.write("units", "m")
+        fs.write("distortion_model", calib.distortion_model)
+        fs.release()
+        return [path]
+    return _write_ros(calib, out)
+
+
+def _write_ros(calib: StereoCalibration, out: Path) -> list[Path]:
+    w, h = calib.image_size
+    T = np.asarray(calib.T, np.float64).reshape(3, 1)
+    if calib.distortion_model == "equidistant":
+        R1, R2, P1, P2, _Q = cv2.fisheye.stereoRectify(calib.K1, calib.D1, calib.K2, calib.D2, (w, h), calib.R, T,
+                                                       cv2.CALIB_ZERO_DISPARITY, balance=0.0)
+        model = "equidistant"
+    else:
+        R1, R2, P1, P2, *_ = cv2.stereoRectify(calib.K1, calib.D1, calib.K2, calib.D2, (w, h), calib.R, T,
+                                               flags=cv2.CALIB_ZERO_DISPARITY, alpha=0)
+        model = "plumb_bob" if np.asarray(calib.D1).size <= 5 else "rational_polynomial"
+        if np.asarray(calib.D1).size < 5:  # plumb_bob has five coefficients; k3 = 0 is the same model
+            calib = replace(calib, D1=np.pad(np.ravel(calib.D1), (0, 1)), D2=np.pad(np.ravel(calib.D2), (0, 1)))
+    paths = []
+    stem = out.with_suffix("")
+    for side, K, D, Rr, P in (("left", calib.K1, calib.D1, R1, P1), ("right", calib.K2, calib.D2, R2, P2)):
+        def mat(a: np.ndarray, rows: int) -> str:
+            a = np.asarray(a, np.float64).reshape(rows, -1)
+            data = ", ".join(repr(float(v)) for v in a.ravel())
+            return f"\n  rows: {rows}\n  cols: {a.shape[1]}\n  data: [{data}]"
+
+        text = (f"image_width: {w}\nimage_height: {h}\ncamera_name: {side}\ncamera_matrix:{mat(K, 3)}\n"
+                f"distortion_model: {model}\ndistortion_coefficients:{mat(D, 1)}\n"
+                f"rectification_matrix:{mat(Rr, 3)}\nprojection_matrix:{mat(P, 3)}\n")
+        path = Path(f"{stem}_{side}.yaml")
+        path.write_text(text)
+        paths.append(path)
+    return paths

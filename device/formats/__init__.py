@@ -1,0 +1,1 @@
+"""Files the device layer writes and reads: depthruler's recording format and the MCAP export."""

@@ -1,0 +1,140 @@
+"""A recording played back as a Source (``replay:DIR?loop=1&realtime=1&speed=1&start=0``)."""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from measure import Frame
+
+from device.base import SourceBase, SourceInfo, SourceSpec
+from device.errors import RecordingError, SourceError
+from device.pacing import Pacer
+from device.formats.recording.format import FRAMES, EndOfRecording, RecordingNotFound
+from device.formats.recording.reader import Recording, open_recording
+
+# ---------------------------------------------------------------------------------------------
+# replay as a Source
+
+
+@dataclass(frozen=True)
+class ReplayConfig:
+    """``path``: the recording; ``loop``: start again at the end; ``realtime``: pace frames by their
+    recorded timestamps (divided by ``speed``) instead of as fast as possible; ``start``: first frame."""
+
+    path: Path
+    loop: bool = False
+    realtime: bool = False
+    speed: float = 1.0
+    start: int = 0
+
+    def __post_init__(self) -> None:
+        if not (self.speed > 0 and math.isfinite(self.speed)):
+            raise SourceError(f"speed={self.speed} must be a positive number (1 = as recorded)")
+        if self.start < 0:
+            raise SourceError(f"start={self.start} must be a frame index >= 0")
+
+
+class ReplaySource(SourceBase):
+    """A recording played back as a Source: the frames as recorded, in order."""
+
+    def __init__(self, config: ReplayConfig | str | Path) -> None:
+        self.config = config if isinstance(config, ReplayConfig) else ReplayConfig(path=Path(config))
+        self.info = SourceInfo(kind="replay", name=Path(self.config.path).name)
+        self.recording: Recording | None = None
+        self._pos = 0
+        self._pacer = Pacer()
+        self.warnings: list[str] = []  # frames skipped because they could not be read
+
+    def open(self) -> None:
+        rec = open_recording(self.config.path)
+        if len(rec) == 0:
+            raise RecordingError(f"{rec.path / FRAMES} lists no complete frame; there is nothing to replay")
+        if self.config.start >= len(rec):
+            raise SourceError(f"start={self.config.start} is past the end: {rec.path} has {len(rec)} frames")
+        ts = rec.timestamps
+        if len(ts) > 1 and np.all(np.diff(ts) >= 0) and ts[-1] > ts[0]:
+            offsets = ts - ts[0]
+        elif rec.source.fps > 0:
+            offsets = np.arange(len(rec)) / rec.source.fps
+        else:
+            offsets = np.zeros(len(rec))  # no timing recorded: realtime has nothing to follow
+        self._pacer = Pacer(offsets, self.config.speed)
+        self.recording = rec
+        self._pos = self.config.start
+        cam = rec.camera
+        self.info = SourceInfo(
+            kind="replay",
+            name=rec.source.name or rec.path.name,
+            serial=rec.source.serial,
+            width=cam.width if cam else 0,
+            height=cam.height if cam else 0,
+            fps=rec.source.fps,
+            extra={"path": str(rec.path), "frames": len(rec), "recorded_kind": rec.source.kind},
+        )
+        super().open()
+
+    def read(self, timeout_s: float = 1.0) -> Frame:
+        rec = self.recording
+        if rec is None or not self.is_open:
+            raise SourceError("the replay source is not open; call open() or use it in a with block")
+        if self._pos >= len(rec):
+            if not self.config.loop:
+                raise EndOfRecording(f"the replay of {rec.path} reached its end after {len(rec)} frames; use replay:DIR?loop=1 to repeat it")
+            self._pos = 0
+            self._pacer.restart()
+        i = self._pos
+        if self.config.realtime:
+            self._pacer.wait_for(i, timeout_s, f"the replay of {rec.path}")
+        self._pos += 1
+        try:
+            return self.frame(i)
+        except RecordingError as exc:
+            # one damaged frame must not end (or, reopened, restart) the replay: skip it, say so
+            self.warnings.append(f"{exc}; frame {i} skipped")
+            if len(self.warnings) >= len(rec) and self.config.loop:
+                raise RecordingError(f"no frame of {rec.path} can be read ({exc})") from exc
+            return self.read(timeout_s)
+
+    def __len__(self) -> int:
+        return len(self.recording) if self.recording is not None else 0
+
+    def frame(self, i: int) -> Frame:
+        """Frame ``i`` of the recording, read directly (a damaged frame raises RecordingError)."""
+        rec = self.recording
+        if rec is None or not self.is_open:
+            raise SourceError("the replay source is not open; call open() or use it in a with block")
+        frame = rec.frame(i)
+        meta = dict(frame.meta)
+        meta["replay"] = {"path": str(rec.path), "index": i}
+        return dataclasses.replace(frame, meta=meta)
+
+    def close(self) -> None:
+        self.recording = None
+        super().close()
+
+
+_REPLAY_PARAMS = ("loop", "realtime", "speed", "start")
+
+
+def config_from_spec(spec: SourceSpec) -> ReplayConfig:
+    """ReplayConfig from ``replay:DIR?loop=1&realtime=1&speed=2&start=10``."""
+    if not spec.target:
+        raise RecordingNotFound("replay needs a recording directory: replay:path/to/recording")
+    spec.check_keys(_REPLAY_PARAMS)
+    try:
+        speed = float(spec.params.get("speed", "1"))
+        start = int(spec.params.get("start", "0"))
+    except ValueError as exc:
+        raise SourceError(f"replay options speed/start must be numbers: {exc}") from exc
+    return ReplayConfig(
+        path=Path(spec.target),
+        loop=spec.flag("loop", False),
+        realtime=spec.flag("realtime", False),
+        speed=speed,
+        start=start,
+    )

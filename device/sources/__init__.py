@@ -1,0 +1,1 @@
+"""Source kinds of the device layer: cameras (OAK, V4L2 pairs), stereo video, datasets and bags."""

@@ -1,0 +1,242 @@
+"""Stereo footage from video files, through the same rectification and SGBM as a live pair.
+
+Spec: ``video:PATH?layout=side-by-side|top-bottom&calib=FILE[&calib_units=mm&distortion=opencv|equidistant
+&loop=0|1&realtime=0|1&scale=1&ndisp=..&block=..&mode=..]`` for one file holding both eyes (left half /
+top half is the left camera), or ``video:LEFT,RIGHT?calib=FILE`` for one file per camera. ``calib`` takes
+the project's JSON, OpenCV YAML/XML or a ROS camera_info pair (device/calibration/files.py).
+
+Frames are decoded with OpenCV's FFmpeg backend and handed to :class:`device.sources.stereo_pair.StereoProcessor`.
+What a file can do that a camera cannot, and how it is handled:
+
+- **end of file** raises :class:`SourceEnded` (the live view keeps the last frame), or with ``loop=1``
+  starts over with timestamps that keep increasing (one file duration per lap);
+- **timestamps** are the container's presentation times (``CAP_PROP_POS_MSEC``; 0 on the first frame is
+  a time, not "missing"); a file whose times do not increase falls back to ``index / fps``;
+- ``realtime=1`` paces reads to those times (a video played at its speed); ``realtime=0`` (default)
+  delivers frames as fast as they are processed;
+- **odd sizes**: encoders with 4:2:0 chroma store even sizes only and drop the last row or column of an
+  odd-sized frame (pixel (0, 0) stays put). When a decoded eye is one row/column short of the odd
+  calibrated size, that row/column is repeated back so the calibration applies unchanged.
+
+Codec: use a lossless one. FFV1 (``ffmpeg -i in -c:v ffv1 out.mkv``, or ``cv2.VideoWriter`` with
+fourcc FFV1) decodes to the very pixels that were encoded, so disparity is identical to in-memory
+images. Lossy codecs change pixel values enough to hurt SGBM: measured on the eight Middlebury scenes
+(quarter size, one side-by-side frame written by OpenCV's writer at its default quality, share of
+non-occluded pixels within 1 px of ground truth, 2026-12-01), FFV1 changes nothing, MJPG loses
+0.11-0.26 and mp4v 0.15-0.36 (e.g. Motorcycle 0.916 -> 0.691 MJPG, 0.616 mp4v).
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import cv2
+import numpy as np
+
+from device.base import SourceInfo, SourceSpec
+from device.calibration.files import CalibrationRef
+from device.errors import SourceEnded, SourceError, SourceNotFound
+from device.sources.sgbm import SGBMConfig
+from device.sources.stereo_pair import CALIB_KEYS, SGBM_OPTIONS, ProcessedPairSource, calibration_from_params, sgbm_from_params
+
+LAYOUTS = ("side-by-side", "top-bottom", "two-files")
+
+
+@dataclass(frozen=True)
+class VideoConfig:
+    """Video file(s), how the eyes are laid out, calibration, playback and SGBM settings."""
+
+    paths: tuple[str, ...]
+    layout: str = "side-by-side"
+    calibration: CalibrationRef = field(default_factory=lambda: CalibrationRef(""))
+    loop: bool = False
+    realtime: bool = False
+    sgbm: SGBMConfig = field(default_factory=SGBMConfig)
+    scale: float = 1.0
+
+    def __post_init__(self) -> None:
+        if self.layout not in LAYOUTS:
+            raise SourceError(f"video layout {self.layout!r} is unknown; use side-by-side or top-bottom "
+                              "(or two files: video:LEFT,RIGHT)")
+        want = 2 if self.layout == "two-files" else 1
+        if len(self.paths) != want:
+            raise SourceError(f"video layout {self.layout} needs {want} file(s), got {len(self.paths)}: "
+                              f"{', '.join(self.paths) or 'none'}")
+        if not (0.1 <= self.scale <= 1.0):
+            raise SourceError(f"scale={self.scale} must lie in [0.1, 1]")
+
+
+def split_eyes(image: np.ndarray, layout: str) -> tuple[np.ndarray, np.ndarray]:
+    """Left and right eye of a combined frame: left | right halves, or left over right."""
+    if layout == "top-bottom":
+        half = image.shape[0] // 2
+        return image[:half], image[half:2 * half]
+    half = image.shape[1] // 2
+    return image[:, :half], image[:, half:2 * half]
+
+
+def restore_odd_size(eye: np.ndarray, size: tuple[int, int]) -> np.ndarray:
+    """Repeat the last row/column that a 4:2:0 encoder dropped from an odd calibrated ``size`` (w, h).
+
+    Only a shortfall of exactly one row (column) against an odd height (width) is restored; any other
+    size is returned as it is, for the calibration's own size check to judge.
+    """
+    h, w = eye.shape[:2]
+    pad_b = 1 if size[1] % 2 == 1 and h == size[1] - 1 else 0
+    pad_r = 1 if size[0] % 2 == 1 and w == size[0] - 1 else 0
+    if not (pad_b or pad_r):
+        return eye
+    return cv2.copyMakeBorder(eye, 0, pad_b, 0, pad_r, cv2.BORDER_REPLICATE)
+
+
+class VideoGrabber:
+    """(left, right, seconds) from one combined video or two per-eye videos (module docstring)."""
+
+    def __init__(self, config: VideoConfig, calib_size: tuple[int, int] | None = None) -> None:
+        self.config = config
+        self.calib_size = calib_size
+        self._caps: list[cv2.VideoCapture] = []
+        self._index = 0
+        self._lap_s = 0.0
+        self._last_s = -np.inf
+        self._fps = 30.0
+        self._t0: tuple[float, float] | None = None  # (wall, video) times of the first delivered frame
+
+    def open(self) -> None:
+        self.close()
+        for path in self.config.paths:
+            if not Path(path).is_file():
+                self.close()
+                raise SourceNotFound(f"video file {path!r} does not exist; fix the path in the video: spec")
+            cap = cv2.VideoCapture(path, cv2.CAP_FFMPEG)
+            if not cap.isOpened():
+                cap.release()
+                self.close()
+                raise SourceNotFound(f"cannot decode {path!r} as a video (OpenCV/FFmpeg); convert it, e.g. "
+                                     "`ffmpeg -i IN -c:v ffv1 OUT.mkv`")
+            self._caps.append(cap)
+        fps = self._caps[0].get(cv2.CAP_PROP_FPS)
+        self._fps = fps if np.isfinite(fps) and fps > 0 else 30.0
+        self._index, self._lap_s, self._last_s, self._t0 = 0, 0.0, -np.inf, None
+
+    @property
+    def fps(self) -> float:
+        return self._fps
+
+    def _read_all(self) -> list[np.ndarray] | None:
+        images = []
+        for cap in self._caps:
+            ok, img = cap.read()
+            if not ok or img is None:
+                return None
+            images.append(img)
+        return images
+
+    def _rewind(self) -> None:
+        for cap in self._caps:
+            cap.set(cv2.CAP_PROP_POS_FRAMES, 0)
+
+    def grab(self, timeout_s: float = 1.0) -> tuple[np.ndarray, np.ndarray, float]:
+        if not self._caps:
+            raise SourceError("the video grabber is not open")
+        images = self._read_all()
+        if images is None:
+            if not self.config.loop or self._index == 0:
+                names = " and ".join(self.config.paths)
+                raise SourceEnded(f"{names} ended after {self._index} frame(s); add loop=1 to the video: spec to "
+                                  "play it again")
+            # Times keep increasing across laps: one frame period after the last frame.
+            self._lap_s = self._last_s + 1.0 / self._fps
+            self._rewind()
+            images = self._read_all()
+            if images is None:
+                raise SourceEnded(f"{self.config.paths[0]} cannot be rewound for loop=1; remux it "
+                                  "(`ffmpeg -i IN -c copy OUT.mkv`)")
+        stamp = self._timestamp()
+        self._index += 1
+        if self.config.realtime:
+            self._pace(stamp)
+        if self.config.layout == "two-files":
+            left, right = images
+            if left.shape != right.shape:
+                raise SourceError(f"the two videos have different frame sizes {left.shape[1]}x{left.shape[0]} "
+                                  f"and {right.shape[1]}x{right.shape[0]}; both eyes must use one size")
+        else:
+            left, right = split_eyes(images[0], self.config.layout)
+        if self.calib_size is not None:
+            left, right = restore_odd_size(left, self.calib_size), restore_odd_size(right, self.calib_size)
+        return left, right, stamp
+
+    def _timestamp(self) -> float:
+        ms = self._caps[0].get(cv2.CAP_PROP_POS_MSEC)
+        t = self._lap_s + ms / 1000.0 if np.isfinite(ms) and ms >= 0 else float("nan")
+        if not (t > self._last_s):  # NaN or not increasing: the container has no usable times
+            t = 0.0 if self._index == 0 else self._last_s + 1.0 / self._fps
+        self._last_s = t
+        return t
+
+    def _pace(self, stamp: float) -> None:
+        now = time.monotonic()
+        if self._t0 is None:
+            self._t0 = (now, stamp)
+            return
+        wait = self._t0[0] + (stamp - self._t0[1]) - now
+        if wait > 0:
+            time.sleep(wait)
+
+    def close(self) -> None:
+        for cap in self._caps:
+            cap.release()
+        self._caps = []
+
+
+class VideoSource(ProcessedPairSource):
+    """Stereo video as a Source: :class:`VideoGrabber` + calibration + the live pair's StereoProcessor."""
+
+    def __init__(self, config: VideoConfig) -> None:
+        self.config = config
+        self._grabber = VideoGrabber(config)
+        super().__init__(
+            self._grabber, config.calibration, config.sgbm, config.scale,
+            SourceInfo(kind="video", name=",".join(Path(p).name for p in config.paths),
+                       extra={"layout": config.layout, "loop": config.loop, "realtime": config.realtime}),
+            {"source": "video", "files": list(config.paths)},
+        )
+
+    def open(self) -> None:
+        super().open()
+        if self._processor is not None:
+            w, h = self._processor.calibration.image_size
+            self._grabber.calib_size = (int(w), int(h))
+            self.info = SourceInfo(kind="video", name=self.info.name, width=w, height=h, fps=self._grabber.fps,
+                                   state="playing", extra=self.info.extra)
+
+
+_VIDEO_KEYS = ("layout", "loop", "realtime", "scale")
+
+
+def config_from_spec(spec: SourceSpec) -> VideoConfig:
+    """VideoConfig from a ``video:`` spec (module docstring)."""
+    paths = tuple(p.strip() for p in spec.target.split(",") if p.strip())
+    if not paths:
+        raise SourceError("a video: spec needs a file, e.g. video:pair.mkv?layout=side-by-side&calib=stereo.yaml")
+    spec.check_keys(_VIDEO_KEYS + CALIB_KEYS + SGBM_OPTIONS)
+    layout = spec.params.get("layout", "side-by-side" if len(paths) == 1 else "two-files")
+    if len(paths) == 2 and layout != "two-files":
+        raise SourceError(f"two files are one per eye; drop layout={layout} (it is for one file holding both eyes)")
+    try:
+        scale = float(spec.params.get("scale", 1.0))
+    except ValueError as exc:
+        raise SourceError(f"scale={spec.params['scale']!r} is not a number") from exc
+    return VideoConfig(
+        paths=paths,
+        layout=layout,
+        calibration=calibration_from_params(spec.params),
+        loop=spec.flag("loop", False),
+        realtime=spec.flag("realtime", False),
+        sgbm=sgbm_from_params(spec.params, spec),
+        scale=scale,
+    )
+

@@ -1,0 +1,93 @@
+"""The measurement benchmark and `depthruler bench`: discovery, bad names, and that the sklearn
+reference really runs the same pipeline (same answer) so the timing ratio compares like with like."""
+
+from __future__ import annotations
+
+import pytest
+from typer.testing import CliRunner
+
+import importlib
+
+from cli.bench import discover
+from cli.main import app
+
+
+def _load(name: str):
+    return importlib.import_module(discover()[name])
+
+
+def test_discovers_the_measure_benchmark():
+    found = discover()
+    assert "measure" in found and found["measure"] == "bench.bench_measure"
+
+
+def test_unknown_benchmark_is_a_clear_error():
+    result = CliRunner().invoke(app, ["bench", "nope"])
+    assert result.exit_code == 2 and "unknown benchmark 'nope'" in result.output
+
+
+def test_options_need_one_benchmark():
+    result = CliRunner().invoke(app, ["bench", "all", "--write"])
+    assert result.exit_code == 2 and "need one benchmark name" in result.output
+
+
+@pytest.mark.parametrize("name", sorted(discover()))
+def test_every_benchmark_takes_its_options_from_the_command(name, capsys):
+    # `depthruler bench NAME ...` hands the options after NAME to main(argv), never the CLI's own argv.
+    with pytest.raises(SystemExit) as exc:
+        _load(name).main(["--help"])
+    assert exc.value.code == 0
+    assert "--write" in capsys.readouterr().out or name == "service_load"
+
+
+def test_measure_report_judges_each_run_against_both_targets():
+    mod = _load("measure")
+    row = {"n_samples": 1280, "n_support": 800, "median_ms": 3.0, "p99_ms": 4.0, "cpu_median_ms": 3.0, "cpu_p99_ms": 4.0,
+           "sklearn_median_ms": 600.0, "sklearn_cpu_median_ms": 600.0, "speedup": 200.0, "distance_m": 4.5, "sklearn_distance_m": 4.5}
+    slow = dict(row, cpu_median_ms=5.5, speedup=110.0)
+    text = mod.report([{"robust": row}, {"robust": slow}], (0.5, 0.6), "2026-11-23 12:00 UTC")
+    assert "CPU median 3.00-5.50 ms, speed-up 110-200x; both targets met in 1 of 2 runs." in text
+    assert text.startswith(mod.SECTION)
+
+
+@pytest.mark.slow
+def test_sklearn_reference_gives_the_same_answer():
+    rows = _load("measure").run(repeats=2, ref_repeats=1)
+    for method in ("robust", "paper"):
+        r = rows[method]
+        assert r["n_samples"] == 1280
+        assert r["distance_m"] == pytest.approx(r["sklearn_distance_m"], rel=1e-3)
+        assert r["speedup"] > 1.0
+
+
+def test_bench_dependencies_are_declared():
+    """Every third-party module a bench script imports is a main dependency or in the `bench` extra
+    (`depthruler bench measure` crashed on a plain install: No module named 'threadpoolctl')."""
+    import ast
+    import sys
+    import tomllib
+    from pathlib import Path
+
+    root = Path(__file__).resolve().parents[2]
+    project = tomllib.loads((root / "pyproject.toml").read_text())["project"]
+    declared = {d.split(">")[0].split("[")[0].strip().lower() for d in project["dependencies"] + project["optional-dependencies"]["bench"]}
+    distribution = {"sklearn": "scikit-learn", "cv2": "opencv-contrib-python-headless", "yaml": "pyyaml"}
+    ours = {"measure", "device", "sim", "history", "check", "batch", "service", "evaluation", "cli", "bench"}
+    needed = set()
+    for script in (root / "bench").glob("*.py"):
+        for node in ast.walk(ast.parse(script.read_text())):
+            names = [a.name for a in node.names] if isinstance(node, ast.Import) else [node.module] if isinstance(node, ast.ImportFrom) and node.level == 0 else []
+            for name in names:
+                top = name.split(".")[0]
+                if top not in ours and top not in sys.stdlib_module_names:
+                    needed.add(distribution.get(top, top).lower())
+    assert needed and needed <= declared, sorted(needed - declared)
+
+
+def test_missing_bench_dependency_says_how_to_install(monkeypatch):
+    import sys
+
+    monkeypatch.setitem(sys.modules, "httpx", None)  # as on an install without the bench extra
+    monkeypatch.delitem(sys.modules, "bench.bench_service_load", raising=False)  # imported by an earlier test
+    result = CliRunner().invoke(app, ["bench", "service_load", "--no-record"])
+    assert result.exit_code == 2 and "depthruler[bench]" in result.output and "httpx" in result.output

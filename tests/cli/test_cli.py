@@ -1,0 +1,130 @@
+"""`depthruler measure` headless on a recording, and `serve`'s source resolution."""
+
+from __future__ import annotations
+
+import json
+from dataclasses import replace
+
+import numpy as np
+import pytest
+from typer.testing import CliRunner
+
+from device import SourceInfo
+from device.formats.recording import RecordingWriter
+from cli.main import app
+from factories import SMALL_H, SMALL_W, WALL_DISP, wall_frame, wall_length
+
+W, H, DISP = SMALL_W, SMALL_H, WALL_DISP
+
+
+@pytest.fixture
+def recording(tmp_path):
+    """Three frames of a wall at 2, 1 and 0.667 m (disparity 15, 30, 45 px)."""
+    out = tmp_path / "rec"
+    with RecordingWriter(out, SourceInfo(kind="plane", name="Fake plane", width=W, height=H, fps=30.0)) as rec:
+        for i in range(3):
+            f = wall_frame(i)
+            rec.write(replace(f, disparity=np.full((H, W), DISP * (i + 1), np.float32)))
+    return out
+
+
+def test_measure_on_named_frame_of_recording(recording):
+    p1, p2 = (40.0, 30.0), (280.0, 200.0)
+    runner = CliRunner()
+    for n in (0, 2):
+        result = runner.invoke(
+            app, ["measure", f"replay:{recording}", "--p1", "40,30", "--p2", "280,200", "--frame", str(n), "--method", "basic", "--json"]
+        )
+        assert result.exit_code == 0, result.output
+        out = json.loads(result.stdout)
+        assert out["frame"] == n and out["method"] == "basic"
+        assert out["distance_m"] == pytest.approx(wall_length(p1, p2) / (n + 1), rel=1e-3)  # 1/64 px disparity steps
+    text = runner.invoke(app, ["measure", f"replay:{recording}", "--p1", "40,30", "--p2", "280,200", "--method", "basic"])
+    assert text.exit_code == 0 and "distance " in text.stdout and "method basic" in text.stdout
+    assert f"distance {wall_length(p1, p2):.4f} m" in text.stdout
+
+
+def test_measure_reads_the_named_frame_of_a_recording_directly(recording):
+    """`--frame N` reads frame N itself: a damaged earlier frame neither shifts it nor stops it, a damaged N is an error."""
+    (recording / json.loads((recording / "frames.jsonl").read_text().splitlines()[0])["files"]["disparity"]).write_bytes(b"not a png")
+    p1, p2 = (40.0, 30.0), (280.0, 200.0)
+    args = ["--p1", "40,30", "--p2", "280,200", "--method", "basic", "--json"]
+    ok = CliRunner().invoke(app, ["measure", f"replay:{recording}", "--frame", "2", *args])
+    assert ok.exit_code == 0, ok.output
+    assert json.loads(ok.stdout)["distance_m"] == pytest.approx(wall_length(p1, p2) / 3, rel=1e-3)
+    bad = CliRunner().invoke(app, ["measure", f"replay:{recording}", "--frame", "0", *args])
+    assert bad.exit_code == 1 and "frame 0" in bad.output
+
+
+@pytest.mark.parametrize(
+    "args, fragment, code",
+    [
+        (["--p1", "40;30", "--p2", "280,200"], "X,Y", 2),
+        (["--p1", "nan,30", "--p2", "280,200"], "finite", 2),
+        (["--p1", "40,30", "--p2", "900,200"], "outside", 1),
+        (["--p1", "40,30", "--p2", "280,200", "--method", "magic"], "method", 2),
+        (["--p1", "40,30", "--p2", "280,200", "--frame", "7"], "frame 7", 1),
+    ],
+)
+def test_measure_bad_input(recording, args, fragment, code):
+    result = CliRunner().invoke(app, ["measure", f"replay:{recording}", *args])
+    assert result.exit_code == code, result.output
+    assert fragment in result.output
+
+
+def test_measure_unknown_source():
+    result = CliRunner().invoke(app, ["measure", "kinect:0", "--p1", "1,1", "--p2", "5,5"])
+    assert result.exit_code == 1 and "unknown source kind" in result.output
+
+
+def test_auto_source_falls_back_to_simulator(monkeypatch):
+    import device
+
+    from cli import serve as cli_serve
+
+    monkeypatch.setattr(device, "list_devices", lambda: [SourceInfo(kind="v4l2", name="webcam")])
+    assert cli_serve.auto_source() == "sim"
+    monkeypatch.setattr(device, "list_devices", lambda: [SourceInfo(kind="oak", name="OAK-D", extra={"spec": "oak:18443"})])
+    assert cli_serve.auto_source() == "oak:18443"
+
+    def broken():
+        raise RuntimeError("libusb missing")
+
+    monkeypatch.setattr(device, "list_devices", broken)
+    assert cli_serve.auto_source() == "sim"
+
+
+def test_serve_on_a_busy_port_says_so_before_starting(tmp_path):
+    import socket
+
+    with socket.create_server(("127.0.0.1", 0)) as busy:
+        port = busy.getsockname()[1]
+        result = CliRunner().invoke(app, ["serve", "--source", "sim", "--port", str(port), "--db", str(tmp_path / "b.db")])
+    assert result.exit_code == 2
+    assert f"port {port} on 127.0.0.1 is already in use" in result.output and "open http" not in result.output
+    assert not (tmp_path / "b.db").exists()  # nothing was started or written
+    result = CliRunner().invoke(app, ["serve", "--source", "sim", "--host", "no-such-host.invalid", "--db", str(tmp_path / "b.db")])
+    assert result.exit_code == 2 and "cannot resolve --host 'no-such-host.invalid'" in result.output
+
+
+def test_serve_flags_override_config(tmp_path, monkeypatch):
+    import uvicorn
+    from fastapi.testclient import TestClient
+
+    calls = {}
+    monkeypatch.setattr(uvicorn, "run", lambda app, **kw: calls.update(app=app, **kw))
+    monkeypatch.setenv("DEPTHRULER_TOKEN", "tok")
+    cfg = tmp_path / "c.toml"
+    cfg.write_text(f'[server]\nport = 9100\ndb = "{tmp_path / "cfg.db"}"\n[source]\nkind = "replay"\npath = "/nowhere"\n')
+    result = CliRunner().invoke(
+        app, ["serve", "--config", str(cfg), "--host", "0.0.0.0", "--port", "9200", "--source", "kinect:0"]
+    )
+    assert result.exit_code == 0, result.output
+    assert calls["host"] == "0.0.0.0" and calls["port"] == 9200
+    assert "source kinect:0" in result.output  # --source beats the file's [source]
+    assert (tmp_path / "cfg.db").exists()  # the file's db, not overridden
+    with TestClient(calls["app"]) as c:
+        assert c.get("/api/source").status_code == 401
+        assert c.get("/api/source", headers={"Authorization": "Bearer tok"}).json()["spec"] == "kinect:0"
+    result = CliRunner().invoke(app, ["serve", "--source", "sim", "--host", "0.0.0.0", "--token", "", "--db", str(tmp_path / "o.db")])
+    assert result.exit_code == 2 and "--insecure-no-token" in result.output  # exposed needs a token
