@@ -3,9 +3,10 @@
 ``create_app(source, settings)`` builds the app (settings: one ``service.config.ServerConfig``);
 ``depthruler serve`` runs it with uvicorn.
 The routes live in ``service.routers`` (one module per resource) and share one
-:class:`service.state.ServiceState`. The web page in ``static/`` uses only the API.
-Errors carry a ``detail`` message saying what to change: 410 for a frame evicted from the ring,
-404 for an unknown id, 422 for bad input (types, NaN, points outside the image), 401 for a token.
+:class:`service.state.ServiceState` through :mod:`service.deps`. The web page in ``static/`` uses
+only the API. Errors carry a ``detail`` message saying what to change; :mod:`service.errors` gives
+each domain error its status (410 for a frame evicted from the ring, 404 for an unknown id, 422
+for bad input, 507 for a full disk), the token middleware 401, :mod:`service.guard` 400/403/413/415.
 """
 
 from __future__ import annotations
@@ -19,31 +20,23 @@ from typing import Any
 
 import numpy as np
 from fastapi import FastAPI, Request
-from fastapi.exceptions import RequestValidationError
 from fastapi.responses import JSONResponse, Response
 from fastapi.staticfiles import StaticFiles
 
 from device import Source, make_source
 from measure import Frame, MeasureOptions, PinholeCamera, measure_distance
 
-from service.frames import Capture, FrameRing
+from history.store import Store
+
+from service import errors
 from service.config import ServerConfig
+from service.frames import Capture, FrameRing
 from service.guard import RequestGuard, allowed_hosts_for
 from service.recorder import Recorder
 from service.routers import checks, frames, health, measurements, recordings
 from service.state import ServiceState
-from history.store import Store
 
 STATIC_DIR = Path(__file__).resolve().parent / "static"
-
-
-def _validation_message(exc: RequestValidationError) -> tuple[str, list[dict[str, str]]]:
-    errors = []
-    for e in exc.errors():
-        loc = ".".join(str(p) for p in e.get("loc", ()) if p != "body") or "body"
-        errors.append({"loc": loc, "msg": str(e.get("msg", "invalid")), "input": repr(e.get("input"))[:80]})
-    text = "; ".join(f"{e['loc']}: {e['msg']} (got {e['input']})" for e in errors)
-    return text, errors
 
 
 def _warm_up_measurement() -> None:
@@ -111,10 +104,7 @@ def create_app(source: str | Callable[[], Source], settings: ServerConfig | None
     app.state.service = state
     app.state.ring, app.state.capture, app.state.store, app.state.recorder = ring, capture, store, recorder
 
-    @app.exception_handler(RequestValidationError)
-    async def _invalid(_: Request, exc: RequestValidationError) -> JSONResponse:
-        text, errors = _validation_message(exc)
-        return JSONResponse({"detail": text, "errors": errors}, status_code=422)
+    errors.install(app)
 
     if token:
 

@@ -105,14 +105,14 @@ def _enospc(*_a, **_k):
 
 
 def test_full_disk_is_507_degraded_and_recovers(tmp_path, monkeypatch):
-    from history import store as store_module
+    from history import frame_file
 
     with make_client(tmp_path) as c:
         f = latest(c)
         ok = measure(c, f["id"], (10, 10), (200, 10), method="basic")
         assert ok.status_code == 200
-        real = store_module.write_durably
-        monkeypatch.setattr(store_module, "write_durably", _enospc)
+        real = frame_file.write_durably
+        monkeypatch.setattr(frame_file, "write_durably", _enospc)
         f2 = latest(c, after=f["id"])
         assert c.post(f"/api/frames/{f2['id']}/freeze", headers=JSON).status_code == 200
         r = measure(c, f2["id"], (10, 10), (200, 10), method="basic")
@@ -121,13 +121,14 @@ def test_full_disk_is_507_degraded_and_recovers(tmp_path, monkeypatch):
         h = c.get("/api/health").json()
         assert h["status"] == "degraded" and "full" in h["reason"]
         assert [m["id"] for m in c.get("/api/measurements").json()] == [ok.json()["id"]]  # nothing half-stored
-        monkeypatch.setattr(store_module, "write_durably", real)
+        monkeypatch.setattr(frame_file, "write_durably", real)
         deadline = time.monotonic() + 10  # space is back: health recovers by itself (a probe write twice a second)
         while c.get("/api/health").json()["status"] != "ok" and time.monotonic() < deadline:
             time.sleep(0.05)
-        assert c.get("/api/health").json() | {"uptime_s": 0, "frames": 0} == {
-            "status": "ok", "reason": "", "source_state": "streaming", "uptime_s": 0, "frames": 0
-        }
+        h = c.get("/api/health").json()
+        assert (h["status"], h["reason"], h["reasons"], h["source_state"]) == ("ok", "", [], "streaming")
+        frame_bytes = next((tmp_path / "h-frames").glob("*.frame")).stat().st_size
+        assert h["next_frame_bytes"] == frame_bytes and h["free_bytes"] > frame_bytes
         r = measure(c, f2["id"], (10, 10), (200, 10), method="basic")
         assert r.status_code == 200
         assert c.post(f"/api/measurements/{r.json()['id']}/open", headers=JSON).status_code == 200
@@ -196,7 +197,8 @@ def test_stale_temporary_files_are_cleaned_at_start(tmp_path):
         f = latest(c)
         assert measure(c, f["id"], (10, 10), (200, 10), method="basic").status_code == 200
     assert not any(p.exists() for p in stale)
-    assert len(list(frames.iterdir())) == 1  # the one measured frame
+    assert len(list(frames.glob("*.frame"))) == 1  # the one measured frame
+    assert {p.name for p in frames.iterdir()} <= {p.name for p in frames.glob("*.frame")} | {".reserve"}
 
 
 def test_frame_is_durable_when_the_measurement_answers(tmp_path):
@@ -205,7 +207,7 @@ def test_frame_is_durable_when_the_measurement_answers(tmp_path):
     with make_client(tmp_path) as c:
         f = latest(c)
         m = measure(c, f["id"], (10, 10), (300, 200), method="basic").json()
-        files = list((tmp_path / "h-frames").iterdir())
+        files = list((tmp_path / "h-frames").glob("*.frame"))
         assert len(files) == 1 and files[0].stat().st_size < 0.25 * (SMALL_W * SMALL_H * 7)  # 3 B colour + 4 B disparity raw
         from history.store import load_frame
 
@@ -280,4 +282,4 @@ def test_history_cap_drops_oldest_unpinned_frames(tmp_path):
             r = c.post(f"/api/measurements/{mid}/open", headers=JSON)
             assert r.status_code == 410 and "--history-max-gb" in r.json()["detail"]
             assert c.get(f"/api/measurements/{mid}").json()["distance_m"] > 0  # the numbers stay
-        assert len(list((tmp_path / "h-frames").iterdir())) == 2
+        assert len(list((tmp_path / "h-frames").glob("*.frame"))) == 2
