@@ -12,7 +12,6 @@ for bad input, 507 for a full disk), the token middleware 401, :mod:`service.gua
 from __future__ import annotations
 
 import gc
-import hmac
 from collections.abc import AsyncIterator, Callable
 from contextlib import asynccontextmanager
 from pathlib import Path
@@ -81,7 +80,6 @@ def create_app(source: str | Callable[[], Source], settings: ServerConfig | None
     store = Store(settings.db, max_bytes=settings.history_max_bytes)
     recorder = Recorder(capture, settings.recordings_dir)
     state = ServiceState(ring=ring, capture=capture, store=store, recorder=recorder)
-    token = settings.token
 
     @asynccontextmanager
     async def lifespan(_: FastAPI) -> AsyncIterator[None]:
@@ -106,25 +104,9 @@ def create_app(source: str | Callable[[], Source], settings: ServerConfig | None
 
     errors.install(app)
 
-    if token:
-
-        @app.middleware("http")
-        async def _auth(request: Request, call_next: Any) -> Response:
-            path = request.url.path
-            if path.startswith("/api/") and path != "/api/health":
-                header = request.headers.get("authorization", "")
-                given = header[7:].strip() if header.lower().startswith("bearer ") else request.query_params.get("token", "")
-                if not hmac.compare_digest(given.encode(), token.encode()):
-                    return JSONResponse(
-                        {"detail": "missing or wrong token: send 'Authorization: Bearer <token>' or add ?token=<token>"},
-                        status_code=401,
-                        headers={"WWW-Authenticate": "Bearer"},
-                    )
-            return await call_next(request)
-
     for module in (health, frames, measurements, recordings, checks):
         app.include_router(module.router)
     app.mount("/", StaticFiles(directory=STATIC_DIR, html=True), name="static")
     hosts = allowed_hosts_for(settings.host, settings.allowed_hosts)
-    app.add_middleware(RequestGuard, allowed_hosts=hosts, max_body_bytes=settings.max_body_bytes)  # outermost
+    app.add_middleware(RequestGuard, allowed_hosts=hosts, max_body_bytes=settings.max_body_bytes, token=settings.token)  # outermost
     return app

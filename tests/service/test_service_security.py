@@ -10,6 +10,7 @@ from concurrent.futures import ThreadPoolExecutor
 import pytest
 from fastapi.testclient import TestClient
 from factories import PlaneSource
+from server_process import free_port
 from service_client import latest, make_client, measure
 
 from service.app import create_app
@@ -182,7 +183,7 @@ def test_exposed_without_token_refuses_to_start(tmp_path, monkeypatch):
     calls = {}
     monkeypatch.setattr(uvicorn, "run", lambda app, **kw: calls.update(app=app, **kw))
     monkeypatch.delenv("DEPTHRULER_TOKEN", raising=False)
-    args = ["serve", "--source", "sim", "--host", "0.0.0.0", "--port", "9201", "--db", str(tmp_path / "o.db")]
+    args = ["serve", "--source", "sim", "--host", "0.0.0.0", "--port", str(free_port()), "--db", str(tmp_path / "o.db")]
     result = CliRunner().invoke(app, args)
     assert result.exit_code == 2 and "--token" in result.output and "--insecure-no-token" in result.output
     assert not calls
@@ -199,7 +200,7 @@ def test_recordings_flag_sets_the_root(tmp_path, monkeypatch):
 
     calls = {}
     monkeypatch.setattr(uvicorn, "run", lambda app, **kw: calls.update(app=app, **kw))
-    args = ["serve", "--source", "sim", "--port", "9202", "--db", str(tmp_path / "o.db"), "--recordings", str(tmp_path / "r"),
+    args = ["serve", "--source", "sim", "--port", str(free_port()), "--db", str(tmp_path / "o.db"), "--recordings", str(tmp_path / "r"),
             "--history-max-gb", "0.5"]  # fmt: skip
     result = CliRunner().invoke(app, args)
     assert result.exit_code == 0, result.output
