@@ -63,7 +63,7 @@ def measurements_csv(records: Iterable[dict[str, Any]], units: str = "m", base_u
     if units not in UNITS:
         raise ValueError(f"units must be one of {', '.join(UNITS)} (got {units!r})")
     buf = io.StringIO()
-    writer = csv_safe.writer(buf, lineterminator="\n")
+    writer = csv_safe.writer(buf, lineterminator="\r\n")  # RFC 4180; a \r or \n inside a cell is then quoted
     writer.writerow(CSV_COLUMNS)
     for r in records:
         writer.writerow(_row(r, units, base_url))
