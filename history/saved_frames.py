@@ -81,6 +81,9 @@ class SavedFrames:
         path = self.path(uid)
         if path.exists():  # the rename is atomic: a file under this name is complete
             return path.stat().st_size
+        short = self.space.shortage()
+        if short:  # it might still fit, in the room kept for deleting and editing: leave that room
+            raise StoreFull(f"frame {uid} not stored: {short}")
         data = encode_frame(frame)
         try:
             frame_file.write_durably(path, data)

@@ -106,26 +106,27 @@ class Space:
 
     def shortage(self) -> str:
         """Why the next frame would not be stored ("" when it would fit): the free bytes against what it
-        needs, or the last failed write until a probe write of that size succeeds."""
-        need = (self.need or 0) + COMMIT_HEADROOM
-        try:
-            free = free_bytes(self.folder)
-        except OSError as exc:
-            return f"cannot read the free space of {self.folder} ({exc.strerror or exc})"
-        if free < need:
+        and its commit need, plus the reserve's room while the reserve is missing; or the last failed
+        write, until a probe write of that size succeeds."""
+        frame_need = (self.need or 0) + COMMIT_HEADROOM
+        self.lay_reserve()
+        free = self.free()
+        if free is None:
+            return f"cannot read the free space of {self.folder}"
+        kept = 0 if self.reserve.exists() else RESERVE_BYTES
+        if free < frame_need + kept:
+            also = f" and {kept / 1e6:.2f} MB kept for deleting and editing" if kept else ""
             return (
-                f"the disk holding {self.folder} has {free / 1e6:.2f} MB free, the next frame needs {need / 1e6:.2f} MB; "
-                "free space there (delete measurements or files) or lower --history-max-gb"
+                f"the disk holding {self.folder} has {free / 1e6:.2f} MB free, the next frame needs {frame_need / 1e6:.2f} MB"
+                f"{also}; free space there (delete measurements or files) or lower --history-max-gb"
             )
         with self._lock:
             failed, probe_due = self._failed, time.monotonic() >= self._next_probe
             if failed and probe_due:
                 self._next_probe = time.monotonic() + PROBE_INTERVAL_S
-        if failed and probe_due and self._probe(need):
+        if failed and probe_due and self._probe(frame_need):
             with self._lock:
                 self._failed = failed = ""
-        if not failed:
-            self.lay_reserve(free - need)
         return failed
 
     def _probe(self, nbytes: int) -> bool:
@@ -138,14 +139,15 @@ class Space:
         finally:
             probe.unlink(missing_ok=True)
 
-    def lay_reserve(self, spare: int | None = None) -> None:
-        """Create the reserve file when it is missing and ``spare`` bytes (default: the free bytes)
-        leave room for it; a failure leaves it missing (tried again later)."""
+    def lay_reserve(self) -> None:
+        """Create the reserve file when it is missing and the disk has room for it beside the next
+        frame; a failure leaves it missing (tried again later)."""
         if self.reserve.exists():
             return
+        free = self.free()
+        if free is None or free < (self.need or 0) + COMMIT_HEADROOM + RESERVE_BYTES:
+            return
         try:
-            if (free_bytes(self.folder) if spare is None else spare) < 2 * RESERVE_BYTES:
-                return
             fd = os.open(self.reserve, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o600)
         except OSError:
             return
