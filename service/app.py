@@ -40,7 +40,7 @@ STATIC_DIR = Path(__file__).resolve().parent / "static"
 
 def _warm_up_measurement() -> None:
     """Measure once on a tiny tilted plane so the first person's click does not pay for imports and
-    lazily built constants (~0.3 s)."""
+    lazily built constants (docs/decisions/service-speed.md)."""
     h, w = 48, 64
     camera = PinholeCamera(fx=60.0, fy=60.0, cx=(w - 1) / 2, cy=(h - 1) / 2, width=w, height=h)
     disparity = np.tile(np.linspace(8.0, 12.0, w, dtype=np.float32), (h, 1))
@@ -84,8 +84,8 @@ def create_app(source: str | Callable[[], Source], settings: ServerConfig | None
     @asynccontextmanager
     async def lifespan(_: FastAPI) -> AsyncIterator[None]:
         _warm_up_measurement()
-        # The ~100k objects of the imports and the app live as long as the process: keep them out of
-        # the collector's full passes, which otherwise stop every thread for 50-100 ms under load.
+        # The objects of the imports and the app live as long as the process: keep them out of the
+        # collector's full passes, which otherwise stop every thread (docs/decisions/service-speed.md).
         gc.collect()
         gc.freeze()
         capture.start()

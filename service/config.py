@@ -42,7 +42,7 @@ class ServerConfig(_Model):
     token: str = ""
     insecure_no_token: bool = False  # serve on a non-loopback host without a token (anyone there can use it)
     allowed_hosts: tuple[str, ...] = ()  # extra Host names to answer (a DNS name of this machine)
-    ring_size: int = Field(32, ge=2, le=4096)  # ~10 MB a 1280x720 frame
+    ring_size: int = Field(32, ge=2, le=4096)  # frames in memory: width x height x 7 bytes each
     max_frozen: int = Field(16, ge=1, le=1024)
     capture_fps: float = Field(15.0, gt=0, le=1000)
     reconnect_initial_s: float = Field(0.5, gt=0, le=60)
