@@ -25,15 +25,18 @@ SLACK_S = 1.5  # the server's event loop, and this machine's other work, may be 
 
 
 def _measure_while(base: str, stop: threading.Event, answers: list[tuple[int, int | None]]) -> None:
-    """Measure on fresh frames until ``stop``: (status, id of the stored measurement or None)."""
-    with httpx.Client(base_url=base, headers=AUTH, timeout=30) as http:
+    """Measure on fresh frames until ``stop``: (status, id of the stored measurement or None; 0 and
+    the error's name when no answer came)."""
+    # A connection per request: a reused one can meet the server's keep-alive close on a loaded machine
+    # (the race every HTTP client has; browsers retry), which is not what this test is about.
+    with httpx.Client(base_url=base, headers=AUTH, timeout=30, limits=httpx.Limits(max_keepalive_connections=0)) as http:
         while not stop.is_set():
             try:
                 f = http.get("/api/frames/latest").json()
                 r = http.post("/api/measure", json={"frame_id": f["id"], "p1": [20, 20], "p2": [300, 200], "options": {"method": "basic"}})
                 answers.append((r.status_code, r.json().get("id") if r.status_code == 200 else None))
-            except httpx.HTTPError:
-                answers.append((0, None))
+            except httpx.HTTPError as exc:
+                answers.append((0, type(exc).__name__))  # type: ignore[arg-type]
             stop.wait(0.2)
 
 
@@ -67,7 +70,7 @@ def test_slow_clients_are_closed_in_time_and_health_answers(tmp_path):
     assert None not in result.health_s and max(result.health_s) < 1.0, result.summary()
     acknowledged = {mid for status, mid in answers if status == 200}
     assert len(acknowledged) >= 5 and stored == acknowledged  # a 5xx (or a lost answer) left no row
-    assert all(status == 200 or status == 503 for status, _ in answers), answers
+    assert [a for a in answers if a[0] not in (200, 503)] == []
 
 
 @pytest.mark.slow
