@@ -1,29 +1,20 @@
-"""The service's measurement history, read-only, for `depthruler batch --from-history DB`.
+"""The service's measurement history, read-only, as batch tasks: `depthruler batch --from-history DB`.
 
-`evaluation` does not import `service`, so this reads the history database itself. What it relies
-on (the service's `history/store.py` writes it) and nothing more:
-
-- SQLite table ``measurements`` with the columns ``id``, ``frame_uid``, ``source``, ``p1_x``,
-  ``p1_y``, ``p2_x``, ``p2_y`` and ``options`` (a JSON object of MeasureOptions fields), plus the
-  stored result (``distance_m``, ``uncertainty_m``, ... as the service wrote them);
-- table ``frames`` with ``uid`` and ``file``: the saved frame, relative to the folder
-  ``<DB stem>-frames/`` beside the database;
-- a saved frame file, ``.frame`` or the ``.npz`` of earlier versions, read by
-  :func:`history.frame_file.load_frame_file` (the module the service writes them with). A frame
-  whose ``file`` is empty was deleted by the service's size cap; its measurements come out as
-  error rows.
-
-The database is read once, by the caller, with SQLite's ``mode=ro`` (a running service keeps
-writing meanwhile); workers read only the frame files. A batch never changes the history.
+The history package owns the database and its frame files: :func:`history.schema.open_read_only`
+opens the database (SQLite ``mode=ro``: a running service may keep writing) and checks it is one,
+:func:`history.schema.measurement_inputs` reads what re-measuring needs, and
+:func:`history.frame_file.load_frame_file` reads a saved frame. The database is read once, by
+the caller; workers read only the frame files. A batch never changes the history.
 """
 
 from __future__ import annotations
 
 import json
-import sqlite3
 import zipfile
 from pathlib import Path
 
+from history import schema
+from history.errors import HistoryUnreadable
 from history.frame_file import SUFFIX, load_frame_file
 from measure import Frame
 
@@ -36,38 +27,21 @@ class HistoryError(TaskError):
     """The history database or one of its saved frames cannot be read; names the file."""
 
 
-def frames_dir(db: Path) -> Path:
-    return db.with_name(db.stem + "-frames")
-
-
-def connect(db: Path) -> sqlite3.Connection:
-    """A read-only connection to the history database."""
-    if not db.is_file():
-        raise HistoryError(f"{db} does not exist; give the history database the service writes (`depthruler serve --db`)")
-    try:
-        con = sqlite3.connect(f"{db.resolve().as_uri()}?mode=ro", uri=True, check_same_thread=False)
-        con.row_factory = sqlite3.Row
-        con.execute("SELECT id, frame_uid, source, p1_x, p1_y, p2_x, p2_y, options FROM measurements LIMIT 1").fetchall()
-    except sqlite3.Error as exc:
-        raise HistoryError(f"{db} is not a depthruler history database ({exc})") from exc
-    return con
-
-
 def history_tasks(db: Path) -> list[Task]:
     """One task per stored measurement, oldest first. The database is read here, once: a task's
     frame is the absolute path of its saved frame file (workers only read that file, never the
     database, which SQLite cannot share over a network filesystem), or ``missing:UID`` /
     ``dropped:UID`` for a frame that was never saved or was deleted by the service's size cap."""
     db = db.resolve()
-    con = connect(db)
     try:
-        rows = con.execute(
-            "SELECT m.id, m.frame_uid, m.source, m.p1_x, m.p1_y, m.p2_x, m.p2_y, m.options, f.file "
-            "FROM measurements m LEFT JOIN frames f ON f.uid = m.frame_uid ORDER BY m.id"
-        ).fetchall()
+        con = schema.open_read_only(db)
+    except HistoryUnreadable as exc:
+        raise HistoryError(str(exc)) from None
+    try:
+        rows = schema.measurement_inputs(con)
     finally:
         con.close()
-    folder = frames_dir(db)
+    folder = schema.frames_dir(db)
     tasks = []
     for i, r in enumerate(rows):
         try:

@@ -65,16 +65,23 @@ def serve(
     insecure_no_token: bool = typer.Option(False, "--insecure-no-token", help="Serve on a non-loopback --host without a token: anyone who reaches the port can use the API."),
     allowed_host: Optional[list[str]] = typer.Option(None, "--allowed-host", help="Another Host name to answer (a DNS name of this machine); repeatable."),
     ring_size: Optional[int] = typer.Option(None, help="Frames kept in the ring buffer (default 32)."),
+    header_timeout: Optional[float] = typer.Option(None, "--header-timeout", help="Seconds a connection has to send a request's headers, from its opening or the previous answer (default 10); then 408 and close."),
+    body_timeout: Optional[float] = typer.Option(None, "--body-timeout", help="Seconds a request has to send its body after its headers (default 10); then 408 and close."),
+    keep_alive: Optional[float] = typer.Option(None, "--keep-alive", help="Seconds an idle keep-alive connection stays open (default 5)."),
+    max_connections: Optional[int] = typer.Option(None, "--max-connections", help="Connections at once (default 4096, fewer when the open-files limit is lower); beyond it 503."),
 ) -> None:
     """Serve the measuring web page and HTTP API on a live source."""
-    import uvicorn
-
     from service.app import create_app
     from service.config import ConfigError, ServeConfig, ServerConfig, load_config
+    from service.connections import serve as serve_app
 
     try:
         cfg = load_config(config) if config else ServeConfig()
-        overrides = {k: v for k, v in {"host": host, "port": port, "token": token, "ring_size": ring_size}.items() if v is not None}
+        flags = {
+            "host": host, "port": port, "token": token, "ring_size": ring_size, "header_timeout_s": header_timeout,
+            "body_timeout_s": body_timeout, "keep_alive_s": keep_alive, "max_connections": max_connections,
+        }  # fmt: skip
+        overrides = {k: v for k, v in flags.items() if v is not None}
         if db is not None:
             overrides["db"] = str(db)
         if recordings is not None:
@@ -90,8 +97,6 @@ def serve(
         _fail(str(exc))
     except ValueError as exc:  # a flag out of range (pydantic)
         _fail(f"bad option: {exc}")
-    spec = source or cfg.source or auto_source()
-    check_listen(server.host, server.port)
     if server.host not in LOOPBACK and not server.token:
         if not server.insecure_no_token:
             _fail(
@@ -103,16 +108,15 @@ def serve(
             "anyone on the network can use the API.",
             err=True,
         )
+    check_listen(server.host, server.port)  # after the token rule: a refused start never depends on the port
+    spec = source or cfg.source or auto_source()
     try:
-        app = create_app(
-            spec,
-            server,
-        )
+        app = create_app(spec, server)
     except Exception as exc:  # noqa: BLE001 — StoreError etc.: say what, don't dump a trace
         _fail(str(exc))
     typer.echo(f"depthruler: source {spec}; history {Path(server.db).resolve()}", err=True)
     typer.echo(f"depthruler: open http://{server.host}:{server.port}/", err=True)
-    uvicorn.run(app, host=server.host, port=server.port, log_level=os.environ.get("DEPTHRULER_LOG", "warning"), access_log=False)
+    serve_app(app, server.host, server.port, server.limits, log_level=os.environ.get("DEPTHRULER_LOG", "warning"))
 
 
 def _point(text: str, name: str) -> tuple[float, float]:

@@ -6,8 +6,7 @@ frames carried with its own SHA-256, which also identifies on-board calibrations
 the figures. The file is ``<db stem>-checks.jsonl`` beside the service database (``depthruler.db`` ->
 ``depthruler-checks.jsonl``), where ``GET /api/checks`` reads it. Lines are appended whole and
 fsync'd; a reader skips a truncated or corrupt line (a crash mid-write) instead of failing.
-It lives in ``device`` because both the check (``evaluation``) and the service read it, and neither
-may import the other.
+The check (``depthruler check``) writes it and the service reads it; both import this package.
 """
 
 from __future__ import annotations

@@ -7,7 +7,7 @@ A ``.frame`` file is an uncompressed zip of
 - ``color.jpg``: JPEG quality 92 (the colour image is only looked at; measuring uses disparity);
 - ``confidence.png``: optional, 8-bit;
 - ``frame.json``: camera, baseline, doffs, timestamp and the frame's JSON-able meta.
-At 1280x720 (the simulator's noisy disparity) this is ~0.9 MB against 3.1 MB for the earlier ``.npz``.
+Its size against the earlier ``.npz`` is in docs/decisions/frame-file.md.
 :func:`write_durably` makes it crash-safe: temp file, fsync, rename, fsync of the folder.
 """
 
@@ -36,8 +36,9 @@ def _json_meta(meta: Any) -> dict[str, Any]:
     return {str(k): v for k, v in dict(meta or {}).items() if isinstance(v, (str, int, float, bool)) or v is None}
 
 
-# Row filter "up" and zlib's run-length strategy: ~2x faster than OpenCV's defaults on disparity
-# and confidence maps (smooth, with runs of invalid pixels) for ~15 % more bytes; still lossless.
+# Row filter "up" and zlib's run-length strategy: faster than OpenCV's defaults on disparity and
+# confidence maps (smooth, with runs of invalid pixels) for a few more bytes; still lossless
+# (docs/decisions/frame-file.md).
 _PNG_FAST = [cv2.IMWRITE_PNG_COMPRESSION, 1, cv2.IMWRITE_PNG_STRATEGY, cv2.IMWRITE_PNG_STRATEGY_RLE]
 if hasattr(cv2, "IMWRITE_PNG_FILTER"):  # OpenCV >= 4.10
     _PNG_FAST += [cv2.IMWRITE_PNG_FILTER, cv2.IMWRITE_PNG_FILTER_UP]
@@ -52,7 +53,7 @@ def _png(image: np.ndarray) -> bytes:
 
 def disparity_code(disparity: np.ndarray) -> np.ndarray | None:
     """``device.formats.recording``'s 16-bit code of a disparity map (round(d * 64), 0 = invalid: NaN,
-    negative or below 1/128 px), in float32 (~4x faster than its float64 encoder); None when a
+    negative or below 1/128 px), in float32 (faster than its float64 encoder); None when a
     disparity of 1024 px or more does not fit."""
     scaled = np.asarray(disparity, np.float32) * np.float32(DISPARITY_SCALE)
     np.rint(scaled, out=scaled)

@@ -3,15 +3,15 @@
 ``create_app(source, settings)`` builds the app (settings: one ``service.config.ServerConfig``);
 ``depthruler serve`` runs it with uvicorn.
 The routes live in ``service.routers`` (one module per resource) and share one
-:class:`service.state.ServiceState`. The web page in ``static/`` uses only the API.
-Errors carry a ``detail`` message saying what to change: 410 for a frame evicted from the ring,
-404 for an unknown id, 422 for bad input (types, NaN, points outside the image), 401 for a token.
+:class:`service.state.ServiceState` through :mod:`service.deps`. The web page in ``static/`` uses
+only the API. Errors carry a ``detail`` message saying what to change; :mod:`service.errors` gives
+each domain error its status (410 for a frame evicted from the ring, 404 for an unknown id, 422
+for bad input, 507 for a full disk), the token middleware 401, :mod:`service.guard` 400/403/413/415.
 """
 
 from __future__ import annotations
 
 import gc
-import hmac
 from collections.abc import AsyncIterator, Callable
 from contextlib import asynccontextmanager
 from pathlib import Path
@@ -19,36 +19,28 @@ from typing import Any
 
 import numpy as np
 from fastapi import FastAPI, Request
-from fastapi.exceptions import RequestValidationError
 from fastapi.responses import JSONResponse, Response
 from fastapi.staticfiles import StaticFiles
 
 from device import Source, make_source
 from measure import Frame, MeasureOptions, PinholeCamera, measure_distance
 
-from service.frames import Capture, FrameRing
+from history.store import Store
+
+from service import errors
 from service.config import ServerConfig
+from service.frames import Capture, FrameRing
 from service.guard import RequestGuard, allowed_hosts_for
 from service.recorder import Recorder
 from service.routers import checks, frames, health, measurements, recordings
 from service.state import ServiceState
-from history.store import Store
 
 STATIC_DIR = Path(__file__).resolve().parent / "static"
 
 
-def _validation_message(exc: RequestValidationError) -> tuple[str, list[dict[str, str]]]:
-    errors = []
-    for e in exc.errors():
-        loc = ".".join(str(p) for p in e.get("loc", ()) if p != "body") or "body"
-        errors.append({"loc": loc, "msg": str(e.get("msg", "invalid")), "input": repr(e.get("input"))[:80]})
-    text = "; ".join(f"{e['loc']}: {e['msg']} (got {e['input']})" for e in errors)
-    return text, errors
-
-
 def _warm_up_measurement() -> None:
     """Measure once on a tiny tilted plane so the first person's click does not pay for imports and
-    lazily built constants (~0.3 s)."""
+    lazily built constants (docs/decisions/service-speed.md)."""
     h, w = 48, 64
     camera = PinholeCamera(fx=60.0, fy=60.0, cx=(w - 1) / 2, cy=(h - 1) / 2, width=w, height=h)
     disparity = np.tile(np.linspace(8.0, 12.0, w, dtype=np.float32), (h, 1))
@@ -88,13 +80,12 @@ def create_app(source: str | Callable[[], Source], settings: ServerConfig | None
     store = Store(settings.db, max_bytes=settings.history_max_bytes)
     recorder = Recorder(capture, settings.recordings_dir)
     state = ServiceState(ring=ring, capture=capture, store=store, recorder=recorder)
-    token = settings.token
 
     @asynccontextmanager
     async def lifespan(_: FastAPI) -> AsyncIterator[None]:
         _warm_up_measurement()
-        # The ~100k objects of the imports and the app live as long as the process: keep them out of
-        # the collector's full passes, which otherwise stop every thread for 50-100 ms under load.
+        # The objects of the imports and the app live as long as the process: keep them out of the
+        # collector's full passes, which otherwise stop every thread (docs/decisions/service-speed.md).
         gc.collect()
         gc.freeze()
         capture.start()
@@ -111,30 +102,11 @@ def create_app(source: str | Callable[[], Source], settings: ServerConfig | None
     app.state.service = state
     app.state.ring, app.state.capture, app.state.store, app.state.recorder = ring, capture, store, recorder
 
-    @app.exception_handler(RequestValidationError)
-    async def _invalid(_: Request, exc: RequestValidationError) -> JSONResponse:
-        text, errors = _validation_message(exc)
-        return JSONResponse({"detail": text, "errors": errors}, status_code=422)
-
-    if token:
-
-        @app.middleware("http")
-        async def _auth(request: Request, call_next: Any) -> Response:
-            path = request.url.path
-            if path.startswith("/api/") and path != "/api/health":
-                header = request.headers.get("authorization", "")
-                given = header[7:].strip() if header.lower().startswith("bearer ") else request.query_params.get("token", "")
-                if not hmac.compare_digest(given.encode(), token.encode()):
-                    return JSONResponse(
-                        {"detail": "missing or wrong token: send 'Authorization: Bearer <token>' or add ?token=<token>"},
-                        status_code=401,
-                        headers={"WWW-Authenticate": "Bearer"},
-                    )
-            return await call_next(request)
+    errors.install(app)
 
     for module in (health, frames, measurements, recordings, checks):
         app.include_router(module.router)
     app.mount("/", StaticFiles(directory=STATIC_DIR, html=True), name="static")
     hosts = allowed_hosts_for(settings.host, settings.allowed_hosts)
-    app.add_middleware(RequestGuard, allowed_hosts=hosts, max_body_bytes=settings.max_body_bytes)  # outermost
+    app.add_middleware(RequestGuard, allowed_hosts=hosts, max_body_bytes=settings.max_body_bytes, token=settings.token)  # outermost
     return app

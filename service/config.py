@@ -16,7 +16,10 @@ from typing import Any
 
 from pydantic import BaseModel, ConfigDict, Field, ValidationError
 
+from service.connections import ConnectionLimits
 from service.guard import MAX_BODY_BYTES
+
+_LIMITS = ConnectionLimits()
 
 
 class ConfigError(ValueError):
@@ -39,7 +42,7 @@ class ServerConfig(_Model):
     token: str = ""
     insecure_no_token: bool = False  # serve on a non-loopback host without a token (anyone there can use it)
     allowed_hosts: tuple[str, ...] = ()  # extra Host names to answer (a DNS name of this machine)
-    ring_size: int = Field(32, ge=2, le=4096)  # ~10 MB a 1280x720 frame
+    ring_size: int = Field(32, ge=2, le=4096)  # frames in memory: width x height x 7 bytes each
     max_frozen: int = Field(16, ge=1, le=1024)
     capture_fps: float = Field(15.0, gt=0, le=1000)
     reconnect_initial_s: float = Field(0.5, gt=0, le=60)
@@ -47,10 +50,21 @@ class ServerConfig(_Model):
     keep_viewed: int = Field(8, ge=0, le=1024)  # frames handed to the page kept beyond the ring (it may freeze them)
     max_waiters: int = Field(64, ge=1, le=100_000)  # concurrent long-polls; 429 beyond
     max_body_bytes: int = Field(MAX_BODY_BYTES, ge=1024, le=1 << 30)
+    # Connection limits (service.connections): seconds to the end of a request's headers, and of its body;
+    # idle keep-alive; connections at once (fewer when the open-files limit is lower); descriptors kept for storage.
+    header_timeout_s: float = Field(_LIMITS.header_timeout_s, gt=0, le=3600)
+    body_timeout_s: float = Field(_LIMITS.body_timeout_s, gt=0, le=3600)
+    keep_alive_s: float = Field(_LIMITS.keep_alive_s, gt=0, le=3600)
+    max_connections: int = Field(_LIMITS.max_connections, ge=1, le=1_000_000)
+    reserved_fds: int = Field(_LIMITS.reserved_fds, ge=64, le=1_000_000)
 
     @property
     def history_max_bytes(self) -> int | None:
         return int(round(self.history_max_gb * 1e9)) if self.history_max_gb else None
+
+    @property
+    def limits(self) -> ConnectionLimits:
+        return ConnectionLimits(self.header_timeout_s, self.body_timeout_s, self.keep_alive_s, self.max_connections, self.reserved_fds)
 
     @property
     def recordings_dir(self) -> Path:

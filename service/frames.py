@@ -18,7 +18,7 @@ from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import Any
 
-from device import Source, SourceEnded, SourceInfo, SourceTimeout
+from device import CalibrationError, Source, SourceEnded, SourceInfo, SourceTimeout
 from measure import Frame
 
 
@@ -31,7 +31,17 @@ class FrameUnknown(KeyError):
 
 
 class ReplayControlError(ValueError):
-    """Pause, step or seek asked of a source that is no replay, or past its end (HTTP 409 / 422)."""
+    """Pause, play, step or seek cannot be done."""
+
+
+class NotAReplay(ReplayControlError):
+    """Pause, play, step or seek asked of a source that is no replay (HTTP 409)."""
+
+
+class SeekOutOfRange(ReplayControlError):
+    """A seek to an index outside the replay (HTTP 422)."""
+
+
 class TooManyWaiters(RuntimeError):
     """More long-polls are waiting than the ring allows (HTTP 429)."""
 
@@ -240,6 +250,10 @@ class FrameRing:
             return [fid for fid, e in self._frames.items() if e.frozen]
 
 
+class _Misconfigured(Exception):
+    """The source factory failed: the spec or its configuration is wrong (its cause says how)."""
+
+
 SourceFactory = Callable[[], Source]
 FrameSink = Callable[[Frame], None]
 
@@ -250,7 +264,8 @@ class Capture:
     States: "connecting" (first open), "streaming", "disconnected" (after an error, waiting to
     retry), "reconnecting" (reopening), "ended" (a finite source such as a replay without loop
     delivered its last frame: not reopened, which would start it over; the last frame stays
-    measurable), "stopped". A read that times out (:class:`SourceTimeout`) is counted and retried
+    measurable), "failed" (the source's configuration is wrong: its spec does not make a source,
+    or its calibration cannot be read; reopening cannot help, so it is not retried), "stopped". A read that times out (:class:`SourceTimeout`) is counted and retried
     on the open source: for an OAK a reopen is a device reboot. Any other exception from the source
     (a :class:`SourceDisconnected`, or anything unexpected) is caught, its message kept for
     ``status()``, and the source reopened after a backoff that doubles from
@@ -348,11 +363,11 @@ class Capture:
 
     def control(self, action: str, index: int | None = None) -> dict[str, Any]:
         """Drive a replay: "pause", "play", "step" (one frame while paused) or "seek" to frame ``index``
-        (pauses and shows it). Raises :class:`ReplayControlError` when the source is not a replay."""
+        (pauses and shows it). Raises :class:`NotAReplay` or :class:`SeekOutOfRange`."""
         with self._lock:
             info = self._info
             if info is None or info.kind != "replay":
-                raise ReplayControlError(f"the source {self.spec!r} is not a replay; pause, step and seek drive replays only")
+                raise NotAReplay(f"the source {self.spec!r} is not a replay; pause, step and seek drive replays only")
             frames = int(info.extra.get("frames", 0) or 0)
             if action == "pause":
                 self._paused = True
@@ -362,7 +377,7 @@ class Capture:
                 self._paused, self._steps = True, self._steps + 1
             elif action == "seek":
                 if index is None or not 0 <= index < frames:
-                    raise ReplayControlError(
+                    raise SeekOutOfRange(
                         f"seek needs an index in 0..{frames - 1} (the replay has {frames} frames), got {index}"
                     )
                 self._paused, self._seek, self._steps = True, index, 1
@@ -401,7 +416,10 @@ class Capture:
             src: Source | None = None
             try:
                 self._set(state="connecting" if first else "reconnecting", next_retry=None)
-                src = self.factory()
+                try:
+                    src = self.factory()
+                except Exception as exc:  # noqa: BLE001 — the spec itself is wrong: it will not work on a retry
+                    raise _Misconfigured(exc) from exc
                 src.open()
                 self._set(info=src.info, warnings=getattr(src, "warnings", []))
                 while not self._stop.is_set():
@@ -419,6 +437,11 @@ class Capture:
                     self._stop.wait(max(0.0, self.period_s - (time.monotonic() - t0)))
             except SourceEnded as exc:
                 self._set(state="ended", message=str(exc), next_retry=None)
+                return
+            except (_Misconfigured, CalibrationError) as exc:
+                cause = exc.__cause__ if isinstance(exc, _Misconfigured) and exc.__cause__ else exc
+                message = f"{type(cause).__name__}: {cause}; fix the source's configuration and restart the server"
+                self._set(state="failed", message=message, next_retry=None)
                 return
             except Exception as exc:  # noqa: BLE001 — any source failure must leave the service up
                 message = f"{type(exc).__name__}: {exc}"

@@ -2,7 +2,10 @@
 
 Every recording goes into one folder, the server's recordings root (``--recordings``); a client
 names at most a plain folder inside it (checked by :class:`service.schemas.RecordingIn`, and again
-here), never a path."""
+here), never a path, and never a symbolic link that leads out of it. A write that fails (a full
+disk) stops the recording and keeps the reason for ``status()`` and the health answer.
+Each refusal is a :class:`RecorderError` subclass; ``service.errors`` gives each its HTTP status.
+"""
 
 from __future__ import annotations
 
@@ -11,12 +14,38 @@ import time
 from pathlib import Path
 from typing import Any
 
-from fastapi import HTTPException
-
 from measure import Frame
 
 from service.frames import Capture
-from service.schemas import PLAIN_NAME
+from service.schemas import is_plain_name
+
+
+class RecorderError(RuntimeError):
+    """A recording cannot be started or stopped; the message says what to do."""
+
+
+class RecordingUnavailable(RecorderError):
+    """This build cannot record (the recording format's module is missing)."""
+
+
+class NotStreaming(RecorderError):
+    """The source has not delivered a frame yet."""
+
+
+class AlreadyRecording(RecorderError):
+    """A recording runs already: one at a time."""
+
+
+class NotRecording(RecorderError):
+    """Stop asked while nothing records."""
+
+
+class BadRecordingName(RecorderError):
+    """The name is not a plain folder inside the recordings root (or leads out of it)."""
+
+
+class CannotRecord(RecorderError):
+    """The recording's folder cannot be created or written."""
 
 
 class Recorder:
@@ -44,21 +73,23 @@ class Recorder:
         try:
             from device.formats.recording import RecordingWriter
         except ImportError as exc:
-            raise HTTPException(503, f"recording is not available in this build ({exc})") from exc
+            raise RecordingUnavailable(f"recording is not available in this build ({exc})") from exc
         info = self.capture.info
         if info is None:
-            raise HTTPException(409, "the source has not delivered a frame yet; start recording once it streams")
+            raise NotStreaming("the source has not delivered a frame yet; start recording once it streams")
         path = self.root / (out or time.strftime("%Y%m%d-%H%M%S"))
-        if path.parent != self.root or not PLAIN_NAME.match(path.name):
-            raise HTTPException(422, f"out must be a plain folder name inside {self.root} (got {out!r})")
+        if path.parent != self.root or not is_plain_name(path.name):
+            raise BadRecordingName(f"out must be a plain folder name inside {self.root} (got {out!r})")
+        if path.is_symlink() or path.resolve().parent != self.root:
+            raise BadRecordingName(f"{path} is a link that leads out of {self.root}; name another folder")
         with self._lock:
             if self._writer is not None:
-                raise HTTPException(409, f"already recording to {self._path}; stop it first")
+                raise AlreadyRecording(f"already recording to {self._path}; stop it first")
             try:
                 self.root.mkdir(parents=True, exist_ok=True)
                 self._writer = RecordingWriter(path, info)
             except Exception as exc:  # noqa: BLE001 — RecordingError or OSError: report, don't crash
-                raise HTTPException(400, f"cannot record to {path}: {exc}") from exc
+                raise CannotRecord(f"cannot record to {path}: {exc}") from exc
             self._path, self._frames, self._error = path, 0, ""
         self.capture.sinks.append(self._write)
         return self.status()
@@ -66,7 +97,7 @@ class Recorder:
     def stop(self) -> dict[str, Any]:
         with self._lock:
             if self._writer is None:
-                raise HTTPException(409, "not recording; start a recording first")
+                raise NotRecording("not recording; start a recording first")
             self._close()
         return self.status()
 

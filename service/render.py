@@ -1,6 +1,6 @@
-"""Images the service sends: PNG (exact pixels) and JPEG (the live view: ~30x cheaper to encode and
-~20x smaller at 720p) encoding, the colour-mapped disparity view, thumbnails, and the JSON view
-of a ring frame."""
+"""Images the service sends: PNG (exact pixels) and JPEG (the live view: cheaper to encode and
+smaller, docs/decisions/service-speed.md) encoding, the colour-mapped disparity view, thumbnails,
+and the JSON view of a ring frame."""
 
 from __future__ import annotations
 
@@ -73,7 +73,7 @@ def quarter(image: np.ndarray) -> np.ndarray:
 def make_thumb(image: np.ndarray, full_width: int, p1: tuple[float, float], p2: tuple[float, float]) -> bytes:
     """A small JPEG of a frame's colour ``image`` (full size, or a reduced decode of a frame
     ``full_width`` pixels wide) with the measured segment (full-size pixels) drawn on it; bilinear
-    resize + JPEG, ~0.3 ms."""
+    resize + JPEG."""
     h, w = image.shape[:2]
     s = THUMB_WIDTH / full_width
     small = cv2.resize(image, (THUMB_WIDTH, max(1, round(h * THUMB_WIDTH / w))), interpolation=cv2.INTER_LINEAR)

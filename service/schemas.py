@@ -13,7 +13,13 @@ from measure.types import MAX_CLICK_PX
 FiniteNumber = Annotated[float, Strict(), Field(allow_inf_nan=False)]
 MAX_ID = 2**53 - 1  # the largest integer a JavaScript number holds exactly; far below SQLite's 2^63
 Id = Annotated[int, Strict(), Field(ge=0, le=MAX_ID)]
-PLAIN_NAME = re.compile(r"^[A-Za-z0-9][A-Za-z0-9._-]{0,63}$")
+PLAIN_NAME = re.compile(r"[A-Za-z0-9][A-Za-z0-9._-]{0,63}")
+
+
+def is_plain_name(text: str) -> bool:
+    """Whether ``text`` is a plain folder name: letters, digits, '.', '_', '-', at most 64, not all
+    dots; the whole text (a trailing newline is not part of a name)."""
+    return PLAIN_NAME.fullmatch(text) is not None and text.strip(".") != ""
 
 
 class OptionsIn(BaseModel):
@@ -53,7 +59,7 @@ class RecordingIn(BaseModel):
     @field_validator("out")
     @classmethod
     def _plain_name(cls, v: str | None) -> str | None:
-        if v is not None and (not PLAIN_NAME.match(v) or v.strip(".") == ""):
+        if v is not None and not is_plain_name(v):
             raise ValueError(
                 "out must be a plain folder name (letters, digits, '.', '_', '-'; at most 64; no '/' or '..'): "
                 "recordings go inside the server's --recordings folder"
@@ -138,9 +144,18 @@ class DepthScaleOut(_Out):
 
 
 class HealthOut(_Out):
+    """``status`` "degraded" with ``reasons`` (joined in ``reason``) when the next frame would not fit
+    on the history's disk (``free_bytes`` < ``next_frame_bytes`` and the commit's headroom) or the
+    source is down; ``recording_error`` says why the last recording stopped by itself."""
+
     status: Literal["ok", "degraded"]
     reason: str
+    reasons: list[str]
     source_state: str
+    source_message: str
+    recording_error: str
+    free_bytes: int | None
+    next_frame_bytes: int | None
     frames: int
     uptime_s: float
 

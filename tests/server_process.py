@@ -21,10 +21,11 @@ def free_port() -> int:
 
 
 def start_serve(
-    source: str, db: Path, log: Path, *args: str, prefix: tuple[str, ...] = (), timeout_s: float = 60.0
+    source: str, db: Path, log: Path, *args: str, prefix: tuple[str, ...] = (), timeout_s: float = 60.0, token: str = ""
 ) -> tuple[subprocess.Popen, str]:
     """Start ``[PREFIX] depthruler serve --source SOURCE --db DB ARGS`` on a free port, its output
-    appended to ``log``; return the process and its base URL once the first frame is served. Raises
+    appended to ``log``; return the process and its base URL once the first frame is served (asked
+    with ``token`` when the server needs one). Raises
     AssertionError (with the log) when the server exits or gives no frame within ``timeout_s``."""
     port = free_port()
     cmd = [*prefix, sys.executable, "-m", "cli.main", "serve", "--source", source, "--port", str(port), "--db", str(db), *args]
@@ -37,7 +38,8 @@ def start_serve(
         if proc.poll() is not None:
             raise AssertionError(f"depthruler serve exited: {log.read_text(errors='replace')}")
         try:
-            if httpx.get(f"{base}/api/frames/latest", params={"wait": 2}, timeout=5).status_code == 200:
+            auth = {"Authorization": f"Bearer {token}"} if token else {}
+            if httpx.get(f"{base}/api/frames/latest", params={"wait": 2}, headers=auth, timeout=5).status_code == 200:
                 return proc, base
         except httpx.TransportError:
             pass

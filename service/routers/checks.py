@@ -8,8 +8,8 @@ from fastapi import APIRouter, Query
 
 from history.checks import checks_path, read_checks
 
+from service.deps import State
 from service.schemas import ChecksOut, json_doc
-from service.state import State
 
 router = APIRouter(prefix="/api", tags=["checks"])
 

@@ -5,16 +5,14 @@ from __future__ import annotations
 from typing import Annotated, Any
 
 import numpy as np
-from fastapi import APIRouter, HTTPException, Path, Query
+from fastapi import APIRouter, HTTPException, Query
 from fastapi.responses import Response
 
-from service.frames import TooManyWaiters
+from service.deps import FrameDep, State
 from service.render import colorize_disparity, disparity_range, encode_jpeg, encode_png, frame_json, turbo_colors
 from service.schemas import MAX_ID, DepthOut, DepthScaleOut, FrameOut, json_doc, media_doc
-from service.state import State
 
 router = APIRouter(prefix="/api/frames", tags=["frames"])
-FrameId = Annotated[int, Path(ge=0, le=MAX_ID)]
 
 
 @router.get("/latest", **json_doc(FrameOut))
@@ -23,11 +21,8 @@ async def latest(
 ) -> dict[str, Any]:
     """The newest frame; with ``wait``, the first one newer than ``after`` (a long-poll served on the
     event loop, so waiting clients hold no worker thread)."""
-    try:
-        # after a wait with nothing newer (a paused or ended replay) the newest frame is still the answer
-        entry = (await state.ring.wait_latest_async(after, wait) if wait else None) or state.ring.latest()
-    except TooManyWaiters as exc:
-        raise HTTPException(429, str(exc), headers={"Retry-After": "1"}) from None
+    # after a wait with nothing newer (a paused or ended replay) the newest frame is still the answer
+    entry = (await state.ring.wait_latest_async(after, wait) if wait else None) or state.ring.latest()
     if entry is None:
         status = state.capture.status()
         raise HTTPException(
@@ -38,36 +33,36 @@ async def latest(
 
 
 @router.get("/{frame_id}", **json_doc(FrameOut))
-def frame_info(state: State, frame_id: FrameId) -> dict[str, Any]:
-    return frame_json(state.entry(frame_id))
+def frame_info(entry: FrameDep) -> dict[str, Any]:
+    return frame_json(entry)
 
 
 @router.get("/{frame_id}/color.png", **media_doc("image/png"))
-def color_png(state: State, frame_id: FrameId) -> Response:
-    data = state.entry(frame_id).encoded("color.png", lambda f: encode_png(f.image))
+def color_png(entry: FrameDep) -> Response:
+    data = entry.encoded("color.png", lambda f: encode_png(f.image))
     return Response(data, media_type="image/png", headers={"Cache-Control": "private, max-age=3600"})
 
 
 @router.get("/{frame_id}/color.jpg", **media_doc("image/jpeg"))
-def color_jpg(state: State, frame_id: FrameId) -> Response:
+def color_jpg(entry: FrameDep) -> Response:
     """The colour image for the live view: JPEG quality 85 (color.png has the exact pixels)."""
-    data = state.entry(frame_id).encoded("color.jpg", lambda f: encode_jpeg(f.image))
+    data = entry.encoded("color.jpg", lambda f: encode_jpeg(f.image))
     return Response(data, media_type="image/jpeg", headers={"Cache-Control": "private, max-age=3600"})
 
 
 @router.get("/{frame_id}/disparity.png", **media_doc("image/png"))
-def disparity_png(state: State, frame_id: FrameId) -> Response:
-    data = state.entry(frame_id).encoded("disparity.png", lambda f: encode_png(colorize_disparity(f.disparity)))
+def disparity_png(entry: FrameDep) -> Response:
+    data = entry.encoded("disparity.png", lambda f: encode_png(colorize_disparity(f.disparity)))
     return Response(data, media_type="image/png", headers={"Cache-Control": "private, max-age=3600"})
 
 
 @router.get("/{frame_id}/depth", **json_doc(DepthOut))
 def depth_at(
-    state: State, frame_id: int, x: Annotated[float, Query(allow_inf_nan=False)], y: Annotated[float, Query(allow_inf_nan=False)]
+    entry: FrameDep, x: Annotated[float, Query(allow_inf_nan=False)], y: Annotated[float, Query(allow_inf_nan=False)]
 ) -> dict[str, Any]:
     """Depth (m) and disparity (px) at the pixel nearest to (x, y), pixel-centre convention; ``None``
     where the disparity has no data. Depth is ``Frame.depth()``: Z = fx * baseline / (d + doffs)."""
-    frame = state.entry(frame_id).frame
+    frame, frame_id = entry.frame, entry.id
     h, w = frame.disparity.shape
     if not (-0.5 <= x < w - 0.5 and -0.5 <= y < h - 0.5):
         raise HTTPException(
@@ -87,10 +82,10 @@ def depth_at(
 
 
 @router.get("/{frame_id}/depth-scale", **json_doc(DepthScaleOut))
-def depth_scale(state: State, frame_id: int) -> dict[str, Any]:
+def depth_scale(entry: FrameDep) -> dict[str, Any]:
     """What the colours of ``disparity.png`` mean: the disparity range (px) at the ends of the colour
     map, the same range as depth (m), and ``fx_baseline`` and ``doffs`` to place any depth on it."""
-    frame = state.entry(frame_id).frame
+    frame = entry.frame
     span = disparity_range(frame.disparity)
     fb = frame.camera.fx * frame.baseline_m
 
@@ -98,7 +93,7 @@ def depth_scale(state: State, frame_id: int) -> dict[str, Any]:
         return fb / (d + frame.doffs) if d + frame.doffs > 0 else None
 
     return {
-        "frame_id": frame_id,
+        "frame_id": entry.id,
         "disparity_px": list(span) if span else None,
         "depth_m": [z(span[1]), z(span[0])] if span else None,  # near (high disparity) first
         "fx_baseline": fb,
@@ -108,13 +103,11 @@ def depth_scale(state: State, frame_id: int) -> dict[str, Any]:
 
 
 @router.post("/{frame_id}/freeze", **json_doc(FrameOut))
-def freeze(state: State, frame_id: FrameId) -> dict[str, Any]:
-    entry = state.entry(frame_id)
+def freeze(state: State, entry: FrameDep) -> dict[str, Any]:
     state.store.presave(entry.uid, entry.frame)  # a frozen frame is about to be measured: save it meanwhile
-    return frame_json(state.ring.freeze(frame_id, True))
+    return frame_json(state.ring.freeze(entry.id, True))
 
 
 @router.delete("/{frame_id}/freeze", **json_doc(FrameOut))
-def unfreeze(state: State, frame_id: FrameId) -> dict[str, Any]:
-    state.entry(frame_id)
-    return frame_json(state.ring.freeze(frame_id, False))
+def unfreeze(state: State, entry: FrameDep) -> dict[str, Any]:
+    return frame_json(state.ring.freeze(entry.id, False))

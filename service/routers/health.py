@@ -5,26 +5,38 @@ from __future__ import annotations
 import time
 from typing import Any
 
-from fastapi import APIRouter, HTTPException
+from fastapi import APIRouter
 from starlette.concurrency import run_in_threadpool
 
-from service.frames import ReplayControlError
+from service.deps import State
 from service.schemas import HealthOut, ReplayIn, ReplayStatusOut, SourceStatusOut, json_doc
-from service.state import State
 
 router = APIRouter(prefix="/api", tags=["health"])
+SOURCE_DOWN = ("disconnected", "reconnecting", "failed")
 
 
 @router.get("/health", **json_doc(HealthOut))
 async def health(state: State) -> dict[str, Any]:
-    """``status`` is "ok", or "degraded" with a ``reason`` (the history's disk is full: measurements
-    answer 507 until space comes back, checked on every call)."""
-    status = state.capture.status()
-    degraded = (await run_in_threadpool(state.store.status))["degraded"] if state.store.degraded else ""
+    """``status`` is "ok", or "degraded" with the ``reasons``: the next frame would not fit on the
+    history's disk (measurements answer 507; compared with the free bytes at every call), or the
+    source is down (``source_state``, ``source_message``). ``recording_error`` is why the last
+    recording stopped by itself. Answered without the token, so a monitor can poll it."""
+    source = state.capture.status()
+    latest = state.ring.latest()
+    disk = await run_in_threadpool(state.store.status, latest.frame if latest else None)
+    reasons = [disk["degraded"]] if disk["degraded"] else []
+    if source["state"] in SOURCE_DOWN:
+        reasons.append(f"the source is {source['state']}: {source['message']}".rstrip(": "))
+    recording = state.recorder.status()
     return {
-        "status": "degraded" if degraded else "ok",
-        "reason": degraded,
-        "source_state": status["state"],
+        "status": "degraded" if reasons else "ok",
+        "reason": "; ".join(reasons),
+        "reasons": reasons,
+        "source_state": source["state"],
+        "source_message": source["message"],
+        "recording_error": "" if recording["active"] else recording["error"],
+        "free_bytes": disk["free_bytes"],
+        "next_frame_bytes": disk["need_bytes"],
         "frames": len(state.ring),
         "uptime_s": time.time() - state.started,
     }
@@ -38,7 +50,4 @@ def source_status(state: State) -> dict[str, Any]:
 @router.post("/source/replay", **json_doc(ReplayStatusOut))
 def replay_control(state: State, body: ReplayIn) -> dict[str, Any]:
     """Pause, play, step or seek a replay; answers the replay status (``paused``, ``index``, ``frames``)."""
-    try:
-        return state.capture.control(body.action, body.index)
-    except ReplayControlError as exc:
-        raise HTTPException(409 if "not a replay" in str(exc) else 422, str(exc)) from None
+    return state.capture.control(body.action, body.index)

@@ -5,12 +5,13 @@ from __future__ import annotations
 import json
 from typing import Annotated, Any, Literal
 
-from fastapi import APIRouter, HTTPException, Path, Query, Request
+from fastapi import APIRouter, Query, Request
 from fastapi.responses import JSONResponse, PlainTextResponse, Response
 
-from measure import MeasureError, MeasureOptions, measure_distance
+from measure import MeasureOptions, measure_distance
 from measure.sequence import measure_sequence
 
+from service.deps import MeasurementDep, MeasurementId, State
 from service.render import encode_png, frame_json, make_thumb, png_from_jpeg, quarter
 from service.schemas import (
     MAX_ID,
@@ -23,11 +24,9 @@ from service.schemas import (
     json_doc,
     media_doc,
 )
-from service.state import ServiceState, State
-from history.store import FrameDropped, StoreError, StoreFull
+from service.state import ServiceState
 
 router = APIRouter(prefix="/api", tags=["measurements"])
-MeasurementId = Annotated[int, Path(ge=0, le=MAX_ID)]
 
 
 def _json(obj: Any) -> Response:
@@ -38,47 +37,32 @@ def _json(obj: Any) -> Response:
 
 @router.post("/measure", **json_doc(MeasurementOut))
 def measure(state: State, body: MeasureIn) -> Response:
-    entry = state.entry(body.frame_id)
+    """Measure between ``p1`` and ``p2`` (px) on frame ``frame_id`` and store it: a 200 means the
+    measurement and its frame are on disk; an error status means nothing was stored."""
+    entry = state.ring.get(body.frame_id)
     frame = entry.frame
-    h, w = frame.disparity.shape
-    for name, (x, y) in (("p1", body.p1), ("p2", body.p2)):
-        if not (0 <= x <= w - 1 and 0 <= y <= h - 1):
-            raise HTTPException(
-                422, f"{name}=({x:g}, {y:g}) is outside the {w}x{h} image of frame {entry.id}; use 0<=x<={w - 1}, 0<=y<={h - 1}"
-            )
     options = body.options.model_dump()
     used = [entry]
     if body.frames > 1:
-        if body.options.method != "robust":
-            raise HTTPException(422, f"frames={body.frames} needs the robust method (got {body.options.method!r}); use method 'robust' or frames=1")
         used = list(reversed(state.ring.before(entry.id, body.frames - 1))) + [entry]
-    try:
-        if body.frames > 1:
-            result = measure_sequence([e.frame for e in used], body.p1, body.p2, MeasureOptions(**options))
-        else:
-            result = measure_distance(frame, body.p1, body.p2, MeasureOptions(**options))
-    except MeasureError as exc:
-        raise HTTPException(422, str(exc)) from None
+        result = measure_sequence([e.frame for e in used], body.p1, body.p2, MeasureOptions(**options))
+    else:
+        result = measure_distance(frame, body.p1, body.p2, MeasureOptions(**options))
     context = {"frame_index": replay["index"]} if isinstance(replay := frame.meta.get("replay"), dict) else {}
     if body.frames > 1:
         # The ids of the frames pooled, oldest first (the motion check may keep fewer than offered).
         context |= {"frames_requested": body.frames, "frame_ids": [e.id for e in used[len(used) - result.frames_used :]]}
-    try:
-        record = state.store.add(
-            frame_id=entry.id,
-            frame_uid=entry.uid,
-            frame=frame,
-            source=str(frame.meta.get("source", "")) or state.capture.spec,
-            p1=body.p1,
-            p2=body.p2,
-            options=options,
-            result=result.to_dict(),
-            context=context or None,
-        )  # returns once the measurement and its frame are on disk; the thumbnail is drawn on request
-    except StoreFull as exc:
-        raise HTTPException(507, str(exc)) from None
-    except StoreError as exc:
-        raise HTTPException(500, str(exc)) from None
+    record = state.store.add(
+        frame_id=entry.id,
+        frame_uid=entry.uid,
+        frame=frame,
+        source=str(frame.meta.get("source", "")) or state.capture.spec,
+        p1=body.p1,
+        p2=body.p2,
+        options=options,
+        result=result.to_dict(),
+        context=context or None,
+    )  # returns once the measurement and its frame are on disk; the thumbnail is drawn on request
     return _json(record)
 
 
@@ -127,53 +111,33 @@ def measurements(
     return Response(state.store.list_slim_json(limit, before), media_type="application/json")
 
 
-def _no_measurement(mid: int) -> HTTPException:
-    return HTTPException(404, f"no measurement {mid}; GET /api/measurements lists them")
-
-
-def _record(state: ServiceState, mid: int) -> dict[str, Any]:
-    record = state.store.get(mid)
-    if record is None:
-        raise _no_measurement(mid)
-    return record
-
-
 @router.get("/measurements/{mid}", **json_doc(MeasurementOut))
-def measurement(state: State, mid: MeasurementId) -> Response:
+def measurement(record: MeasurementDep) -> Response:
     """The full record, with the per-sample arrays."""
-    return _json(_record(state, mid))
+    return _json(record)
 
 
 @router.patch("/measurements/{mid}", **json_doc(MeasurementOut))
 def annotate(state: State, mid: MeasurementId, body: AnnotationIn) -> dict[str, Any]:
-    """Name and/or note a measurement."""
-    record = state.store.annotate(mid, body.name, body.note)
-    if record is None:
-        raise _no_measurement(mid)
-    return record
+    """Name and/or note a measurement (works on a full disk: the history keeps a reserve for it)."""
+    return state.store.annotate(mid, body.name, body.note)
 
 
 @router.delete("/measurements/{mid}", **json_doc(DeletedOut))
 def delete_measurement(state: State, mid: MeasurementId) -> dict[str, Any]:
-    if not state.store.delete(mid):
-        raise _no_measurement(mid)
+    """Delete a measurement, and its saved frame once no other measurement uses it (works on a full disk)."""
+    state.store.delete(mid)
     return {"deleted": mid}
 
 
 def _thumb(state: ServiceState, mid: int) -> bytes:
     """The measurement's thumbnail, drawn on first request from its frame (still in the ring, else
     its saved file) and kept in memory."""
-    where = state.store.segment(mid)
-    if where is None:
-        raise _no_measurement(mid)
+    uid, p1, p2 = state.store.segment(mid)
     data = state.store.thumb(mid)
     if data is None:
-        uid, p1, p2 = where
         entry = state.ring.find(uid)  # the frame is usually still in the ring: no file to read and decode
-        try:
-            image, width = (quarter(entry.frame.image), entry.frame.image.shape[1]) if entry else state.store.preview(uid)
-        except StoreError as exc:
-            raise HTTPException(404, f"measurement {mid} has no thumbnail: {exc}") from None
+        image, width = (quarter(entry.frame.image), entry.frame.image.shape[1]) if entry else state.store.preview(uid)
         data = make_thumb(image, width, p1, p2)
         state.store.set_thumb(mid, data)
     return data
@@ -194,26 +158,16 @@ def thumb(state: State, mid: MeasurementId) -> Response:
 
 
 @router.get("/measurements/{mid}/color.png", **media_doc("image/png"))
-def measured_color(state: State, mid: MeasurementId) -> Response:
+def measured_color(state: State, record: MeasurementDep) -> Response:
     """The colour image of the saved frame a measurement was made on (the CSV's ``frame_url``)."""
-    record = _record(state, mid)
-    try:
-        saved = state.store.frame(record["frame_uid"])
-    except StoreError as exc:
-        raise HTTPException(404, str(exc)) from None
+    saved = state.store.frame(record["frame_uid"])
     return Response(encode_png(saved.image), media_type="image/png", headers={"Cache-Control": "private, max-age=86400"})
 
 
 @router.post("/measurements/{mid}/open", **json_doc(ReopenOut))
-def reopen(state: State, mid: MeasurementId) -> dict[str, Any]:
+def reopen(state: State, record: MeasurementDep) -> dict[str, Any]:
     """Put the saved frame of a measurement back into the ring (frozen) to view or re-measure it."""
-    record = _record(state, mid)
-    try:
-        saved = state.store.frame(record["frame_uid"])
-    except FrameDropped as exc:
-        raise HTTPException(410, str(exc)) from None
-    except StoreError as exc:
-        raise HTTPException(404, str(exc)) from None
+    saved = state.store.frame(record["frame_uid"])
     entry = state.ring.push(saved, frozen=True, uid=record["frame_uid"])
     return {"frame": frame_json(entry), "measurement": record}
 
@@ -221,11 +175,9 @@ def reopen(state: State, mid: MeasurementId) -> dict[str, Any]:
 @router.post("/measurements/{mid}/pin", **json_doc(MeasurementOut))
 def pin(state: State, mid: MeasurementId) -> dict[str, Any]:
     """Keep this measurement's frame whatever the history cap (``--history-max-gb``)."""
-    _record(state, mid)
-    return state.store.pin(mid, True) or _record(state, mid)
+    return state.store.pin(mid, True)
 
 
 @router.delete("/measurements/{mid}/pin", **json_doc(MeasurementOut))
 def unpin(state: State, mid: MeasurementId) -> dict[str, Any]:
-    _record(state, mid)
-    return state.store.pin(mid, False) or _record(state, mid)
+    return state.store.pin(mid, False)

@@ -6,8 +6,8 @@ from typing import Any
 
 from fastapi import APIRouter
 
+from service.deps import State
 from service.schemas import RecordingIn, RecordingStatusOut, json_doc
-from service.state import State
 
 router = APIRouter(prefix="/api/recordings", tags=["recordings"])
 

@@ -103,24 +103,41 @@ def test_serve_on_a_busy_port_says_so_before_starting(tmp_path):
     assert result.exit_code == 2
     assert f"port {port} on 127.0.0.1 is already in use" in result.output and "open http" not in result.output
     assert not (tmp_path / "b.db").exists()  # nothing was started or written
-    result = CliRunner().invoke(app, ["serve", "--source", "sim", "--host", "no-such-host.invalid", "--db", str(tmp_path / "b.db")])
+    args = ["serve", "--source", "sim", "--host", "no-such-host.invalid", "--token", "t", "--db", str(tmp_path / "b.db")]
+    result = CliRunner().invoke(app, args)
     assert result.exit_code == 2 and "cannot resolve --host 'no-such-host.invalid'" in result.output
+
+
+def test_serve_refuses_an_exposed_host_without_a_token_whatever_the_port(tmp_path, monkeypatch):
+    """The token rule comes first: a busy port (8000 held by anyone) does not change the answer."""
+    import socket
+
+    import uvicorn
+
+    monkeypatch.setattr(uvicorn, "run", lambda app, **kw: pytest.fail("started"))
+    monkeypatch.delenv("DEPTHRULER_TOKEN", raising=False)
+    with socket.create_server(("0.0.0.0", 0)) as busy:
+        port = busy.getsockname()[1]
+        result = CliRunner().invoke(app, ["serve", "--source", "sim", "--host", "0.0.0.0", "--port", str(port), "--db", str(tmp_path / "o.db")])
+    assert result.exit_code == 2 and "--insecure-no-token" in result.output and "already in use" not in result.output
 
 
 def test_serve_flags_override_config(tmp_path, monkeypatch):
     import uvicorn
     from fastapi.testclient import TestClient
+    from server_process import free_port
 
     calls = {}
     monkeypatch.setattr(uvicorn, "run", lambda app, **kw: calls.update(app=app, **kw))
     monkeypatch.setenv("DEPTHRULER_TOKEN", "tok")
     cfg = tmp_path / "c.toml"
+    port = free_port()
     cfg.write_text(f'[server]\nport = 9100\ndb = "{tmp_path / "cfg.db"}"\n[source]\nkind = "replay"\npath = "/nowhere"\n')
     result = CliRunner().invoke(
-        app, ["serve", "--config", str(cfg), "--host", "0.0.0.0", "--port", "9200", "--source", "kinect:0"]
+        app, ["serve", "--config", str(cfg), "--host", "0.0.0.0", "--port", str(port), "--source", "kinect:0"]
     )
     assert result.exit_code == 0, result.output
-    assert calls["host"] == "0.0.0.0" and calls["port"] == 9200
+    assert calls["host"] == "0.0.0.0" and calls["port"] == port
     assert "source kinect:0" in result.output  # --source beats the file's [source]
     assert (tmp_path / "cfg.db").exists()  # the file's db, not overridden
     with TestClient(calls["app"]) as c:

@@ -1,4 +1,4 @@
-"""The API describes its answers (issue 21): every route's 200 answer has a schema in /docs, the
+"""The API describes its answers: every route's 200 answer has a schema in /docs, the
 schemas are the ones real answers validate against, and the options a request takes are the
 measuring core's."""
 

@@ -19,7 +19,7 @@ import numpy as np
 import pytest
 
 from browser_helpers import chromium, image_point, serve, watch
-from history.store import CSV_COLUMNS
+from history.export import CSV_COLUMNS
 
 SPEC = "sim:poster?distance=2&lighting=indoor&contention=0.5&seed=7&fps=5"
 

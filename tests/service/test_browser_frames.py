@@ -1,4 +1,4 @@
-"""The page's "Measure over N frames (hold still)" control in a real browser (issue #17): the choice
+"""The page's "Measure over N frames (hold still)" control in a real browser: the choice
 reaches the API, the answer pools the frozen frame and the ones before it, and the page says how
 many frames were used and how much narrower one sigma got."""
 

@@ -1,4 +1,4 @@
-"""The freeze race (issue 14): a person freezes, clicks and drags at human speed while the source
+"""The freeze race: a person freezes, clicks and drags at human speed while the source
 runs at 30 fps into a ring of 4 frames, so any frame the page shows but the server did not freeze
 is evicted within ~0.13 s. Invariant: the frame shown is the frame the server holds frozen and
 measures, whatever the timing; 20 rounds, zero failed requests."""

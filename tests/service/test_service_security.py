@@ -7,9 +7,11 @@ import threading
 import time
 from concurrent.futures import ThreadPoolExecutor
 
+import httpx
 import pytest
 from fastapi.testclient import TestClient
 from factories import PlaneSource
+from server_process import free_port
 from service_client import latest, make_client, measure
 
 from service.app import create_app
@@ -17,7 +19,7 @@ from service.app import create_app
 ORIGIN = "http://127.0.0.1"  # make_client's base URL: the page's own origin
 
 
-@pytest.mark.parametrize("out", ["../escape", "../../x", "{tmp}/abs", "a/b", "..", ".", "a\\b", "", " x", "x" * 200])
+@pytest.mark.parametrize("out", ["../escape", "../../x", "{tmp}/abs", "a/b", "..", ".", "a\\b", "", " x", "x" * 200, "evil\n", "evil\r\n"])
 def test_recording_out_is_a_plain_name_inside_the_root(tmp_path, monkeypatch, out):
     (tmp_path / "cwd").mkdir()
     monkeypatch.chdir(tmp_path / "cwd")  # had the server followed the path, it lands under tmp_path
@@ -30,6 +32,19 @@ def test_recording_out_is_a_plain_name_inside_the_root(tmp_path, monkeypatch, ou
         assert not c.get("/api/recordings").json()["active"]
     assert {p.name for p in tmp_path.iterdir()} <= {"cwd", "h-frames", "h.db", "h.db-shm", "h.db-wal"}
     assert list((tmp_path / "cwd").iterdir()) == []
+
+
+def test_recording_into_a_link_that_leads_out_of_the_root_is_refused(tmp_path):
+    root, outside = tmp_path / "recs", tmp_path / "outside"
+    root.mkdir()
+    outside.mkdir()
+    (root / "link").symlink_to(outside)
+    with make_client(tmp_path, capture_fps=50.0, recordings_dir=root) as c:
+        latest(c)
+        r = c.post("/api/recordings", json={"action": "start", "out": "link"})
+        assert r.status_code == 422 and "leads out of" in r.json()["detail"], r.text
+        assert not c.get("/api/recordings").json()["active"]
+    assert list(outside.iterdir()) == []
 
 
 def test_recording_goes_under_the_configured_root(tmp_path):
@@ -87,6 +102,39 @@ def test_foreign_host_header_is_refused(tmp_path):
             r = c.get("/api/health", headers={"Host": host})
             assert r.status_code == 400 and "host" in r.json()["detail"].lower(), host
             assert c.get("/", headers={"Host": host}).status_code == 400
+
+
+def test_host_with_a_port_that_is_not_a_number_is_refused(tmp_path):
+    with make_client(tmp_path) as c:
+        for host in ("127.0.0.1:evil.com", "localhost:80:81", "[::1]:evil", "127.0.0.1:"):
+            r = c.get("/api/health", headers={"Host": host})
+            assert r.status_code == 400 and "host" in r.json()["detail"].lower(), host
+        assert c.get("/api/health", headers={"Host": "[::1]:8000"}).status_code == 200
+
+
+def test_repeated_host_or_origin_headers_are_refused(tmp_path):
+    """Which of two Host (or Origin) headers a reader takes is not defined: one of them is a lie."""
+    with make_client(tmp_path) as c:
+        fid = latest(c)["id"]
+        for headers in (
+            [("Host", "127.0.0.1"), ("Host", "evil.example")],
+            [("Host", "evil.example"), ("Host", "127.0.0.1")],
+            [("Host", "127.0.0.1"), ("Origin", "http://evil.example"), ("Origin", "http://127.0.0.1")],
+        ):
+            raw = [(k.lower().encode(), v.encode()) for k, v in headers]
+            r = c.post(f"/api/frames/{fid}/freeze", headers=httpx.Headers(raw + [(b"content-type", b"application/json")]))
+            assert r.status_code == 400 and "headers; send one" in r.json()["detail"], (headers, r.text)
+        assert not c.get(f"/api/frames/{fid}").json()["frozen"]
+
+
+def test_malformed_json_says_where_it_breaks(tmp_path):
+    with make_client(tmp_path) as c:
+        latest(c)
+        r = c.post("/api/measure", content=b'{"frame_id": 1, "p1": [1, 2],}', headers={"Content-Type": "application/json"})
+        assert r.status_code == 422
+        detail = r.json()["detail"]
+        assert detail.startswith("body: the body is not valid JSON at character ") and "send a JSON object" in detail, detail
+        assert "(got {})" not in detail
 
 
 def test_allowed_hosts_wildcard(tmp_path):
@@ -182,7 +230,7 @@ def test_exposed_without_token_refuses_to_start(tmp_path, monkeypatch):
     calls = {}
     monkeypatch.setattr(uvicorn, "run", lambda app, **kw: calls.update(app=app, **kw))
     monkeypatch.delenv("DEPTHRULER_TOKEN", raising=False)
-    args = ["serve", "--source", "sim", "--host", "0.0.0.0", "--port", "9201", "--db", str(tmp_path / "o.db")]
+    args = ["serve", "--source", "sim", "--host", "0.0.0.0", "--port", str(free_port()), "--db", str(tmp_path / "o.db")]
     result = CliRunner().invoke(app, args)
     assert result.exit_code == 2 and "--token" in result.output and "--insecure-no-token" in result.output
     assert not calls
@@ -199,7 +247,7 @@ def test_recordings_flag_sets_the_root(tmp_path, monkeypatch):
 
     calls = {}
     monkeypatch.setattr(uvicorn, "run", lambda app, **kw: calls.update(app=app, **kw))
-    args = ["serve", "--source", "sim", "--port", "9202", "--db", str(tmp_path / "o.db"), "--recordings", str(tmp_path / "r"),
+    args = ["serve", "--source", "sim", "--port", str(free_port()), "--db", str(tmp_path / "o.db"), "--recordings", str(tmp_path / "r"),
             "--history-max-gb", "0.5"]  # fmt: skip
     result = CliRunner().invoke(app, args)
     assert result.exit_code == 0, result.output

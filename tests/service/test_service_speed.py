@@ -81,7 +81,7 @@ def _freeze_and_wait_for_presave(c, tmp_path, fid: int):
 
 
 def test_frozen_frame_is_saved_before_the_measurement(tmp_path, monkeypatch):
-    from history import store as store_module
+    from history import frame_file
 
     with make_client(tmp_path) as c:
         f = latest(c)
@@ -90,7 +90,7 @@ def test_frozen_frame_is_saved_before_the_measurement(tmp_path, monkeypatch):
         def no_writes(*_a, **_k):
             raise AssertionError("the measurement wrote the frame again")
 
-        monkeypatch.setattr(store_module, "write_durably", no_writes)
+        monkeypatch.setattr(frame_file, "write_durably", no_writes)
         r = measure(c, f["id"], (10, 10), (300, 200), method="basic")
         assert r.status_code == 200, r.text
         assert c.post(f"/api/measurements/{r.json()['id']}/open", headers=JSON).status_code == 200
@@ -134,7 +134,7 @@ def test_concurrent_measurements_share_one_commit(tmp_path):
 
     store = Store(tmp_path / "h.db")
     frame = wall_frame(0)
-    store._save_frame = lambda uid, f: 1000  # the frames are on disk already: only the rows commit
+    store.frames.save = lambda uid, f: 1000  # the frames are on disk already: only the rows commit
     commits: list[int] = []
     plain = store._commit
 
@@ -182,13 +182,13 @@ def test_checkpoints_run_beside_the_commits(tmp_path, monkeypatch):
     """No measurement's commit copies the WAL into the database (SQLite's automatic checkpoint did,
     every ~1000 pages, ~140 measurements, for 50-350 ms); the checkpoint thread does, once the
     commits pause."""
-    from history import store as store_module
+    from history import checkpoint
     from history.store import Store
 
-    monkeypatch.setattr(store_module, "_CHECKPOINT_QUIET_S", 3600.0)  # no checkpoint thread pass
-    monkeypatch.setattr(store_module, "_CHECKPOINT_ROWS", 10**9)
+    monkeypatch.setattr(checkpoint, "QUIET_S", 3600.0)  # no checkpoint thread pass
+    monkeypatch.setattr(checkpoint, "ROWS", 10**9)
     store = Store(tmp_path / "h.db")
-    store._save_frame = lambda uid, f: 1000
+    store.frames.save = lambda uid, f: 1000
     size0 = (tmp_path / "h.db").stat().st_size
     ids = [store.add(frame_id=k, frame_uid=f"u{k}", frame=wall_frame(0), source="s", p1=(k, 0), p2=(k, 1), options={},
                      result=_result(1280))["id"] for k in range(200)]  # fmt: skip
@@ -199,9 +199,9 @@ def test_checkpoints_run_beside_the_commits(tmp_path, monkeypatch):
     assert [reopened.get(i)["p1"] for i in ids] == [[k, 0] for k in range(200)]
     reopened.close()
 
-    monkeypatch.setattr(store_module, "_CHECKPOINT_QUIET_S", 0.05)
+    monkeypatch.setattr(checkpoint, "QUIET_S", 0.05)
     store = Store(tmp_path / "h2.db")
-    store._save_frame = lambda uid, f: 1000
+    store.frames.save = lambda uid, f: 1000
     for k in range(60):
         store.add(frame_id=k, frame_uid=f"u{k}", frame=wall_frame(0), source="s", p1=(k, 0), p2=(k, 1), options={}, result=_result(1280))
     deadline = time.monotonic() + 10
