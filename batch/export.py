@@ -10,6 +10,7 @@ out unless asked for. The file is written under a temporary name and renamed whe
 
 from __future__ import annotations
 
+import contextlib
 import json
 import os
 from pathlib import Path
@@ -56,6 +57,7 @@ def export_csv(results: Path, out: Path, *, samples: bool = False, batch_rows: i
             os.fsync(fh.fileno())
         os.replace(tmp, out)
     except OSError as exc:
-        tmp.unlink(missing_ok=True)
+        with contextlib.suppress(OSError):
+            tmp.unlink(missing_ok=True)
         raise ResultsError(f"cannot write {out} ({exc.strerror or exc}); choose a writable --csv path with free space") from None
     return n

@@ -19,6 +19,7 @@ twice is refused. Every write error is a :class:`ResultsError` that says what wa
 
 from __future__ import annotations
 
+import contextlib
 import os
 import shutil
 from pathlib import Path
@@ -156,7 +157,8 @@ class ResultStore:
             os.replace(tmp, path)
             _sync_dir(self.parts)
         except OSError as exc:
-            tmp.unlink(missing_ok=True)
+            with contextlib.suppress(OSError):
+                tmp.unlink(missing_ok=True)
             raise ResultsError(
                 f"cannot write a result part in {self.parts} ({exc.strerror or exc}); the {self._written} group(s) written "
                 "are kept: free space or fix the folder, then run again with --resume"
@@ -187,7 +189,8 @@ class ResultStore:
                 fh.flush()
                 os.fsync(fh.fileno())
         except OSError as exc:
-            self.tmp.unlink(missing_ok=True)
+            with contextlib.suppress(OSError):
+                self.tmp.unlink(missing_ok=True)
             raise ResultsError(
                 f"cannot write {self.tmp} ({exc.strerror or exc}); all {table.num_rows} rows are kept in {self.parts}"
                 + (f" and {self.out}" if self.out.is_file() else "")
