@@ -29,18 +29,16 @@ class Finding:
     severity: str = "info"
 
 
-# Thresholds of the verdict. A scale bias matters when it exceeds both 0.5 % (what a good stereo
-# calibration achieves) and three standard errors; fill rate and plane RMS follow the Depth Quality
-# Tool's usual reading (a flat, lit target fills > 80 %; RMS < 1 % of distance is typical of stereo).
+# Thresholds of the verdict; where each comes from: docs/decisions/check-verdict.md, "Thresholds".
 BIAS_PCT = 0.5
 SHORT_A = 95.0  # a short length scoring below this (and 3 points below the long ones) is worth a word
 LOW_A = 95.0  # long lengths below this: the check fails
 FILL_LOW, FILL_OK = 0.5, 0.8
 PLANE_RMS_PCT = 1.0
-NOISE_PX = 0.5  # disparity noise of a sound matcher on a flat, lit board is a few tenths of a pixel
+NOISE_PX = 0.5
 OUTLIER_SHARE = 0.1
 FAR_PM_PCT = 2.0
-FAR_DISPARITY_PX = 25.0  # a quarter pixel is 1 % of depth here
+FAR_DISPARITY_PX = 25.0
 SMALL_PX_PER_SQUARE = 15.0
 
 

@@ -51,8 +51,8 @@ def board_pose(board: BoardSpec, det: Detection, frame: Frame) -> tuple[np.ndarr
     ok, rvec, tvec = cv2.solvePnP(obj, img, K, None, flags=cv2.SOLVEPNP_IPPE)
     if not ok:
         raise CheckError("the board's pose could not be solved from its corners; hold it flat and in full view")
-    # IPPE's closed form is 0.5 deg off on a square-on board with corners good to 0.1 px; the
-    # reprojection-error minimum from there is within 0.01 deg (simulated board at 1-4 m).
+    # IPPE's closed form alone leaves the tilt visibly off; refined to the reprojection-error minimum
+    # (docs/decisions/check-verdict.md, "Board pose").
     rvec, tvec = cv2.solvePnPRefineLM(obj, img, K, None, rvec, tvec)
     R, _ = cv2.Rodrigues(rvec)
     return R, tvec.reshape(3)

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import os
 from pathlib import Path
 
 import typer
@@ -49,7 +50,7 @@ def run_command(
     tasks_file: Path = typer.Argument(None, metavar="TASKS", help="CSV, JSONL or Parquet table of tasks: source, frame, p1_x, p1_y, p2_x, p2_y [, method, ...]."),
     out: Path = typer.Option(..., "--out", "-o", help="Results file (Parquet)."),
     from_history: Path = typer.Option(None, "--from-history", help="Re-measure every measurement in this service history database instead of TASKS."),
-    workers: int = typer.Option(None, "--workers", "-j", min=1, show_default="one per CPU", help="Worker processes (1 = in this process). With --ray local: the CPUs Ray may use."),
+    workers: int = typer.Option(os.cpu_count() or 1, "--workers", "-j", min=1, help="Worker processes (1 = in this process; the default is one per CPU). With --ray local: the CPUs Ray may use."),
     ray: str = typer.Option(None, "--ray", help="Run on Ray: 'auto' (the cluster running here or at RAY_ADDRESS), 'local' (start one here) or an address (HOST:6379, ray://HOST:10001)."),
     set_: list[str] = typer.Option([], "--set", help="Default measurement option KEY=VALUE for tasks that do not set it (repeatable), e.g. --set method=paper."),
     resume: bool = typer.Option(False, "--resume", help="Finish an interrupted run: keep the rows already written, run only the others."),

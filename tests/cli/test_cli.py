@@ -190,3 +190,25 @@ def test_saved_frames_and_checks_beside_a_database_are_ignored_by_git():
     names = ["depthruler.db", "depthruler-frames/0a1b.frame", "depthruler-checks.jsonl", "data/station-frames/x.frame", "data/station-checks.jsonl"]
     res = subprocess.run(["git", "-C", str(root), "check-ignore", "--no-index", *names], capture_output=True, text=True)
     assert res.stdout.split() == names
+
+
+def test_help_defaults_come_from_the_option_definitions():
+    """No option's help repeats its default in prose (it drifts from the definition): typer shows the real one."""
+    import re
+
+    import typer.main
+
+    def commands(cmd, path=()):
+        for name, sub in getattr(cmd, "commands", {}).items():
+            yield from commands(sub, (*path, name))
+        if not getattr(cmd, "commands", None):
+            yield path, cmd
+
+    seen = 0
+    for path, cmd in commands(typer.main.get_command(app)):
+        if path == ("serve",):  # the service's command keeps its own options
+            continue
+        for param in cmd.params:
+            seen += 1
+            assert not re.search(r"\(default\b|\bdefault:|\bdefault \$?[\d/.]", param.help or "", re.I), (path, param.name, param.help)
+    assert seen > 80
