@@ -9,6 +9,26 @@ import typer
 PAPERS = ("a4", "letter")  # check.boards.PAPERS_MM, named here so that --help imports no OpenCV
 
 
+def squares_option():  # noqa: ANN201 — typer's OptionInfo; one new object per command
+    return typer.Option("11x8", "--squares", help="ChArUco squares across x down (as printed by calibrate).")
+
+
+def square_mm_option():  # noqa: ANN201
+    return typer.Option(30.0, "--square-mm", help="Printed square side in mm (measure it with a ruler).")
+
+
+def marker_mm_option():  # noqa: ANN201
+    return typer.Option(22.0, "--marker-mm", help="Printed marker side in mm.")
+
+
+def dictionary_option():  # noqa: ANN201
+    return typer.Option("DICT_5X5_100", "--dictionary", help="ArUco dictionary of the board.")
+
+
+def paper_option(help: str):  # noqa: ANN201, A002 — typer's keyword
+    return typer.Option(None, "--board", metavar="|".join(PAPERS), help=help)
+
+
 def parse_squares(text: str) -> tuple[int, int]:
     """``COLSxROWS`` (e.g. ``11x8``) as two ints; typer.BadParameter otherwise."""
     try:

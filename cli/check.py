@@ -7,19 +7,19 @@ from pathlib import Path
 
 import typer
 
-from cli.board import PAPERS, board_from_options
+from cli import board as board_options
 
 
 def check(
     ctx: typer.Context,
     source: str = typer.Option(..., "--source", help="Source spec, e.g. oak, v4l2:/dev/video0?calib=stereo.json, "
                                "video:pair.mkv?calib=stereo.yaml, sim:charuco?distance=2, or a recording folder."),
-    squares: str = typer.Option("11x8", "--squares", help="ChArUco squares across x down (as printed by calibrate)."),
-    square_mm: float = typer.Option(30.0, "--square-mm", help="Printed square side in mm (measure it with a ruler)."),
-    marker_mm: float = typer.Option(22.0, "--marker-mm", help="Printed marker side in mm."),
-    dictionary: str = typer.Option("DICT_5X5_100", "--dictionary", help="ArUco dictionary of the board."),
-    board_paper: str | None = typer.Option(None, "--board", metavar="|".join(PAPERS), help="The board printed by "
-                                           "`calibrate --board-png OUT --board PAPER`: its squares fit that paper (instead of --square-mm, --marker-mm)."),
+    squares: str = board_options.squares_option(),
+    square_mm: float = board_options.square_mm_option(),
+    marker_mm: float = board_options.marker_mm_option(),
+    dictionary: str = board_options.dictionary_option(),
+    board_paper: str | None = board_options.paper_option("The board printed by `calibrate --board-png OUT --board PAPER`: "
+                                                         "its squares fit that paper (instead of --square-mm, --marker-mm)."),
     frames: int = typer.Option(1, "--frames", min=1, max=1000, help="Frames to check (more give the frame-to-frame spread)."),
     json_out: bool = typer.Option(False, "--json", help="Print the report as JSON."),
     out: Path | None = typer.Option(None, "--out", help="Folder for check.png (the board, pairs coloured by error, "
@@ -40,7 +40,7 @@ def check(
 
     from cli.specs import source_spec
 
-    board, _ = board_from_options(ctx, squares, square_mm, marker_mm, dictionary, board_paper)
+    board, _ = board_options.board_from_options(ctx, squares, square_mm, marker_mm, dictionary, board_paper)
     try:
         got = []
         with open_source(source_spec(source)) as src:

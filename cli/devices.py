@@ -8,7 +8,7 @@ from pathlib import Path
 
 import typer
 
-from cli.board import PAPERS, board_from_options
+from cli import board as board_options
 
 
 def devices(json_out: bool = typer.Option(False, "--json", help="Print machine-readable JSON.")) -> None:
@@ -47,12 +47,12 @@ def calibrate(
     board_png: Path | None = typer.Option(None, "--board-png", help="Only write the printable board PNG here "
                                           "(print at 100 %, then measure a square) and exit."),
     dpi: float = typer.Option(300.0, "--dpi", help="Resolution of --board-png."),
-    squares: str = typer.Option("11x8", "--squares", help="ChArUco squares across x down."),
-    square_mm: float = typer.Option(30.0, "--square-mm", help="Printed square side in mm (measure it)."),
-    marker_mm: float = typer.Option(22.0, "--marker-mm", help="Printed marker side in mm."),
-    dictionary: str = typer.Option("DICT_5X5_100", "--dictionary", help="ArUco dictionary of the board."),
-    paper: str | None = typer.Option(None, "--board", metavar="|".join(PAPERS), help="Size the squares to print on this "
-                                     "paper (instead of --square-mm, --marker-mm); `check --board PAPER` checks against it."),
+    squares: str = board_options.squares_option(),
+    square_mm: float = board_options.square_mm_option(),
+    marker_mm: float = board_options.marker_mm_option(),
+    dictionary: str = board_options.dictionary_option(),
+    paper: str | None = board_options.paper_option("Size the squares to print on this paper (instead of --square-mm, "
+                                                   "--marker-mm); `check --board PAPER` checks against it."),
     side_by_side: bool = typer.Option(False, "--side-by-side", help="Each image holds left | right halves."),
     views: int = typer.Option(20, "--views", help="Live capture: how many distinct board views to collect."),
     save_views: Path | None = typer.Option(None, "--save-views", help="Live capture: also save the pairs here."),
@@ -64,7 +64,7 @@ def calibrate(
 
     if fmt not in FORMATS:
         raise typer.BadParameter(f"{fmt!r} is not one of {', '.join(FORMATS)}", param_hint="--format")
-    board, margin_mm = board_from_options(ctx, squares, square_mm, marker_mm, dictionary, paper)
+    board, margin_mm = board_options.board_from_options(ctx, squares, square_mm, marker_mm, dictionary, paper)
     try:
         if board_png is not None:
             path, w_mm, h_mm = write_board_png(board, board_png, dpi=dpi, **({} if margin_mm is None else {"margin_mm": margin_mm}))
