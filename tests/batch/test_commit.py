@@ -51,6 +51,7 @@ def _left(out: Path) -> dict[str, int]:
             "tmp": int(tmp.is_file()), "out": int(out.is_file())}  # fmt: skip
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("boundary", BOUNDARIES)
 def test_killed_at_a_boundary_then_resumed_loses_and_repeats_nothing(table, reference, tmp_path, boundary):
     tasks_csv, n = table
@@ -70,6 +71,7 @@ def test_killed_at_a_boundary_then_resumed_loses_and_repeats_nothing(table, refe
     assert "error rows by type: TaskError 2; by field: frame 1, p1_x 1" in resumed.stdout
 
 
+@pytest.mark.slow
 def test_a_resume_killed_again_and_a_pool_run_killed_between_parts(table, reference, tmp_path):
     tasks_csv, n = table
     out = tmp_path / "r.parquet"
@@ -99,6 +101,7 @@ def _one_line_error(proc) -> str:
     return lines[0]
 
 
+@pytest.mark.slow
 def test_a_full_disk_is_a_one_line_error_that_keeps_what_was_done(table, reference, tmp_path):
     tasks_csv, n = table
     out = tmp_path / "r.parquet"
