@@ -1,19 +1,30 @@
-"""Batch results on disk: streamed as Parquet parts while a run goes, one Parquet file at the end.
+"""Batch results on disk: Parquet parts while a run goes, one Parquet file committed at the end.
 
-A Parquet file is readable only once its footer is written, so a run that streams into one file
-loses everything in a crash. Instead each finished group is written as its own small Parquet file
-``RESULTS.parquet.parts/part-NNNNNN.parquet`` (temporary name, fsync, rename: a part is whole or
-absent); :meth:`ResultStore.finish` merges the parts (and, on ``--resume``, the rows of an earlier
-complete file) into ``RESULTS.parquet`` and removes the parts. ``--resume`` reads the task keys
-already in the parts (and the file) and runs only the others.
+Beside ``RESULTS.parquet`` a run keeps
+
+- ``RESULTS.parquet.parts/part-NNNNNN.parquet``: one file per finished group, written under a
+  ``.tmp`` name, fsync'd and renamed, so a part is whole or absent;
+- ``RESULTS.parquet.tmp``: the merge being written;
+- ``RESULTS.parquet.merged/``: the parts folder, renamed once the merge is whole on disk.
+
+:meth:`ResultStore.finish` commits in four steps: (1) merge the rows of an earlier results file
+(``--resume``) and the parts into ``.tmp``, sorted by task, and fsync it; (2) rename ``.parts`` to
+``.merged``, the commit point; (3) rename ``.tmp`` onto ``RESULTS.parquet``; (4) remove
+``.merged``. :func:`recover`, run when a store opens, reads the state a killed process left: before
+step 2 the ``.tmp`` is discarded and the parts stay to be merged again; from step 2 on the merge is
+the truth and steps 3-4 are completed. Every task's row is then in exactly one of the results file
+and the parts, so ``--resume`` neither repeats nor drops a task; a merge that would hold a task id
+twice is refused. Every write error is a :class:`ResultsError` that says what was kept.
 """
 
 from __future__ import annotations
 
+import contextlib
 import os
 import shutil
 from pathlib import Path
 
+from batch.faults import reached
 from batch.tasks import TaskError
 
 
@@ -44,67 +55,153 @@ def read_table(path: Path):
         raise ResultsError(f"{path} is not a readable Parquet file ({exc})") from exc
 
 
+def paths(out: Path) -> tuple[Path, Path, Path]:
+    """The parts folder, the merged-parts folder and the temporary merge of results file ``out``."""
+    return out.with_name(out.name + ".parts"), out.with_name(out.name + ".merged"), out.with_name(out.name + ".tmp")
+
+
+def _sync_dir(path: Path) -> None:
+    fd = os.open(path, os.O_RDONLY)
+    try:
+        os.fsync(fd)
+    finally:
+        os.close(fd)
+
+
+def _remove_tree(folder: Path) -> None:
+    """Remove ``folder`` file by file (the ``cleaning`` stopping point lies between two files)."""
+    for n, f in enumerate(sorted(folder.iterdir()), 1):
+        f.unlink()
+        reached("cleaning", n)
+    folder.rmdir()
+
+
+def recover(out: Path) -> None:
+    """Finish or undo what a process killed during :meth:`ResultStore.finish` left (module docstring)."""
+    parts, merged, tmp = paths(out)
+    if merged.is_dir():
+        if tmp.is_file():
+            os.replace(tmp, out)
+        elif not out.is_file():  # the merge is gone (deleted by hand): its parts are the only copy
+            os.replace(merged, parts)
+            _sync_dir(out.parent)
+            return
+        _sync_dir(out.parent)
+        _remove_tree(merged)
+    else:
+        tmp.unlink(missing_ok=True)
+
+
+def leftovers(out: Path) -> list[Path]:
+    """What an earlier run left beside ``out``: the file itself and any of its parts or merges."""
+    return [p for p in (out, *paths(out)) if p.exists()]
+
+
 class ResultStore:
     """Where one run's rows go. ``resume`` keeps earlier rows; ``overwrite`` discards them."""
 
     def __init__(self, out: Path, *, resume: bool = False, overwrite: bool = False) -> None:
         if out.suffix.lower() not in (".parquet", ".pq"):
             raise ResultsError(f"--out {out}: results are written as Parquet; name the file *.parquet")
+        if out.is_dir():
+            raise ResultsError(f"--out {out} is a folder; name a *.parquet file to write")
         self.out = out
-        self.parts = out.with_name(out.name + ".parts")
-        if overwrite:
-            shutil.rmtree(self.parts, ignore_errors=True)
-            out.unlink(missing_ok=True)
-        elif not resume and (out.exists() or self.parts.exists()):
-            what = f"an interrupted run left {self.parts}" if self.parts.exists() else f"{out} exists"
-            raise ResultsError(f"{what}; add --resume to finish that run or --overwrite to start again")
-        out.parent.mkdir(parents=True, exist_ok=True)
-        self.parts.mkdir(exist_ok=True)
+        self.parts, self.merged, self.tmp = paths(out)
+        try:
+            if overwrite:
+                shutil.rmtree(self.parts, ignore_errors=True)
+                shutil.rmtree(self.merged, ignore_errors=True)
+                self.tmp.unlink(missing_ok=True)
+                out.unlink(missing_ok=True)
+            elif not resume and leftovers(out):
+                what = f"{out} exists" if out.exists() else f"an interrupted run left {leftovers(out)[0]}"
+                raise ResultsError(f"{what}; add --resume to finish that run or --overwrite to start again")
+            out.parent.mkdir(parents=True, exist_ok=True)
+            recover(out)
+            self.parts.mkdir(exist_ok=True)
+            for stale in self.parts.glob("*.tmp"):  # a part that was being written when the run died
+                stale.unlink()
+            probe = self.parts / ".probe.tmp"
+            probe.write_bytes(b"")
+            probe.unlink()
+        except OSError as exc:
+            raise ResultsError(f"cannot write results beside {out} ({exc.strerror or exc}); choose a writable --out") from None
         existing = sorted(self.parts.glob("part-*.parquet"))
         self._next = 1 + max((int(p.stem.split("-")[1]) for p in existing), default=0)
-        for stale in self.parts.glob("*.tmp"):  # a part that was being written when the run died
-            stale.unlink()
+        self._written = 0
+        reached("opened")
 
     def done(self) -> dict[int, str]:
         """task index -> task key of every row already written (parts and, on resume, the file)."""
         pa, pq = _pa()
         done: dict[int, str] = {}
-        sources = [p for p in sorted(self.parts.glob("part-*.parquet"))] + ([self.out] if self.out.is_file() else [])
+        sources = sorted(self.parts.glob("part-*.parquet")) + ([self.out] if self.out.is_file() else [])
         for p in sources:
-            t = pq.read_table(p, columns=["task", "task_key"])
+            try:
+                t = pq.read_table(p, columns=["task", "task_key"])
+            except Exception as exc:  # noqa: BLE001 — pyarrow raises several types for a damaged file
+                raise ResultsError(f"{p} is not a results file of depthruler batch ({exc}); use --overwrite to start again") from None
             done.update(zip(t.column("task").to_pylist(), t.column("task_key").to_pylist()))
         return done
 
     def write(self, parquet: bytes) -> None:
         """Store one finished group (a whole Parquet file's bytes) durably as the next part."""
         path = self.parts / f"part-{self._next:06d}.parquet"
-        self._next += 1
         tmp = path.with_suffix(".tmp")
-        with open(tmp, "wb") as fh:
-            fh.write(parquet)
-            fh.flush()
-            os.fsync(fh.fileno())
-        os.replace(tmp, path)
-        fd = os.open(self.parts, os.O_RDONLY)
         try:
-            os.fsync(fd)
-        finally:
-            os.close(fd)
+            with open(tmp, "wb") as fh:
+                fh.write(parquet)
+                fh.flush()
+                os.fsync(fh.fileno())
+            reached("part-tmp", self._written + 1)
+            os.replace(tmp, path)
+            _sync_dir(self.parts)
+        except OSError as exc:
+            with contextlib.suppress(OSError):
+                tmp.unlink(missing_ok=True)
+            raise ResultsError(
+                f"cannot write a result part in {self.parts} ({exc.strerror or exc}); the {self._written} group(s) written "
+                "are kept: free space or fix the folder, then run again with --resume"
+            ) from None
+        self._next += 1
+        self._written += 1
+        reached("part", self._written)
 
     def finish(self, metadata: dict[str, str] | None = None) -> int:
-        """Merge everything into ``out`` sorted by task (atomically) and remove the parts; row count."""
+        """Commit everything to ``out`` sorted by task (module docstring) and return its row count."""
         pa, pq = _pa()
-        tables = [read_table(self.parts)]
-        if self.out.is_file():
-            tables.insert(0, pq.read_table(self.out))
-        tables = [t for t in tables if t.num_rows]
+        table = read_table(self.parts)
+        if not table.num_rows and self.out.is_file():  # nothing new: the file is already the whole run
+            shutil.rmtree(self.parts, ignore_errors=True)
+            return pq.ParquetFile(self.out).metadata.num_rows
+        tables = [t for t in ([pq.read_table(self.out)] if self.out.is_file() else []) + [table] if t.num_rows]
         table = pa.concat_tables(tables, promote_options="permissive") if tables else pa.table({"task": pa.array([], pa.int64())})
         if table.num_rows:
             table = table.sort_by([("task", "ascending")])
+            tasks = table.column("task")
+            if len(tasks.unique()) != table.num_rows:
+                raise ResultsError(f"the rows of {self.out} and {self.parts} hold a task twice; nothing was merged: use --overwrite")
         if metadata:
             table = table.replace_schema_metadata({**(table.schema.metadata or {}), **{k.encode(): v.encode() for k, v in metadata.items()}})
-        tmp = self.out.with_name(self.out.name + ".tmp")
-        pq.write_table(table, tmp)
-        os.replace(tmp, self.out)
-        shutil.rmtree(self.parts, ignore_errors=True)
+        try:
+            with open(self.tmp, "wb") as fh:
+                pq.write_table(table, fh)
+                fh.flush()
+                os.fsync(fh.fileno())
+        except OSError as exc:
+            with contextlib.suppress(OSError):
+                self.tmp.unlink(missing_ok=True)
+            raise ResultsError(
+                f"cannot write {self.tmp} ({exc.strerror or exc}); all {table.num_rows} rows are kept in {self.parts}"
+                + (f" and {self.out}" if self.out.is_file() else "")
+                + ": free space (the merge needs about their size again), then run again with --resume"
+            ) from None
+        reached("merged")
+        os.replace(self.parts, self.merged)
+        _sync_dir(self.out.parent)
+        reached("sealed")
+        os.replace(self.tmp, self.out)
+        _sync_dir(self.out.parent)
+        reached("committed")
+        _remove_tree(self.merged)
         return table.num_rows

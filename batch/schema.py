@@ -55,6 +55,7 @@ RUN_TYPES: dict[str, str] = {
     "frame_read_ms": "float64",
     "error": "string",
     "error_type": "string",
+    "error_field": "string",
 }
 _OPTION_TYPES = {"bool": "bool", "int": "int64", "float": "float64", "str": "string"}
 

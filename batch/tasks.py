@@ -1,17 +1,23 @@
-"""Measurement tasks for `depthruler batch`: read from a CSV/JSONL/Parquet table, checked, grouped.
+"""Measurement tasks for `depthruler batch`: read from a CSV/JSONL/Parquet table, checked row by row, grouped.
 
 A task table has one row per measurement with the columns
 
 - ``source``: a recording folder, or a source spec that reads frames by index (``replay:DIR``,
   ``depthpng:DIR``, ``middlebury:DIR``, any kind `device` knows); relative paths are relative to
-  the folder of the task table (so a table travels with its archive) and are made absolute here,
-  because Ray workers do not share the caller's working directory;
-- ``frame``: the 0-based frame index in that source;
-- ``p1_x``, ``p1_y``, ``p2_x``, ``p2_y``: the clicked points in pixels of the colour image;
+  the folder of the task table and are made absolute here (Ray workers do not share the caller's
+  working directory);
+- ``frame``: the 0-based frame index in that source, a whole number from 0 to 2^53 - 1;
+- ``p1_x``, ``p1_y``, ``p2_x``, ``p2_y``: the clicked points, finite pixels of the colour image;
 - optional option columns named after :class:`measure.MeasureOptions` fields (``method``,
   ``support_fraction``, ``window``, ``extension_px``, ``gap_detection``, ``seed``); an empty cell
   takes the run's default;
 - any other column is carried through to the results untouched.
+
+:func:`read_tasks` reads the table (a CSV's byte-order mark, as Excel writes it, is skipped) and
+refuses it only when it cannot be read, holds no row or lacks a required column. Each row is then
+checked on its own: a bad cell (an empty or NaN pixel, a frame beyond 2^53 - 1, an empty or live
+source, a bad option, a JSONL line that is no object) makes an *invalid* task whose ``error`` names
+the field and what to write; it becomes an error row and the other rows are measured.
 """
 
 from __future__ import annotations
@@ -25,11 +31,13 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from measure import MeasureOptions
+from measure import MeasureError, MeasureOptions
 
 from batch.errors import BatchError
 
 REQUIRED = ("source", "frame", "p1_x", "p1_y", "p2_x", "p2_y")
+POINT_COLUMNS = REQUIRED[2:]
+MAX_FRAME = 2**53 - 1  # the largest whole number a float64 (and so JSON and JavaScript) holds exactly
 OPTION_FIELDS: dict[str, type] = {f.name: f.type for f in dataclasses.fields(MeasureOptions)}  # type: ignore[misc]
 FILE_KINDS = ("replay", "depthpng", "middlebury", "video", "history")  # spec kinds whose target is a path
 RANDOM_ACCESS_KINDS = ("replay", "history")  # a frame can be read without reading the ones before it
@@ -37,29 +45,42 @@ LIVE_KINDS = ("oak", "v4l2")  # cameras: frame i is whatever arrives, not a reco
 
 
 class TaskError(BatchError):
-    """A task table that cannot be read or holds a bad row; names the file, row and column."""
+    """A task table that cannot be read, or one bad cell of a row; names the file, row or column."""
 
 
 @dataclass(frozen=True)
 class Task:
     """One measurement to make. ``index`` is the row's position in the table (the key ``--resume``
     uses); ``frame`` is an int index, or a saved frame's uid for the service history; ``options``
-    holds only the options the row sets (the run's defaults fill the rest)."""
+    holds only the options the row sets (the run's defaults fill the rest). An invalid task has
+    ``error`` (what is wrong and what to write) and ``error_field`` (the column(s), comma-separated);
+    its unreadable cells are None."""
 
     index: int
     source: str
-    frame: int | str
-    p1: tuple[float, float]
-    p2: tuple[float, float]
+    frame: int | str | None
+    p1: tuple[float | None, float | None]
+    p2: tuple[float | None, float | None]
     options: dict[str, Any] = field(default_factory=dict)
     extra: dict[str, Any] = field(default_factory=dict)
+    error: str | None = None
+    error_field: str | None = None
 
     def key(self, defaults: dict[str, Any] | None = None) -> str:
         """A digest of what the task measures (source, frame, points, its options over the run's
         ``defaults``): ``--resume`` checks that a row done by an earlier run is the same task."""
         options = sorted({**(defaults or {}), **self.options}.items())
-        blob = json.dumps([self.source, self.frame, self.p1, self.p2, options], default=str)
-        return hashlib.sha1(blob.encode()).hexdigest()[:16]
+        what: list[Any] = [self.source, self.frame, self.p1, self.p2, options]
+        if self.error:
+            what.append(self.error)
+        return hashlib.sha1(json.dumps(what, default=str).encode()).hexdigest()[:16]
+
+
+@dataclass(frozen=True)
+class BadLine:
+    """A line of a JSONL table that is no JSON object: its row's error."""
+
+    message: str
 
 
 def source_kind(source: str) -> str:
@@ -73,23 +94,33 @@ def normalise_source(source: str, base: Path) -> str:
     """``source`` as a spec with an absolute path: a bare folder becomes ``replay:/abs/folder``."""
     text = source.strip()
     if not text:
-        raise TaskError("empty source; give a recording folder or a spec such as replay:DIR")
+        raise TaskError("source is empty; give a recording folder or a spec such as replay:DIR")
     head, q, query = text.partition("?")
     kind, sep, target = head.partition(":")
     live = kind.lower() in LIVE_KINDS and (sep or not (base / head).exists())
     if not sep or len(kind) == 1:  # a bare path (a one-letter "kind" is a Windows drive)
         kind, target = "replay", head
     if live:
-        raise TaskError(f"source {text!r} is a live camera; a batch measures recorded frames: `depthruler record` it first")
+        raise TaskError(f"source {shown(text)} is a live camera; a batch measures recorded frames: `depthruler record` it first")
     if kind.lower() in FILE_KINDS and target:
         p = Path(target).expanduser()
         target = str(p if p.is_absolute() else (base / p).resolve())
     return f"{kind.lower()}:{target}" + (q + query if query else "")
 
 
+def shown(value: Any, limit: int = 40) -> str:
+    """``repr(value)``, cut to ``limit`` characters (a 5000-digit cell does not fill the error message)."""
+    text = repr(value)
+    return text if len(text) <= limit else text[: limit - 3] + "..."
+
+
+def _empty(value: Any) -> bool:
+    return value is None or (isinstance(value, float) and math.isnan(value)) or (isinstance(value, str) and not value.strip())
+
+
 def parse_option(name: str, value: Any) -> Any:
     """One option cell converted to the type of its MeasureOptions field; None for an empty cell."""
-    if value is None or (isinstance(value, float) and math.isnan(value)) or (isinstance(value, str) and not value.strip()):
+    if _empty(value):
         return None
     kind = OPTION_FIELDS[name]
     try:
@@ -104,14 +135,14 @@ def parse_option(name: str, value: Any) -> Any:
             raise ValueError("not a yes/no value (1/0, true/false)")
         if kind in ("int", int):
             f = float(value)
-            if f != int(f):
+            if not f.is_integer():
                 raise ValueError("not a whole number")
             return int(f)
         if kind in ("float", float):
             return float(value)
         return str(value)
-    except (TypeError, ValueError) as exc:
-        raise TaskError(f"option {name}={value!r}: {exc}") from None
+    except (TypeError, ValueError, OverflowError) as exc:
+        raise TaskError(f"option {name}={shown(value)}: {exc}") from None
 
 
 def measure_options(task_options: dict[str, Any], defaults: dict[str, Any]) -> MeasureOptions:
@@ -119,29 +150,71 @@ def measure_options(task_options: dict[str, Any], defaults: dict[str, Any]) -> M
     return MeasureOptions(**{**defaults, **task_options})
 
 
-def read_rows(path: Path) -> list[dict[str, Any]]:
-    """The rows of a CSV, JSONL or Parquet table as dicts (by file suffix)."""
+def parse_frame(value: Any) -> int:
+    """A ``frame`` cell as a 0-based index (``3``, ``"3"`` and ``3.0`` are frame 3), at most :data:`MAX_FRAME`."""
+    if _empty(value):
+        raise TaskError("frame is empty; give the 0-based frame index")
+    wrong = TaskError(f"frame={shown(value)} must be a frame index, a whole number from 0 to 2^53 - 1 ({MAX_FRAME})")
+    if isinstance(value, bool):
+        raise wrong
+    if isinstance(value, int):
+        n = value
+    else:
+        try:
+            n = int(str(value).strip())  # exact for integer text of any length
+        except ValueError:
+            try:
+                f = float(value)
+            except (TypeError, ValueError):
+                raise wrong from None
+            if not (math.isfinite(f) and f.is_integer()):
+                raise wrong from None
+            n = int(f)
+    if not 0 <= n <= MAX_FRAME:
+        raise wrong
+    return n
+
+
+def parse_pixel(name: str, value: Any) -> float:
+    """One point cell as a finite pixel coordinate."""
+    if _empty(value):
+        raise TaskError(f"{name} is empty; give the pixel coordinate of the click")
+    try:
+        if isinstance(value, bool):
+            raise ValueError
+        f = float(value)
+    except (TypeError, ValueError, OverflowError):
+        raise TaskError(f"{name}={shown(value)} is not a number; give the pixel coordinate of the click") from None
+    if not math.isfinite(f):
+        raise TaskError(f"{name}={shown(value)} must be a finite pixel coordinate")
+    return f
+
+
+def read_rows(path: Path) -> list[dict[str, Any] | BadLine]:
+    """The rows of a CSV, JSONL or Parquet table as dicts (by file suffix); a JSONL line that is
+    no JSON object is a :class:`BadLine`."""
     if not path.is_file():
         raise TaskError(f"{path} does not exist; give a CSV, JSONL or Parquet table of tasks")
     suffix = path.suffix.lower()
     try:
         if suffix == ".csv":
-            with path.open(newline="") as fh:
+            with path.open(newline="", encoding="utf-8-sig") as fh:
                 return list(csv.DictReader(fh))
         if suffix in (".jsonl", ".ndjson"):
-            rows = []
-            for n, line in enumerate(path.read_text().splitlines(), 1):
+            rows: list[dict[str, Any] | BadLine] = []
+            for n, line in enumerate(path.read_text(encoding="utf-8-sig").splitlines(), 1):
                 if line.strip():
-                    obj = json.loads(line)
-                    if not isinstance(obj, dict):
-                        raise TaskError(f"{path} line {n} is not a JSON object")
-                    rows.append(obj)
+                    try:
+                        obj = json.loads(line)
+                    except (json.JSONDecodeError, RecursionError) as exc:
+                        obj = exc
+                    rows.append(obj if isinstance(obj, dict) else BadLine(f"line {n} is not a JSON object ({obj}); write one object per line"))
             return rows
         if suffix in (".parquet", ".pq"):
             import pyarrow.parquet as pq
 
             return pq.read_table(path).to_pylist()
-    except (OSError, UnicodeDecodeError, csv.Error, json.JSONDecodeError) as exc:
+    except (OSError, UnicodeDecodeError, csv.Error) as exc:
         raise TaskError(f"{path} cannot be read as {suffix[1:]}: {exc}") from exc
     except Exception as exc:  # pyarrow's errors have no common base worth naming here
         if type(exc).__module__.startswith("pyarrow"):
@@ -151,46 +224,60 @@ def read_rows(path: Path) -> list[dict[str, Any]]:
 
 
 def read_tasks(path: Path) -> list[Task]:
-    """The tasks of a table (see the module docstring); TaskError names the first bad row."""
+    """The tasks of a table, one per row, invalid ones included (see the module docstring)."""
     rows = read_rows(path)
     if not rows:
         raise TaskError(f"{path} holds no task rows")
-    missing = [c for c in REQUIRED if c not in rows[0]]
+    columns = {k for r in rows if isinstance(r, dict) for k in r}
+    missing = [c for c in REQUIRED if c not in columns]
     if missing:
         raise TaskError(f"{path} lacks the column(s) {', '.join(missing)}; a task table needs {', '.join(REQUIRED)}")
     base = path.resolve().parent
-    tasks = []
-    for i, row in enumerate(rows):
-        where = f"{path} row {i + 1}"
+    return [parse_row(i, row, base) for i, row in enumerate(rows)]
+
+
+def parse_row(index: int, row: dict[str, Any] | BadLine, base: Path) -> Task:
+    """The task of one table row; a bad cell makes it invalid (``error`` names every bad field)."""
+    if isinstance(row, BadLine):
+        return Task(index, "", None, (None, None), (None, None), error=row.message, error_field="row")
+    bad: dict[str, str] = {}
+
+    def check(name: str, parse, value: Any) -> Any:  # noqa: ANN001 — one of the parsers above
         try:
-            frame = parse_frame(row["frame"])
-            pts = [float(row[c]) for c in REQUIRED[2:]]
-            if not all(math.isfinite(v) for v in pts):
-                raise TaskError("p1_x, p1_y, p2_x, p2_y must be finite pixel coordinates")
-            options = {k: v for k, v in ((k, parse_option(k, row[k])) for k in OPTION_FIELDS if k in row) if v is not None}
-            source = normalise_source(str(row["source"] or ""), base)
+            return parse(value)
         except TaskError as exc:
-            raise TaskError(f"{where}: {exc}") from None
-        except KeyError as exc:
-            raise TaskError(f"{where} has no {exc.args[0]!r}; every row needs {', '.join(REQUIRED)}") from None
-        except (TypeError, ValueError) as exc:
-            raise TaskError(f"{where}: {exc}; frame must be a whole number and the points numbers") from None
-        extra = {k: v for k, v in row.items() if k not in REQUIRED and k not in OPTION_FIELDS}
-        tasks.append(Task(i, source, frame, (pts[0], pts[1]), (pts[2], pts[3]), options, extra))
-    return tasks
+            bad[name] = str(exc)
+            return None
 
-
-def parse_frame(value: Any) -> int:
-    """A ``frame`` cell as a 0-based index (``3``, ``"3"`` and ``3.0`` are frame 3)."""
-    f = float(value)
-    if f != int(f) or f < 0:
-        raise TaskError(f"frame={value!r} must be a frame index (a whole number >= 0)")
-    return int(f)
+    frame = check("frame", parse_frame, row.get("frame"))
+    pts = [check(c, lambda v, c=c: parse_pixel(c, v), row.get(c)) for c in POINT_COLUMNS]
+    options = {}
+    for name in OPTION_FIELDS:
+        value = check(name, lambda v, name=name: parse_option(name, v), row.get(name))
+        if value is None:
+            continue
+        try:
+            MeasureOptions(**{name: value})
+        except MeasureError as exc:
+            bad[name] = f"option {exc}"
+            continue
+        options[name] = value
+    raw_source = row.get("source")
+    source = check("source", lambda v: normalise_source("" if _empty(v) else str(v), base), raw_source)
+    if None in row:  # csv.DictReader keeps a row's cells beyond the header under the key None
+        bad["row"] = f"the row has {len(row[None])} more cell(s) than the header; quote cells that hold commas"
+    extra = {k: v for k, v in row.items() if k is not None and k not in REQUIRED and k not in OPTION_FIELDS}
+    return Task(
+        index, source if source is not None else ("" if _empty(raw_source) else str(raw_source)), frame,
+        (pts[0], pts[1]), (pts[2], pts[3]), options, extra,
+        error="; ".join(bad.values()) or None, error_field=",".join(bad) or None,
+    )  # fmt: skip
 
 
 @dataclass(frozen=True)
 class TaskGroup:
-    """Tasks of one source, in frame order, for one worker call; ``defaults`` are the run's options."""
+    """Tasks of one source, in frame order, for one worker call; ``defaults`` are the run's options.
+    The invalid tasks of a run come in groups of their own, with ``source`` empty."""
 
     source: str
     tasks: tuple[Task, ...]
@@ -208,12 +295,15 @@ def group_tasks(
     groups of at most ``max_group`` tasks and at least enough groups to keep ``workers`` busy four
     times over: results then stream to disk as groups finish, and the load balances. A source read
     in order (a depth-PNG folder, a video) stays one group, or frames would be decoded twice.
+    Invalid tasks make groups of at most ``max_group`` that open no source.
     """
     by_source: dict[str, list[Task]] = {}
+    invalid = [t for t in tasks if t.error]
     for t in tasks:
-        by_source.setdefault(t.source, []).append(t)
+        if not t.error:
+            by_source.setdefault(t.source, []).append(t)
     target = max(1, min(max_group, math.ceil(len(tasks) / max(1, 4 * workers))))
-    groups: list[TaskGroup] = []
+    groups = [TaskGroup("", tuple(invalid[i : i + max_group]), defaults, run, schema) for i in range(0, len(invalid), max_group)]
     for source, items in by_source.items():
         items.sort(key=lambda t: (str(type(t.frame)), t.frame, t.index))
         if source_kind(source) not in RANDOM_ACCESS_KINDS:

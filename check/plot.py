@@ -2,13 +2,11 @@
 
 from __future__ import annotations
 
-from pathlib import Path
-
 import numpy as np
 
 from measure import Frame
 
-from check.run import CheckResult
+from check.result import CheckResult
 
 
 def _text(rep: dict, title: str) -> str:
@@ -58,9 +56,12 @@ def _findings_text(rep: dict, width: int = 95) -> str:
     return "\n".join(out)
 
 
-def write_check_png(path: str | Path, frame: Frame, result: CheckResult, rep: dict, title: str = "depthruler check") -> Path:
-    """The board of the first frame that showed it, its pairs coloured by signed error (%), the numbers
-    and the findings, as a PNG at ``path``."""
+def render_check_png(frame: Frame, result: CheckResult, rep: dict, title: str = "depthruler check") -> bytes:
+    """The check's picture as PNG bytes (1500 x 840 px): the board of the first frame that showed it with
+    its pairs coloured by signed error (% of the true length), the error against the true length (mm)
+    of every pair, the numbers and the findings of ``rep`` (:func:`check.run.report`)."""
+    import io
+
     import matplotlib
 
     matplotlib.use("Agg")
@@ -112,8 +113,7 @@ def write_check_png(path: str | Path, frame: Frame, result: CheckResult, rep: di
     text = _findings_text(rep)
     n_lines = text.count("\n") + 1
     fx.text(0, 0.95, text, va="top", family="monospace", fontsize=8.5 if n_lines <= 15 else max(5.0, 8.5 * 15 / n_lines))
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fig.savefig(path)
+    buf = io.BytesIO()
+    fig.savefig(buf, format="png")
     plt.close(fig)
-    return path
+    return buf.getvalue()

@@ -3,44 +3,47 @@
 from __future__ import annotations
 
 import json
-import math
-from datetime import datetime, timezone
 from pathlib import Path
 
 import typer
 
+from cli import board as board_options
+
 
 def check(
+    ctx: typer.Context,
     source: str = typer.Option(..., "--source", help="Source spec, e.g. oak, v4l2:/dev/video0?calib=stereo.json, "
-                               "video:pair.mkv?calib=stereo.yaml or sim:charuco?distance=2."),
-    squares: str = typer.Option("11x8", "--squares", help="ChArUco squares across x down (as printed by calibrate)."),
-    square_mm: float = typer.Option(30.0, "--square-mm", help="Printed square side in mm (measure it with a ruler)."),
-    marker_mm: float = typer.Option(22.0, "--marker-mm", help="Printed marker side in mm."),
-    dictionary: str = typer.Option("DICT_5X5_100", "--dictionary", help="ArUco dictionary of the board."),
+                               "video:pair.mkv?calib=stereo.yaml, sim:charuco?distance=2, or a recording folder."),
+    squares: str = board_options.squares_option(),
+    square_mm: float = board_options.square_mm_option(),
+    marker_mm: float = board_options.marker_mm_option(),
+    dictionary: str = board_options.dictionary_option(),
+    board_paper: str | None = board_options.paper_option("The board printed by `calibrate --board-png OUT --board PAPER`: "
+                                                         "its squares fit that paper (instead of --square-mm, --marker-mm)."),
     frames: int = typer.Option(1, "--frames", min=1, max=1000, help="Frames to check (more give the frame-to-frame spread)."),
     json_out: bool = typer.Option(False, "--json", help="Print the report as JSON."),
     out: Path | None = typer.Option(None, "--out", help="Folder for check.png (the board, pairs coloured by error, "
-                                    "the numbers) and check.json."),
+                                    "the numbers), check.json and pairs.csv (one row per pair measured)."),
     db: Path = typer.Option(Path("depthruler.db"), "--db", help="Service database; the check is kept in "
                             "<db stem>-checks.jsonl beside it (GET /api/checks)."),
     history: bool = typer.Option(True, "--history/--no-history", help="Keep this check in the history."),
-    timeout_s: float = typer.Option(5.0, "--timeout", help="Seconds to wait for each frame."),
+    timeout_s: float = typer.Option(5.0, "--timeout", min=0.01, help="Seconds to wait for each frame."),
 ) -> None:
     """How accurate are lengths from this camera, here, today: measure the known lengths of a printed board."""
+    from check.errors import CheckError
+    from check.pairs_csv import write_pairs_csv
+    from check.record import check_record, earlier_checks
+    from check.run import check_frames
     from device import open_source
-    from device.calibration.stereo import BoardSpec
-    from history.checks import append_check, calibration_of, camera_of, checks_path, read_checks
-    from cli.devices import parse_squares
     from device.errors import SourceEnded, SourceError
+    from history.checks import append_check, checks_path
 
-    from check.run import CheckError, report, run_check
-    from check.plot import write_check_png
+    from cli.specs import source_spec
 
-    sx, sy = parse_squares(squares)
+    board, _ = board_options.board_from_options(ctx, squares, square_mm, marker_mm, dictionary, board_paper)
     try:
-        board = BoardSpec(sx, sy, square_mm / 1000.0, marker_mm / 1000.0, dictionary)
         got = []
-        with open_source(source) as src:
+        with open_source(source_spec(source)) as src:
             info = src.info
             for _ in range(frames):
                 try:
@@ -49,53 +52,31 @@ def check(
                     break
         if not got:
             raise CheckError(f"{source} gave no frame; check the source")
-        result = run_check(got, board)
-        calib, calib_hash = calibration_of(source)
-        camera, camera_hash = camera_of(got[0])
-        # earlier checks of this camera with this calibration: does the bias change with distance?
-        earlier = [r for r in read_checks(checks_path(db), serial=info.serial)
-                   if r.get("camera_sha256") == camera_hash and r.get("kind") == info.kind] if history else []
-        rep = report(result, earlier)
+        earlier = earlier_checks(checks_path(db), info, got[0]) if history else ()
+        done = check_frames(got, board, earlier=earlier, picture=out is not None, title=f"depthruler check: {source}")
     except (SourceError, CheckError) as exc:
         typer.echo(f"error: {exc}", err=True)
         raise typer.Exit(1) from exc
-    record = {
-        "time": datetime.now(timezone.utc).isoformat(timespec="seconds"),
-        "source": source,
-        "kind": info.kind,
-        "serial": info.serial,
-        "calibration": calib,
-        "calibration_sha256": calib_hash,
-        "camera": camera,
-        "camera_sha256": camera_hash,
-        **rep,
-    }
-    record = _finite(record)
+    record = check_record(source, info, got[0], done.report)
     if history:
         try:
             record["history"] = str(append_check(checks_path(db), record))
         except SourceError as exc:
             typer.echo(f"warning: {exc}", err=True)
     if out is not None:
-        out.mkdir(parents=True, exist_ok=True)
-        frame = got[result.views[0].frame]
-        record["png"] = str(write_check_png(out / "check.png", frame, result, rep, title=f"depthruler check: {source}"))
-        (out / "check.json").write_text(json.dumps(record, indent=2) + "\n")
+        try:
+            out.mkdir(parents=True, exist_ok=True)
+            (out / "check.png").write_bytes(done.png or b"")
+            record["png"] = str(out / "check.png")
+            record["pairs_csv"] = str(write_pairs_csv(out / "pairs.csv", source, done.result.pairs))
+            (out / "check.json").write_text(json.dumps(record, indent=2) + "\n")
+        except OSError as exc:
+            typer.echo(f"error: cannot write the check to {out} ({exc.strerror or exc}); pass a writable --out", err=True)
+            raise typer.Exit(1) from None
     if json_out:
         typer.echo(json.dumps(record))
         return
     typer.echo(_summary(record))
-
-
-def _finite(x):
-    """NaN and inf become None (strict JSON)."""
-    if isinstance(x, float):
-        return x if math.isfinite(x) else None
-    if isinstance(x, dict):
-        return {k: _finite(v) for k, v in x.items()}
-    if isinstance(x, (list, tuple)):
-        return [_finite(v) for v in x]
-    return x
 
 
 def _summary(r: dict) -> str:
@@ -128,7 +109,7 @@ def _summary(r: dict) -> str:
             lines.append(f"    do: {x['action']}")
     if not r["findings"]:
         lines.append("- nothing to act on")
-    for key in ("png", "history"):
+    for key in ("png", "pairs_csv", "history"):
         if key in r:
             lines.append(f"{key}: {r[key]}")
     return "\n".join(lines)

@@ -8,6 +8,8 @@ from pathlib import Path
 
 import typer
 
+from cli import board as board_options
+
 
 def devices(json_out: bool = typer.Option(False, "--json", help="Print machine-readable JSON.")) -> None:
     """List attached cameras: OAK devices (DepthAI), V4L2 nodes and USB cameras."""
@@ -33,15 +35,8 @@ def devices(json_out: bool = typer.Option(False, "--json", help="Print machine-r
             typer.echo(f"      no permission to open it; fix:\n      {d.extra['fix']}")
 
 
-def parse_squares(text: str) -> tuple[int, int]:
-    try:
-        x, _, y = text.lower().partition("x")
-        return int(x), int(y)
-    except ValueError as exc:
-        raise typer.BadParameter(f"{text!r} is not COLSxROWS, e.g. 11x8") from exc
-
-
 def calibrate(
+    ctx: typer.Context,
     images: Path | None = typer.Option(None, "--images", help="Folder of view pairs: left/ + right/, "
                                        "NAME_left/NAME_right, or side-by-side images with --side-by-side."),
     live: str | None = typer.Option(None, "--live", help="Capture from a stereo pair or video, e.g. "
@@ -52,29 +47,33 @@ def calibrate(
     board_png: Path | None = typer.Option(None, "--board-png", help="Only write the printable board PNG here "
                                           "(print at 100 %, then measure a square) and exit."),
     dpi: float = typer.Option(300.0, "--dpi", help="Resolution of --board-png."),
-    squares: str = typer.Option("11x8", "--squares", help="ChArUco squares across x down."),
-    square_mm: float = typer.Option(30.0, "--square-mm", help="Printed square side in mm (measure it)."),
-    marker_mm: float = typer.Option(22.0, "--marker-mm", help="Printed marker side in mm."),
-    dictionary: str = typer.Option("DICT_5X5_100", "--dictionary", help="ArUco dictionary of the board."),
+    squares: str = board_options.squares_option(),
+    square_mm: float = board_options.square_mm_option(),
+    marker_mm: float = board_options.marker_mm_option(),
+    dictionary: str = board_options.dictionary_option(),
+    paper: str | None = board_options.paper_option("Size the squares to print on this paper (instead of --square-mm, "
+                                                   "--marker-mm); `check --board PAPER` checks against it."),
     side_by_side: bool = typer.Option(False, "--side-by-side", help="Each image holds left | right halves."),
     views: int = typer.Option(20, "--views", help="Live capture: how many distinct board views to collect."),
     save_views: Path | None = typer.Option(None, "--save-views", help="Live capture: also save the pairs here."),
 ) -> None:
     """Calibrate a stereo pair from ChArUco board views and write the calibration (or print the board)."""
-    from device.calibration.stereo import BoardSpec, calibrate_stereo, load_image_pairs, write_board_png
+    from device.calibration.stereo import calibrate_stereo, load_image_pairs, write_board_png
     from device.calibration.files import FORMATS, write
     from device.errors import SourceError
 
-    sx, sy = parse_squares(squares)
     if fmt not in FORMATS:
         raise typer.BadParameter(f"{fmt!r} is not one of {', '.join(FORMATS)}", param_hint="--format")
+    board, margin_mm = board_options.board_from_options(ctx, squares, square_mm, marker_mm, dictionary, paper)
     try:
-        board = BoardSpec(sx, sy, square_mm / 1000.0, marker_mm / 1000.0, dictionary)
         if board_png is not None:
-            path, w_mm, h_mm = write_board_png(board, board_png, dpi=dpi)
-            typer.echo(f"wrote {path}: {sx}x{sy} squares of {square_mm:g} mm, markers {marker_mm:g} mm, {dictionary}; "
-                       f"sheet {w_mm:.1f} x {h_mm:.1f} mm at {dpi:g} dpi. Print at 100 % (actual size), glue it "
-                       "flat, measure a square and pass that as --square-mm.")
+            path, w_mm, h_mm = write_board_png(board, board_png, dpi=dpi, **({} if margin_mm is None else {"margin_mm": margin_mm}))
+            sq = board.square_m * 1000
+            then = (f"if it is {sq:g} mm, pass --board {paper} to calibrate and check; if not, pass what you measure as "
+                    "--square-mm and --marker-mm") if paper else "pass that as --square-mm"
+            typer.echo(f"wrote {path}: {board.squares_x}x{board.squares_y} squares of {sq:g} mm, markers {board.marker_m * 1000:g} mm, "
+                       f"{dictionary}; sheet {w_mm:.1f} x {h_mm:.1f} mm at {dpi:g} dpi{f', fits {paper}' if paper else ''}. "
+                       f"Print at 100 % (actual size), glue it flat and measure a square: {then}.")
             return
         if (images is None) == (live is None):
             raise typer.BadParameter("give exactly one of --images DIR or --live SPEC (or --board-png OUT)")

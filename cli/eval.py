@@ -37,7 +37,7 @@ def sim_command(
     gap_fraction: float = typer.Option(0.1, "--gap-fraction", min=0.0, max=1.0, help="Extra gap-scene measurements, as a fraction of --measurements."),
     workers: int = typer.Option(2, "--workers", "-j", min=1, help="Worker processes (1 = in this process); with --ray local, Ray's CPUs."),
     ray: str = typer.Option(None, "--ray", help=RAY_HELP),
-    quantization: float | None = typer.Option(None, "--quantization", help="Disparity step of the simulated sensor in px (default: the profile's: 1/4 px stress, 1 px paper)."),
+    quantization: float | None = typer.Option(None, "--quantization", show_default="the profile's", help="Disparity step of the simulated sensor in px."),
     profile: str = typer.Option("stress", "--profile", help="Simulator profile: 'stress' (harsh end points) or 'paper' (the paper's tablet; see sim/sensor.py)."),
 ) -> None:
     """The paper's protocol on the simulated rig: its 7 measurements x 4 distances x 3 lightings, 4 methods."""
@@ -65,7 +65,7 @@ def sim_command(
 @app.command("frames")
 def frames_command(
     out: Path = typer.Option(..., "--out", help="Output folder for report.md, results.json and frames.png."),
-    trials: int = typer.Option(85, "--trials", "-n", min=2, help="Still scenes per (6-7 m distance, contention): 85 give 340 cases per (contention, clicks, N)."),
+    trials: int = typer.Option(85, "--trials", "-n", min=2, help="Still scenes per (6-7 m distance, contention)."),
     near_trials: int = typer.Option(20, "--near-trials", min=1, help="Still scenes per (2-5 m distance, contention)."),
     seed: int = typer.Option(0, "--seed", help="Base seed of the scenes' noise and clicks."),
     workers: int = typer.Option(2, "--workers", "-j", min=1, help="Worker processes."),
@@ -99,7 +99,7 @@ def stress_sim_command(
 @app.command("middlebury")
 def middlebury_command(
     out: Path = typer.Option(..., "--out", help="Output folder for report.md, results.json and plots."),
-    data: Path = typer.Option(None, "--data", help="Folder of Middlebury scenes (each with im0.png, im1.png, calib.txt, disp0GT.pfm); default $DEPTHRULER_SHARED/data/middlebury."),
+    data: Path = typer.Option(None, "--data", show_default="$DEPTHRULER_SHARED/data/middlebury", help="Folder of Middlebury scenes (each with im0.png, im1.png, calib.txt, disp0GT.pfm)."),
     scene: list[str] = typer.Option(None, "--scene", help="Only this scene (repeatable)."),
     max_segments: int = typer.Option(0, "--max-segments", min=0, help="At most this many segments per scene (0 = all selected)."),
     seed: int = typer.Option(0, "--seed", help="Seed of the click jitter and the contention outliers (segment selection is deterministic)."),

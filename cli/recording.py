@@ -215,8 +215,40 @@ def export(
 
     try:
         meas = load_measurements(measurements) if measurements else []
+        for warning in placement_warnings(path, meas):
+            typer.secho(f"warning: {warning}", fg=typer.colors.YELLOW, err=True)
         counts = export_mcap(path, mcap, measurements=meas, overwrite=overwrite)
     except SourceError as exc:
         raise _fail(str(exc)) from exc
     topics = ", ".join(f"{t} {n}" for t, n in counts.items())
     typer.echo(f"wrote {mcap} ({_human_bytes(mcap.stat().st_size)}): {topics}")
+
+
+def placement_warnings(recording: Path, measurements: list[dict]) -> list[str]:
+    """Why measurements may be drawn on the wrong picture: those that name no frame (drawn on frame 0)
+    and those whose ``source`` names another recording folder than ``recording``."""
+    from cli.specs import source_spec
+
+    here = recording.resolve()
+    unplaced, elsewhere = [], {}
+    for k, m in enumerate(measurements):
+        if m.get("frame_index", m.get("frame")) is None:
+            unplaced.append(k)
+        source = m.get("source")
+        if isinstance(source, str) and source.strip():
+            spec = source_spec(source)
+            kind, _, target = spec.partition("?")[0].partition(":")
+            if kind == "replay" and target and Path(target).expanduser().resolve() != here:
+                elsewhere.setdefault(source, []).append(k)
+
+    def which(ks: list[int]) -> str:
+        return ", ".join(map(str, ks[:10])) + (f" and {len(ks) - 10} more" if len(ks) > 10 else "")
+
+    out = []
+    if unplaced:
+        out.append(f"{len(unplaced)} measurement(s) ({which(unplaced)}) name no frame_index: they are drawn on frame 0 "
+                   "of the recording; give each its frame_index")
+    for source, ks in elsewhere.items():
+        out.append(f"{len(ks)} measurement(s) ({which(ks)}) were made on {source}, not on {recording}: "
+                   "their frame_index points at another recording's pictures")
+    return out

@@ -136,7 +136,7 @@ def measure(
     frame: int = typer.Option(0, "--frame", "-n", min=0, help="Measure on this frame index (0 = first)."),
     method: str = typer.Option("robust", "--method", "-m", help="robust | paper | basic"),
     as_json: bool = typer.Option(False, "--json", help="Print the measurement as JSON."),
-    timeout: float = typer.Option(5.0, help="Seconds to wait for each frame."),
+    timeout: float = typer.Option(5.0, min=0.01, help="Seconds to wait for each frame."),
     frames: int = typer.Option(1, "--frames", min=1, max=30, help="Measure over this many frames of a still scene: the frame measured and the ones before it (robust method; with --frame K below N-1 the frame measured is N-1)."),
 ) -> None:
     """Measure between two points on one frame of a source, headless; prints distance, uncertainty and method."""
@@ -144,6 +144,7 @@ def measure(
     from device.base import FrameAccess
     from measure import MeasureError, MeasureOptions, measure_distance
     from measure.sequence import measure_sequence
+    from cli.specs import source_spec
 
     a, b = _point(p1, "--p1"), _point(p2, "--p2")
     try:
@@ -153,7 +154,7 @@ def measure(
     frame = max(frame, frames - 1)
     read: list[Any] = []
     try:
-        with open_source(source) as src:
+        with open_source(source_spec(source)) as src:
             if isinstance(src, FrameAccess):  # a recording or bag: read the frames asked for, not every one before them
                 if frame >= len(src):
                     _fail(f"cannot read frame {frame} of {source}: it has {len(src)} frames (0-{len(src) - 1})", 1)
@@ -184,7 +185,7 @@ def measure(
         typer.echo(f"95 % interval {lo:.4f} - {hi:.4f} m")
     typer.echo(f"quality: {result.quality.upper()}" + (f" ({'; '.join(result.reasons)})" if result.reasons else ""))
     typer.echo(f"method {result.method}, fit {result.fit}, {result.n_support}/{result.n_valid} samples in support")
-    typer.echo(f"basic estimate {result.basic_distance_m:.4f} m")
+    typer.echo(f"basic estimate {result.basic_distance_m:.4f} m" if math.isfinite(result.basic_distance_m) else "basic estimate: none (no depth within the window at an end point)")
     if frames > 1:
         gain = result.single_frame_uncertainty_m / result.uncertainty_m if result.uncertainty_m > 0 else math.nan
         typer.echo(f"frames: {result.frames_used} of {frames} pooled (frames {frame - result.frames_used + 1}-{frame}); "

@@ -11,76 +11,19 @@ import signal
 import subprocess
 import sys
 import time
-from pathlib import Path
 
 import numpy as np
 import pyarrow.parquet as pq
 import pytest
 from typer.testing import CliRunner
 
-from device.formats.recording import open_recording
-from batch.run import close_readers, run_batch
+from batch_tables import ROOT, invoke, stable, truth, write_tasks
 from batch.diff import diff_results
 from batch.executors import InProcessExecutor, PoolExecutor, RayExecutor, make_executor
+from batch.run import close_readers, run_batch
 from batch.tasks import Task, read_tasks
 from cli.main import app as cli
-
-ROOT = Path(__file__).resolve().parents[2]
-SIZE = "width=480&height=270"
-# Columns that say where, when and how fast a row was made; everything else must match across executors.
-VOLATILE = {"run", "worker", "finished", "frame_read_ms", "elapsed_ms"}
-
-
-def invoke(args: list[str]) -> str:
-    """The command's output, on one line (rich wraps long lines at the terminal width)."""
-    res = CliRunner().invoke(cli, args)
-    assert res.exit_code == 0, res.output + repr(res.exception)
-    return " ".join(res.output.split())
-
-
-@pytest.fixture(scope="module")
-def archive(tmp_path_factory) -> Path:
-    """Two recordings made by `depthruler record` from the simulator, and their clicks (the truth's)."""
-    root = tmp_path_factory.mktemp("archive")
-    invoke(["record", "--source", f"sim:poster?fps=0&distance=3&{SIZE}", "--out", str(root / "rec_poster"), "--frames", "4"])
-    invoke(["record", "--source", f"sim:poster?fps=0&distance=4.5&target=poster-length&yaw=15&lighting=mixed&seed=3&{SIZE}", "--out", str(root / "rec_tilted"), "--frames", "4"])
-    return root
-
-
-def truth(rec_dir: Path, i: int) -> dict:
-    return open_recording(rec_dir).entries[i].meta["truth"]
-
-
-def write_tasks(path: Path, archive: Path, methods=("robust", "paper", "basic"), jitter=(0, 2), extra_rows=()) -> Path:
-    """Tasks on both recordings, their paths relative to the table's folder (as a table kept with its archive has them)."""
-    with path.open("w", newline="") as fh:
-        w = csv.writer(fh)
-        w.writerow(["source", "frame", "p1_x", "p1_y", "p2_x", "p2_y", "method", "label"])
-        for name in ("rec_poster", "rec_tilted"):
-            rel = os.path.relpath(archive / name, path.parent)
-            for i in range(4):
-                t = truth(archive / name, i)
-                (x1, y1), (x2, y2) = t["p1_px"], t["p2_px"]
-                for m in methods:
-                    for d in jitter:
-                        w.writerow([rel, i, x1 + d, y1, x2 - d, y2, m, f"{name}/{i}/{t['length_m']}/{d}"])
-        for row in extra_rows:
-            w.writerow(row)
-    return path
-
-
-def stable(path: Path) -> list[dict]:
-    return [{k: v for k, v in r.items() if k not in VOLATILE} for r in pq.read_table(path).to_pylist()]
-
-
-@pytest.fixture(scope="session")
-def ray_session():
-    """One local Ray instance with 2 CPUs for the whole session (starting Ray costs seconds)."""
-    ray = pytest.importorskip("ray")
-    if not ray.is_initialized():
-        ray.init(num_cpus=2, include_dashboard=False, log_to_driver=False)
-    yield ray
-    ray.shutdown()
+from device.formats.recording import open_recording
 
 
 def test_same_results_in_process_pool_and_ray(archive, tmp_path, ray_session):
@@ -305,32 +248,24 @@ def test_diff_counts_moves_beyond_uncertainty(archive, tmp_path):
     close_readers()
 
 
-def test_bad_inputs_are_typed_errors(archive, tmp_path):
+def test_bad_tables_are_typed_errors(archive, tmp_path):
+    """What stops a run before it starts: a table without a required column, results not named *.parquet, no workers."""
     bad = tmp_path / "bad.csv"
     bad.write_text("source,frame,p1_x,p1_y,p2_x\nrec,0,1,2,3\n")
     res = CliRunner().invoke(cli, ["batch", str(bad), "--out", str(tmp_path / "r.parquet")])
     assert res.exit_code == 1 and "lacks the column(s) p2_y" in res.output
-    bad.write_text("source,frame,p1_x,p1_y,p2_x,p2_y,window\nrec,0,1,2,3,4,4.5\n")
+    bad.write_text("source,frame,p1_x,p1_y,p2_x,p2_y\n")
     res = CliRunner().invoke(cli, ["batch", str(bad), "--out", str(tmp_path / "r.parquet")])
-    assert res.exit_code == 1 and "row 1" in res.output and "window" in res.output
-    bad.write_text("source,frame,p1_x,p1_y,p2_x,p2_y\noak,0,1,2,3,4\n")
-    res = CliRunner().invoke(cli, ["batch", str(bad), "--out", str(tmp_path / "r.parquet")])
-    assert res.exit_code == 1 and "live camera" in res.output
-    # a bad option value in a row is that row's error, the others are measured
+    assert res.exit_code == 1 and "holds no task rows" in res.output
     t = truth(archive / "rec_poster", 0)
     good = tmp_path / "opt.jsonl"
-    good.write_text(
-        "\n".join(json.dumps({"source": str(archive / "rec_poster"), "frame": 0, "p1_x": t["p1_px"][0], "p1_y": t["p1_px"][1],
-                              "p2_x": t["p2_px"][0], "p2_y": t["p2_px"][1], "window": w}) for w in (5, 4))  # fmt: skip
-    )
+    good.write_text(json.dumps({"source": str(archive / "rec_poster"), "frame": 0, "p1_x": t["p1_px"][0], "p1_y": t["p1_px"][1],
+                                "p2_x": t["p2_px"][0], "p2_y": t["p2_px"][1]}))  # fmt: skip
     res = CliRunner().invoke(cli, ["batch", str(good), "--out", str(tmp_path / "r.csv")])
     assert res.exit_code == 1 and "*.parquet" in res.output
-    invoke(["batch", str(good), "--out", str(tmp_path / "o.parquet"), "--workers", "1"])
-    rows = pq.read_table(tmp_path / "o.parquet").to_pylist()
-    assert rows[0]["error"] is None and "window=4" in rows[1]["error"]
+    assert not list(tmp_path.glob("r.*"))
     with pytest.raises(Exception, match="at least 1"):
         make_executor(0)
-    close_readers()
 
 
 def test_eval_sim_same_on_every_executor(ray_session):
@@ -367,8 +302,8 @@ def test_eval_middlebury_same_on_ray(ray_session, middlebury_dir):
 
 
 def test_groups_read_each_frame_once_and_new_fields_flow_through(archive, tmp_path, monkeypatch):
-    import batch.run as batch
     from batch.tasks import group_tasks
+    from measure import measure_distance
 
     tasks = read_tasks(write_tasks(tmp_path / "t.csv", archive, methods=("robust",), jitter=(0, 1, 2)))
     for workers in (1, 2, 8):
@@ -392,7 +327,7 @@ def test_groups_read_each_frame_once_and_new_fields_flow_through(archive, tmp_pa
     t = pq.read_table(out)
     row = t.to_pylist()[0]
     assert set(MEASUREMENT_TYPES) == set(row) & set(MEASUREMENT_TYPES)
-    real = batch.measure_distance(open_recording(tasks[0].source.partition(":")[2]).frame(0), tasks[0].p1, tasks[0].p2)
+    real = measure_distance(open_recording(tasks[0].source.partition(":")[2]).frame(0), tasks[0].p1, tasks[0].p2)
     assert set(real.to_dict()) == set(MEASUREMENT_TYPES)
     assert str(t.schema.field("interval_m").type) == "list<element: double>" and str(t.schema.field("reasons").type).startswith("list<")
     assert row["quality"] in ("good", "check", "unreliable") and len(row["interval_m"]) == 2

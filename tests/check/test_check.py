@@ -16,7 +16,9 @@ from typer.testing import CliRunner
 from device import open_source
 from device.calibration.stereo import BoardSpec
 from history.checks import append_check, checks_path, read_checks
-from check.run import CheckError, board_pairs, report, run_check
+from check.errors import CheckError
+from check.pairs import board_pairs
+from check.run import report, run_check
 from measure.metrics import accuracy
 from measure import measure_distance
 

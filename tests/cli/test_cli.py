@@ -145,3 +145,87 @@ def test_serve_flags_override_config(tmp_path, monkeypatch):
         assert c.get("/api/source", headers={"Authorization": "Bearer tok"}).json()["spec"] == "kinect:0"
     result = CliRunner().invoke(app, ["serve", "--source", "sim", "--host", "0.0.0.0", "--token", "", "--db", str(tmp_path / "o.db")])
     assert result.exit_code == 2 and "--insecure-no-token" in result.output  # exposed needs a token
+
+
+def test_measure_takes_a_bare_recording_folder(recording):
+    """`replay` and `batch` take a recording folder as it is; `measure` does too (it once said "unknown source kind")."""
+    args = ["--p1", "40,30", "--p2", "280,200", "--frame", "1", "--method", "basic", "--json"]
+    bare = CliRunner().invoke(app, ["measure", str(recording), *args])
+    spec = CliRunner().invoke(app, ["measure", f"replay:{recording}", *args])
+    assert bare.exit_code == 0, bare.output
+    assert json.loads(bare.stdout)["distance_m"] == json.loads(spec.stdout)["distance_m"] == pytest.approx(wall_length((40, 30), (280, 200)) / 2, rel=1e-3)
+    looped = CliRunner().invoke(app, ["measure", f"{recording}?loop=1", *args])  # options stay the replay's
+    assert looped.exit_code == 0 and json.loads(looped.stdout)["frame"] == 1
+    missing = CliRunner().invoke(app, ["measure", str(recording / "nope"), *args])
+    assert missing.exit_code == 1 and "unknown source kind" in missing.output
+
+
+def test_measure_refuses_a_negative_timeout(recording):
+    res = CliRunner().invoke(app, ["measure", f"replay:{recording}", "--p1", "40,30", "--p2", "280,200", "--timeout", "-1"])
+    assert res.exit_code == 2 and "--timeout" in res.output and "0.01" in res.output
+
+
+def test_measure_text_says_when_there_is_no_basic_estimate(tmp_path):
+    """A click with no depth within the window: robust measures along its line, basic has none; the text said "nan m"."""
+    out = tmp_path / "hole"
+    frame = wall_frame(0)
+    holed = frame.disparity.copy()
+    holed[20:41, 30:51] = np.nan  # no depth within the 5 px window around (40, 30)
+    with RecordingWriter(out, SourceInfo(kind="plane", name="Fake plane", width=W, height=H, fps=30.0)) as rec:
+        rec.write(replace(frame, disparity=holed))
+    res = CliRunner().invoke(app, ["measure", f"replay:{out}", "--p1", "40,30", "--p2", "280,200"])
+    assert res.exit_code == 0, res.output
+    assert "nan" not in res.stdout and "basic estimate: none (no depth within the window at an end point)" in res.stdout
+    assert f"distance {wall_length((40, 30), (280, 200)):.2f}" in res.stdout
+
+
+def test_export_warns_about_measurements_it_cannot_place(recording, tmp_path):
+    base = {"distance_m": 1.0, "p1": [40, 30], "p2": [280, 200]}
+    meas = [{**base, "frame_index": 1, "source": f"replay:{recording}"},  # on this recording: no warning
+            {**base, "source": "oak"},  # a live camera: no frame of this recording
+            {**base, "frame_index": 2, "source": str(tmp_path / "other-rec")}]  # fmt: skip
+    (tmp_path / "other-rec").mkdir()
+    (tmp_path / "other-rec" / "manifest.json").write_text("{}")
+    (tmp_path / "m.json").write_text(json.dumps(meas))
+    res = CliRunner().invoke(app, ["export", str(recording), "--mcap", str(tmp_path / "o.mcap"), "--measurements", str(tmp_path / "m.json")])
+    assert res.exit_code == 0, res.output
+    text = " ".join(res.output.split())
+    assert "warning: 1 measurement(s) (1) name no frame_index: they are drawn on frame 0" in text
+    assert f"warning: 1 measurement(s) (2) were made on {tmp_path / 'other-rec'}, not on {recording}" in text
+    assert "(0)" not in text and (tmp_path / "o.mcap").stat().st_size > 0
+
+
+def test_saved_frames_and_checks_beside_a_database_are_ignored_by_git():
+    """The service writes <db stem>-frames/ and <db stem>-checks.jsonl beside its database (depthruler-frames/ by default)."""
+    import shutil
+    import subprocess
+    from pathlib import Path
+
+    root = Path(__file__).resolve().parents[2]
+    if shutil.which("git") is None or not (root / ".git").exists():
+        pytest.skip("not a git checkout")
+    names = ["depthruler.db", "depthruler-frames/0a1b.frame", "depthruler-checks.jsonl", "data/station-frames/x.frame", "data/station-checks.jsonl"]
+    res = subprocess.run(["git", "-C", str(root), "check-ignore", "--no-index", *names], capture_output=True, text=True)
+    assert res.stdout.split() == names
+
+
+def test_help_defaults_come_from_the_option_definitions():
+    """No option's help repeats its default in prose (it drifts from the definition): typer shows the real one."""
+    import re
+
+    import typer.main
+
+    def commands(cmd, path=()):
+        for name, sub in getattr(cmd, "commands", {}).items():
+            yield from commands(sub, (*path, name))
+        if not getattr(cmd, "commands", None):
+            yield path, cmd
+
+    seen = 0
+    for path, cmd in commands(typer.main.get_command(app)):
+        if path == ("serve",):  # the service's command keeps its own options
+            continue
+        for param in cmd.params:
+            seen += 1
+            assert not re.search(r"\(default\b|\bdefault:|\bdefault \$?[\d/.]", param.help or "", re.I), (path, param.name, param.help)
+    assert seen > 80

@@ -1,0 +1,28 @@
+"""Fixtures of the batch tests: a small simulated archive, one Ray instance per session."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import pytest
+
+from batch_tables import SIZE, invoke
+
+
+@pytest.fixture(scope="session")
+def archive(tmp_path_factory) -> Path:
+    """Two recordings made by `depthruler record` from the simulator, and their clicks (the truth's)."""
+    root = tmp_path_factory.mktemp("archive")
+    invoke(["record", "--source", f"sim:poster?fps=0&distance=3&{SIZE}", "--out", str(root / "rec_poster"), "--frames", "4"])
+    invoke(["record", "--source", f"sim:poster?fps=0&distance=4.5&target=poster-length&yaw=15&lighting=mixed&seed=3&{SIZE}", "--out", str(root / "rec_tilted"), "--frames", "4"])
+    return root
+
+
+@pytest.fixture(scope="session")
+def ray_session():
+    """One local Ray instance with 2 CPUs for the whole session (starting Ray costs seconds)."""
+    ray = pytest.importorskip("ray")
+    if not ray.is_initialized():
+        ray.init(num_cpus=2, include_dashboard=False, log_to_driver=False)
+    yield ray
+    ray.shutdown()

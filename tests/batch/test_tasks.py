@@ -1,0 +1,143 @@
+"""Task tables row by row: every bad row is an error row naming its field while the others are
+measured, on every executor; a CSV saved by Excel (UTF-8 with a byte-order mark) reads."""
+
+from __future__ import annotations
+
+import csv
+import json
+import math
+
+import pyarrow.parquet as pq
+import pytest
+from typer.testing import CliRunner
+
+from batch.executors import InProcessExecutor, PoolExecutor
+from batch.run import close_readers, run_batch
+from batch.tasks import MAX_FRAME, read_tasks
+from batch_tables import HEADER, invoke, stable, truth
+from cli.main import app as cli
+from device.formats.recording import open_recording
+from measure import MeasureOptions, measure_distance
+
+
+def _bad_rows(rec: str, p1, p2) -> list[tuple[list, str]]:
+    """(row, the field its error names) for every kind of bad cell, each beside valid ones."""
+    (x1, y1), (x2, y2) = p1, p2
+    return [
+        ([rec, 2**63, x1, y1, x2, y2, "", "frame 2^63"], "frame"),
+        ([rec, MAX_FRAME + 2, x1, y1, x2, y2, "", "frame 2^53 + 1"], "frame"),
+        ([rec, "1e300", x1, y1, x2, y2, "", "frame 1e300"], "frame"),
+        ([rec, "2.5", x1, y1, x2, y2, "", "frame 2.5"], "frame"),
+        ([rec, -1, x1, y1, x2, y2, "", "frame -1"], "frame"),
+        ([rec, "", x1, y1, x2, y2, "", "no frame"], "frame"),
+        ([rec, 0, "", y1, x2, y2, "", "no p1_x"], "p1_x"),
+        ([rec, 0, x1, "nan", x2, y2, "", "nan p1_y"], "p1_y"),
+        ([rec, 0, x1, y1, "inf", y2, "", "inf p2_x"], "p2_x"),
+        ([rec, 0, x1, y1, x2, "abc", "", "text p2_y"], "p2_y"),
+        (["", 0, x1, y1, x2, y2, "", "no source"], "source"),
+        (["oak", 0, x1, y1, x2, y2, "", "live source"], "source"),
+        ([rec, 0, x1, y1, x2, y2, "magic", "bad method"], "method"),
+        ([rec, "", "", y1, x2, y2, "", "two bad cells"], "frame,p1_x"),
+    ]
+
+
+def _table(path, rec, frame_truth, bad) -> dict[str, str]:
+    """A table of valid rows (two frames, two methods) with the bad rows between them; label -> expected field."""
+    (x1, y1), (x2, y2) = frame_truth
+    rows = [[rec, i, x1 + d, y1, x2 - d, y2, m, f"ok {i} {d} {m}"] for i in (0, 1) for d in (0, 3) for m in ("robust", "basic")]
+    want = {}
+    for k, (row, fld) in enumerate(bad):
+        rows.insert(2 * k % len(rows), row)
+        want[row[-1]] = fld
+    with path.open("w", newline="") as fh:
+        w = csv.writer(fh)
+        w.writerow(HEADER)
+        w.writerows(rows)
+    return want
+
+
+def test_every_bad_row_is_an_error_row_naming_its_field(archive, tmp_path):
+    rec = archive / "rec_poster"
+    t = truth(rec, 0)
+    p1, p2 = t["p1_px"], t["p2_px"]
+    table = tmp_path / "mixed.csv"
+    want = _table(table, str(rec), (p1, p2), _bad_rows(str(rec), p1, p2))
+    tasks = read_tasks(table)
+    assert len(tasks) == 8 + len(want)
+    results = {}
+    for name, ex in (("inproc", InProcessExecutor()), ("pool", PoolExecutor(2))):
+        with ex:
+            summary = run_batch(tasks, tmp_path / f"{name}.parquet", ex)
+        results[name] = stable(tmp_path / f"{name}.parquet")
+        assert summary["rows"] == len(tasks) and summary["errors"]["type"] == {"TaskError": len(want)}
+    close_readers()
+    rows = results["inproc"]
+    assert results["pool"] == rows and [r["task"] for r in rows] == list(range(len(tasks)))  # one row per task
+    by_label = {r["label"]: r for r in rows}
+    frames = [open_recording(rec).frame(i) for i in (0, 1)]
+    for label, r in by_label.items():
+        if label.startswith("ok "):
+            _, i, d, m = label.split()
+            x1, y1, x2, y2 = p1[0] + int(d), p1[1], p2[0] - int(d), p2[1]
+            assert r["error"] is None and r["distance_m"] == measure_distance(frames[int(i)], (x1, y1), (x2, y2), MeasureOptions(method=m)).distance_m
+        else:
+            assert r["error_type"] == "TaskError" and r["error_field"] == want[label], label
+            assert r["distance_m"] is None and r["opt_method"] is None
+            for f in want[label].split(","):
+                assert f in r["error"], (label, r["error"])
+    assert by_label["frame 2^63"]["frame"] is None and str(2**63) in by_label["frame 2^63"]["error"]
+    assert "2^53 - 1" in by_label["frame 2^53 + 1"]["error"] and "live camera" in by_label["live source"]["error"]
+    assert by_label["no p1_x"]["p1_x"] is None and by_label["no p1_x"]["frame"] == 0  # the readable cells are kept
+    # the command line: the table runs, and the summary counts the error rows by type and field
+    res = invoke(["batch", str(table), "--out", str(tmp_path / "cli.parquet"), "--workers", "1"])
+    assert f"{len(tasks)} tasks measured ({len(want)} error rows)" in res
+    assert f"error rows by type: TaskError {len(want)}; by field: " in res
+    fields = dict(item.rsplit(" ", 1) for item in res.split("by field: ")[1].split(", "))
+    assert {k: int(v) for k, v in fields.items()} == {"frame": 7, "p1_x": 2, "p1_y": 1, "p2_x": 1, "p2_y": 1, "source": 2, "method": 1}
+
+
+def test_jsonl_and_parquet_tables_with_bad_rows(archive, tmp_path):
+    rec = str(archive / "rec_poster")
+    t = truth(archive / "rec_poster", 0)
+    good = {"source": rec, "frame": 0, "p1_x": t["p1_px"][0], "p1_y": t["p1_px"][1], "p2_x": t["p2_px"][0], "p2_y": t["p2_px"][1]}
+    lines = [json.dumps(good), "[1, 2]", "{not json", json.dumps({**good, "frame": 2**64}), json.dumps({**good, "p1_x": None}),
+             json.dumps({**good, "frame": True}), json.dumps({**good, "window": 4}), json.dumps({k: v for k, v in good.items() if k != "p2_y"})]  # fmt: skip
+    table = tmp_path / "t.jsonl"
+    table.write_text("\n".join(lines) + "\n")
+    out = tmp_path / "j.parquet"
+    invoke(["batch", str(table), "--out", str(out), "--workers", "1"])
+    rows = pq.read_table(out).to_pylist()
+    assert [r["error_field"] for r in rows] == [None, "row", "row", "frame", "p1_x", "frame", "window", "p2_y"]
+    assert rows[0]["distance_m"] > 0 and "line 2 is not a JSON object" in rows[1]["error"] and "window=4" in rows[6]["error"]
+    # the same rows as Parquet (typed columns: NaN and null cells)
+    import pyarrow as pa
+
+    pq.write_table(pa.table({"source": [rec, rec], "frame": [0, 1], "p1_x": [good["p1_x"], math.nan], "p1_y": [good["p1_y"], None],
+                             "p2_x": [good["p2_x"]] * 2, "p2_y": [good["p2_y"]] * 2}), tmp_path / "t.parquet")  # fmt: skip
+    invoke(["batch", str(tmp_path / "t.parquet"), "--out", str(tmp_path / "p.parquet"), "--workers", "1"])
+    rows = pq.read_table(tmp_path / "p.parquet").to_pylist()
+    assert rows[0]["error"] is None and rows[1]["error_field"] == "p1_x,p1_y"
+    close_readers()
+
+
+def test_a_csv_saved_by_excel_with_a_byte_order_mark_reads(archive, tmp_path):
+    t = truth(archive / "rec_poster", 1)
+    table = tmp_path / "excel.csv"
+    text = "source,frame,p1_x,p1_y,p2_x,p2_y\r\n" + f"{archive / 'rec_poster'},1,{t['p1_px'][0]},{t['p1_px'][1]},{t['p2_px'][0]},{t['p2_px'][1]}\r\n"
+    table.write_bytes(b"\xef\xbb\xbf" + text.encode())
+    (task,) = read_tasks(table)
+    assert task.error is None and task.frame == 1
+    out = tmp_path / "r.parquet"
+    invoke(["batch", str(table), "--out", str(out), "--workers", "1"])
+    (row,) = pq.read_table(out).to_pylist()
+    assert row["distance_m"] == pytest.approx(t["length_m"], rel=0.03)
+    close_readers()
+
+
+def test_a_row_with_more_cells_than_the_header(archive, tmp_path):
+    table = tmp_path / "long.csv"
+    table.write_text(f"source,frame,p1_x,p1_y,p2_x,p2_y\n{archive / 'rec_poster'},0,1,2,3,4,5,6\n")
+    (task,) = read_tasks(table)
+    assert task.error_field == "row" and "2 more cell(s)" in task.error
+    res = CliRunner().invoke(cli, ["batch", str(table), "--out", str(tmp_path / "r.parquet"), "--workers", "1"])
+    assert res.exit_code == 0 and "by field: row 1" in " ".join(res.output.split())
