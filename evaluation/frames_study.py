@@ -128,7 +128,7 @@ def _job(job: FramesJob) -> dict[str, Any]:
 
 def _measure_still(frames, job: FramesJob) -> list[dict[str, Any]]:
     from measure import MeasureError, MeasureOptions
-    from measure.distance import robust_with_terms
+    from measure.robust import robust_with_terms
     from measure.sequence import measure_sequence
     from sim.scenes import get_view
     from sim.truth import ClickModel

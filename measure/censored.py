@@ -27,7 +27,7 @@ Used on the robust line's support when its samples lie on 2 to ``MAX_LEVELS`` ne
 (levels further apart are wrong matches or two surfaces, not one line's rounding): with more,
 the line crosses several half-levels, whose positions pin its slope, and least squares is within a
 fraction 1 / (levels - 1) of a step of it (and this model's cost grows with nothing in return).
-``measure.distance`` takes this line only where it is flatter than the least-squares one: the bias
+``measure.robust`` takes this line only where it is flatter than the least-squares one: the bias
 it corrects, the step's, only steepens. Where it comes out steeper, it is following a minority level
 at an end (one wrong match, or a click that slipped onto the next surface, is a hard half-level
 crossing to this likelihood and one residual to least squares): the least-squares line stays, with
@@ -177,7 +177,7 @@ def censored_line(t: np.ndarray, d: np.ndarray, quantum: float, inflation: float
     inv = np.stack([np.stack([info11, -info01], 1), np.stack([-info01, info00], 1)], 1) / np.where(good, det, 1.0)[:, None, None]
     inv = np.where(good[:, None, None], inv, 0.0)
     dev = theta - mean
-    # Mixture covariance, without the tempering: measure.distance inflates the line's errors itself.
+    # Mixture covariance, without the tempering: measure.robust inflates the line's errors itself.
     cov_u = (w[:, None, None] * (inv / k + dev[:, :, None] * dev[:, None, :] / k)).sum(0)
     # Back to alpha + beta t: alpha = a_u - b_u t0 / half, beta = b_u / half.
     jac = np.array([[1.0, -t0 / half], [0.0, 1.0 / half]])

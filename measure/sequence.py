@@ -81,7 +81,7 @@ from dataclasses import replace
 
 import numpy as np
 
-from measure.distance import robust_with_terms
+from measure.robust import robust_with_terms
 from measure.robust_range import median, tukey_location
 from measure.sampling import SegmentSamples, ray, sample_segment, segment_pixels
 from measure.types import Frame, MeasureError, MeasureOptions, Measurement

@@ -23,7 +23,7 @@ piece (scattered wrong matches form no line) and differs from the global one at 
 same threshold; its depth is that line's at the click: still on
 the clicked pixel's viewing ray. A disagreeing piece that yields no such line (rough, steep, too
 little support) but is dense along the segment (``_dense_span``: 15 px without a hole wider than
-7.5 px) is reported in ``EndModels.pieces``; ``measure.distance`` then looks for that end's surface
+7.5 px) is reported in ``EndModels.pieces``; ``measure.robust`` then looks for that end's surface
 in the image around the click (``measure.neighbourhood``).
 
 Residual structure at an end on the global line: the median residual of the supported samples in

@@ -28,7 +28,7 @@ import time
 import numpy as np
 
 from measure.basic import basic_ends
-from measure.distance import MIN_FIT_SAMPLES, NO_DEPTH, validate_request
+from measure.request import MIN_FIT_SAMPLES, NO_DEPTH, validate_request
 from measure.dline import mcd_line
 from measure.gap import extension_depth, is_gap
 from measure.mcd import fast_mcd

@@ -38,7 +38,7 @@ def test_good_answers_are_right_and_common(middlebury_stress, disparity):
 def test_uncertainty_covers_the_truth_on_sgbm(middlebury_stress):
     f = figures([r for r in middlebury_stress if r.disparity == "sgbm"])
     # Issue #12 asks for 60-76 % within 1σ; dev 80.4 % since extrapolated ends take their click windows
-    # (measure.distance._observed_ends): the answers it corrects fall inside 1σ, and no single scale
+    # (measure.robust._observed_ends): the answers it corrects fall inside 1σ, and no single scale
     # of the sigma brings 1σ under 76 % while 2σ stays >= 90 % (README "Trust").
     assert 0.6 <= f["cov_1sigma"] <= 0.82, f
     assert 0.9 <= f["cov_2sigma"] <= 0.98, f
