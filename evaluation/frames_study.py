@@ -36,7 +36,7 @@ from typing import Any
 import numpy as np
 
 from batch.executors import make_executor
-from measure.metrics import accuracy
+from measure import accuracy
 
 BANDS: dict[str, tuple[float, ...]] = {"2-5 m": (2.0, 3.5, 5.0), "6-7 m": (6.0, 7.0)}
 DISTANCES_M: tuple[float, ...] = tuple(d for ds in BANDS.values() for d in ds)
@@ -106,7 +106,7 @@ def board_distance(frame, truth, p1, p2) -> float:
     """Distance (m) between the rays of pixels ``p1``, ``p2`` met with the true board: inverse depth
     affine in (x, y) over the truth's pixels near the true segment within 5 % of its ends' depth (a
     plane), so a click off the board still lands on the board's plane."""
-    from measure.sampling import ray
+    from measure import ray
 
     a, b = np.array(truth.p1_px), np.array(truth.p2_px)
     z0 = 0.5 * (truth.p1_m[2] + truth.p2_m[2])
@@ -127,9 +127,7 @@ def _job(job: FramesJob) -> dict[str, Any]:
 
 
 def _measure_still(frames, job: FramesJob) -> list[dict[str, Any]]:
-    from measure import MeasureError, MeasureOptions
-    from measure.robust import robust_with_terms
-    from measure.sequence import measure_sequence
+    from measure import MeasureError, MeasureOptions, measure_sequence, robust_with_terms
     from sim.scenes import get_view
     from sim.truth import ClickModel
 
@@ -165,8 +163,7 @@ def _measure_still(frames, job: FramesJob) -> list[dict[str, Any]]:
 
 
 def _measure_moving(frames, clicks, truth, job: FramesJob) -> list[dict[str, Any]]:
-    from measure import MeasureError
-    from measure.sequence import measure_sequence
+    from measure import MeasureError, measure_sequence
 
     out = []
     for kind, (p1, p2) in clicks.items():

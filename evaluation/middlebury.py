@@ -26,7 +26,7 @@ from typing import Any
 import numpy as np
 
 from evaluation import report
-from measure.metrics import accuracy, signed_error_pct
+from measure import accuracy, signed_error_pct
 from evaluation.sim_study import MethodOutcome, measure_all, warm_up
 from evaluation.report import METHODS, EvalError
 

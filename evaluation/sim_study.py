@@ -24,7 +24,7 @@ from typing import Any
 import numpy as np
 
 from evaluation import report
-from measure.metrics import accuracy, signed_error_pct
+from measure import accuracy, signed_error_pct
 from evaluation.paper_figures import paper_beside_ours
 from evaluation.report import METHODS, EvalError
 
@@ -156,8 +156,7 @@ def plan_sim(
 
 def measure_all(frame: Any, c1: tuple[float, float], c2: tuple[float, float]) -> tuple[MethodOutcome, ...]:
     """Every method of ``METHODS`` on one frame and click pair, each timed; a MeasureError is an outcome."""
-    from measure import MeasureError, MeasureOptions, measure_distance
-    from measure.zonly import measure_z_only
+    from measure import MeasureError, MeasureOptions, measure_distance, measure_z_only
 
     outcomes = []
     for method in METHODS:

@@ -19,7 +19,7 @@ from typing import Any
 import numpy as np
 
 from evaluation import report
-from measure.metrics import accuracy
+from measure import accuracy
 
 
 @dataclass(frozen=True)
