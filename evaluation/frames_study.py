@@ -1,4 +1,4 @@
-"""Several frames of a still scene on the simulated rig (issue #17): what pooling N frames buys, and
+"""Several frames of a still scene on the simulated rig: what pooling N frames buys, and
 whether the stated uncertainty covers the truth as often as it claims.
 
 Protocol: still scenes of the poster (indoor light, board 1 m in front of the wall) at 2, 3.5 and 5 m
@@ -35,6 +35,7 @@ from typing import Any
 
 import numpy as np
 
+from evaluation import report
 from batch.executors import make_executor
 from measure import accuracy
 
@@ -265,6 +266,45 @@ def _pct(rate: dict[str, Any]) -> str:
     return f"{100 * rate['rate']:.0f} % ({100 * lo:.0f}-{100 * hi:.0f})"
 
 
+def frames_markdown(summary: dict[str, Any], protocol: dict[str, Any]) -> str:
+    """report.md from the study's ``summary`` (:func:`summarize`) and ``protocol``; the tables between
+    snippet markers "coverage" and "terms"."""
+    cells = summary["cells"]
+    cover = ["| distances | contention | clicks | N | cases (scenes) | mean A | std A | 1σ coverage | 95 % coverage | mean σ (%) | frames used |",
+             "|---|---|---|---|---|---|---|---|---|---|---|"]
+    for band in tuple(BANDS) + tuple(f"{d:g} m" for d in DISTANCES_M):
+        for c in ("both",) + CONTENTION:
+            for k in CLICKS:
+                for n in COUNTS:
+                    s = cells[_key(band, c, k, n)]
+                    if s["n"]:
+                        cover.append(f"| {band} | {c} | {k} | {n} | {s['n']} ({s['scenes']}) | {s['mean_A']:.2f} | {s['std_A'] or 0:.2f} | "
+                                     f"{_pct(s['coverage1'])} | {_pct(s['coverage95'])} | {s['sigma_pct']:.2f} | {s['frames_used']:.1f} |")
+    terms = ["| distances | clicks | N | click error rms | click σ | within | sensor error rms | sensor σ | within |",
+             "|---|---|---|---|---|---|---|---|---|"]
+    for band in BANDS:
+        for k in CLICKS:
+            for n in COUNTS:
+                s = cells[_key(band, "both", k, n)]
+                if s["n"]:
+                    terms.append(f"| {band} | {k} | {n} | {s['click_err_pct']:.2f} | {s['click_sigma_pct']:.2f} | {_pct(s['click_within'])} | "
+                                 f"{s['sensor_err_pct']:.2f} | {s['sensor_sigma_pct']:.2f} | {_pct(s['sensor_within'])} |")
+    mv = summary["moving"]
+    lines = ["# Several frames of a still scene (simulated rig)", "", __doc__.split("\n\n", 1)[1].strip(), "",
+             f"Scenes: {protocol.get('trials')} per (6-7 m distance, contention), {protocol.get('near_trials')} per (2-5 m distance, "
+             f"contention), seed {protocol.get('seed', 0)}; human clicks measured with click_px = {protocol.get('click_px', math.nan):.2f}; "
+             f"wall time {protocol.get('wall_time_s', 0):.0f} s ({protocol.get('workers', 1)} workers). "
+             "Coverage in brackets: Wilson 95 % interval of the rate; cases of one scene (two targets) share its frames.", "",
+             "## Coverage and spread", "", report.section("coverage", "\n".join(cover)),
+             "", "## Terms against their truth (both contention kinds)", "",
+             "rms error and mean stated part (% of the length), and how often the error is within its part (nominal 68 %).", "",
+             report.section("terms", "\n".join(terms)),
+             "", "## Moving scenes", "", f"{mv['refused']} of {mv['n']} moving 10-frame cases ({mv['n'] // len(CLICKS)} sequences x "
+             f"{len(CLICKS)} click kinds) refused (answer from the newest frame alone, with a \"scene moved\" reason); "
+             f"frames pooled: {mv['pooled_frames']}.", ""]
+    return "\n".join(lines)
+
+
 def write_report(out: Path, records: list[dict[str, Any]], protocol: dict[str, Any]) -> dict[str, Path]:
     import matplotlib
 
@@ -274,39 +314,7 @@ def write_report(out: Path, records: list[dict[str, Any]], protocol: dict[str, A
     out.mkdir(parents=True, exist_ok=True)
     summary = summarize(records)
     cells = summary["cells"]
-    lines = ["# Several frames of a still scene (simulated rig)", "", __doc__.split("\n\n", 1)[1].strip(), "",
-             f"Scenes: {protocol.get('trials')} per (6-7 m distance, contention), {protocol.get('near_trials')} per (2-5 m distance, "
-             f"contention), seed {protocol.get('seed', 0)}; human clicks measured with click_px = {protocol.get('click_px', math.nan):.2f}; "
-             f"wall time {protocol.get('wall_time_s', 0):.0f} s ({protocol.get('workers', 1)} workers). "
-             "Coverage in brackets: Wilson 95 % interval of the rate; cases of one scene (two targets) share its frames.", "",
-             "## Coverage and spread", "",
-             "| distances | contention | clicks | N | cases (scenes) | mean A | std A | 1σ coverage | 95 % coverage | mean σ (%) | frames used |",
-             "|---|---|---|---|---|---|---|---|---|---|---|"]
-    for band in tuple(BANDS) + tuple(f"{d:g} m" for d in DISTANCES_M):
-        for c in ("both",) + CONTENTION:
-            for k in CLICKS:
-                for n in COUNTS:
-                    s = cells[_key(band, c, k, n)]
-                    if not s["n"]:
-                        continue
-                    lines.append(f"| {band} | {c} | {k} | {n} | {s['n']} ({s['scenes']}) | {s['mean_A']:.2f} | {s['std_A'] or 0:.2f} | "
-                                 f"{_pct(s['coverage1'])} | {_pct(s['coverage95'])} | {s['sigma_pct']:.2f} | {s['frames_used']:.1f} |")
-    lines += ["", "## Terms against their truth (both contention kinds)", "",
-              "rms error and mean stated part (% of the length), and how often the error is within its part (nominal 68 %).", "",
-              "| distances | clicks | N | click error rms | click σ | within | sensor error rms | sensor σ | within |",
-              "|---|---|---|---|---|---|---|---|---|"]
-    for band in BANDS:
-        for k in CLICKS:
-            for n in COUNTS:
-                s = cells[_key(band, "both", k, n)]
-                if s["n"]:
-                    lines.append(f"| {band} | {k} | {n} | {s['click_err_pct']:.2f} | {s['click_sigma_pct']:.2f} | {_pct(s['click_within'])} | "
-                                 f"{s['sensor_err_pct']:.2f} | {s['sensor_sigma_pct']:.2f} | {_pct(s['sensor_within'])} |")
-    mv = summary["moving"]
-    lines += ["", "## Moving scenes", "", f"{mv['refused']} of {mv['n']} moving 10-frame cases ({mv['n'] // len(CLICKS)} sequences x "
-              f"{len(CLICKS)} click kinds) refused (answer from the newest frame alone, with a \"scene moved\" reason); "
-              f"frames pooled: {mv['pooled_frames']}.", ""]
-    (out / "report.md").write_text("\n".join(lines))
+    (out / "report.md").write_text(frames_markdown(summary, protocol))
     (out / "results.json").write_text(json.dumps({"protocol": protocol, "summary": summary}, indent=1))
     fig, axes = plt.subplots(1, 2, figsize=(11, 4))
     for k, style in zip(CLICKS, ("-", "--")):

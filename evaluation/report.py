@@ -88,6 +88,12 @@ def markdown_table(header: Sequence[str], rows: Sequence[Sequence[str]]) -> str:
     return "\n".join(lines)
 
 
+def section(name: str, text: str) -> str:
+    """``text`` between snippet markers, so a page of the manual can include it by name
+    (``--8<-- "docs/eval/sim/report.md:summary"``, the pymdownx snippets extension)."""
+    return f"<!-- --8<-- [start:{name}] -->\n{text}\n<!-- --8<-- [end:{name}] -->"
+
+
 def pyplot():
     """matplotlib.pyplot on the Agg backend (no display), imported only when a plot is drawn."""
     import matplotlib
