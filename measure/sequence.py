@@ -91,8 +91,7 @@ def image_shift(a: Frame, b: Frame, points: Sequence[tuple[float, float]]) -> fl
     """Largest significant image shift (px) between frames ``a`` and ``b`` over grey patches centred
     on ``points``: one Lucas-Kanade step on patches blurred by ``BLUR_PX`` (a first-order fit of
     b - a to a's gradient), counted only where it exceeds ``MOTION_SIGMAS`` of its own standard error
-    (a patch without texture says nothing). Phase correlation was tried first: on patches of little
-    texture it locked onto the sensor noise and reported 4-12 px shifts between still frames."""
+    (a patch without texture says nothing; why not phase correlation: docs/decisions/several-frames.md)."""
     import cv2
 
     worst = 0.0
@@ -208,10 +207,8 @@ def measure_sequence(
     """Distance (m) between clicked pixels ``p1``, ``p2`` pooled over the still ``frames`` (oldest first;
     the newest last); see the module docstring. Only the robust method pools; raises MeasureError.
 
-    Only the newest unbroken run of frames without image shift or depth change is pooled. On the
-    simulator at 6-7 m (module docstring, 680 cases per click kind) ten frames cut the std of A from
-    0.64 to 0.07 with exact clicks (one-sigma coverage 98 -> 92 %, 95 % interval 100 -> 100 %) and
-    from 2.09 to 1.88 with human clicks (71 -> 66 %, 98 -> 95 %): the clicks' error does not average.
+    Only the newest unbroken run of frames without image shift or depth change is pooled. Pooling
+    shrinks the sensor's part of the error, not the clicks' (docs/eval/frames/report.md measures both).
 
     Args:
         frames: frames of one camera, oldest first, all with the same (H, W) float32 disparity (px)

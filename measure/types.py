@@ -298,9 +298,8 @@ class MeasureOptions:
             caller knows it: 0 for exact pixel coordinates (a program, detected corners, a replayed
             annotation), about 1.5 for a mouse (the default), more for a finger on a touch screen (its
             tap's error at the displayed scale, converted to image pixels). The calibration was set
-            with the default: on real stereo (Middlebury SGBM, exact end pixels) 0 covers the truth
-            at 2 sigma in only about 70 % of cases, an end error of about 0.5 px that the model does
-            not explain yet (README "Trust"), so values below 1 claim more than is measured.
+            with the default, so values below 1 claim more than is measured
+            (docs/decisions/uncertainty-calibration.md).
 
     Returns:
         Frozen, validated options; raises :class:`MeasureError` naming a value out of range.
