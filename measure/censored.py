@@ -80,7 +80,7 @@ def censored_line(t: np.ndarray, d: np.ndarray, quantum: float, inflation: float
         inflation (px², px²/px, px²/px²), or None when the samples span fewer than two levels or more
         than ``MAX_LEVELS``, or the fit fails (no noise value's Newton run settles).
 
-    Example:
+    Examples:
         >>> import numpy as np
         >>> t = np.arange(100.0)  # true line 8.3 + 0.004 t: 0.40 px over the span, levels 8 and 9
         >>> d = np.round(8.3 + 0.004 * t + 0.15 * np.random.default_rng(0).standard_normal(100))

@@ -56,7 +56,7 @@ def measure_distance(
     Raises:
         MeasureError: bad frame, clicks or options, clicks too close, or no valid disparity to measure from.
 
-    Example:
+    Examples:
         >>> import numpy as np
         >>> from measure import Frame, PinholeCamera
         >>> cam = PinholeCamera(fx=60.0, fy=60.0, cx=31.5, cy=23.5, width=64, height=48)

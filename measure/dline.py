@@ -54,7 +54,7 @@ class DisparityLine:
     Returns:
         A frozen line; :meth:`at` evaluates it, :meth:`cov_at` gives the covariance of two of its values.
 
-    Example:
+    Examples:
         >>> from measure.dline import DisparityLine
         >>> line = DisparityLine(10.0, 0.5, 0.1, np.eye(2) * 0.01, np.ones(4, bool), False)
         >>> print(line.at(4.0), line.cov_at(0.0, 1.0).round(3).tolist())
@@ -156,7 +156,7 @@ def fit_disparity_line(t: np.ndarray, d: np.ndarray, support_fraction: float, se
     Returns:
         The :class:`DisparityLine`, its ``support`` of shape (n,).
 
-    Example:
+    Examples:
         >>> import numpy as np
         >>> from measure.dline import fit_disparity_line
         >>> t = np.arange(40.0)

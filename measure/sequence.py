@@ -232,7 +232,7 @@ def measure_sequence(
         MeasureError: no frames, mismatched frames, an unknown ``pool``, a method other than robust, or
             the newest frame cannot be measured.
 
-    Example:
+    Examples:
         >>> import numpy as np
         >>> from measure import Frame, PinholeCamera
         >>> from measure.sequence import measure_sequence
