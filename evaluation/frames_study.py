@@ -339,7 +339,5 @@ def write_report(out: Path, records: list[dict[str, Any]], protocol: dict[str, A
         ax.set_xticks(COUNTS)
         ax.grid(alpha=0.3)
         ax.legend(fontsize=6)
-    fig.tight_layout()
-    fig.savefig(out / "frames.png", dpi=110)
-    plt.close(fig)
+    report.save(fig, out / "frames.png", dpi=110)
     return {"report": out / "report.md", "plot": out / "frames.png", "results": out / "results.json"}

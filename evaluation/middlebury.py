@@ -363,11 +363,7 @@ def plot_segments(path: Path, data_dir: Path, names: Sequence[str], results: Seq
         ax.set_title(name, fontsize=9)
     for ax in axes:
         ax.axis("off")
-    fig.suptitle("Middlebury segments (all click pairs); green: robust within 5 % on SGBM, red: not", fontsize=10)
-    fig.tight_layout()
-    fig.savefig(path)
-    plt.close(fig)
-    return path
+    return report.save(fig, path, "Middlebury segments (all click pairs); green: robust within 5 % on SGBM, red: not")
 
 
 def _segment_json(r: SegmentResult) -> dict[str, Any]:

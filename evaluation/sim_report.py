@@ -123,11 +123,7 @@ def plot_examples(path: Path, seed: int, quantization: float | None = None, prof
         fig.colorbar(im, ax=axes[1, col], fraction=0.03, label="disparity (px)")
     for ax in axes.ravel():
         ax.axis("off")
-    fig.suptitle("Simulated rig: poster width, colour with clicks (red) and true ends (green); disparity", fontsize=10)
-    fig.tight_layout()
-    fig.savefig(path)
-    plt.close(fig)
-    return path
+    return report.save(fig, path, "Simulated rig: poster width, colour with clicks (red) and true ends (green); disparity")
 
 
 def sim_markdown(results: dict[str, Any], plots: dict[str, str]) -> str:

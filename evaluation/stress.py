@@ -179,10 +179,7 @@ def plot_figures(path: Path, figs: dict[str, dict[str, Any]], title: str) -> Pat
     ax.set_ylim(0, 100)
     ax.set_title(title, fontsize=9)
     ax.legend(fontsize=7, ncol=4, loc="upper center")
-    fig.tight_layout()
-    fig.savefig(path)
-    plt.close(fig)
-    return path
+    return report.save(fig, path)
 
 
 def record_json(r: StressRecord) -> dict[str, Any]:
