@@ -42,7 +42,8 @@ def sim_command(
 ) -> None:
     """The paper's protocol on the simulated rig: its 7 measurements x 4 distances x 3 lightings, 4 methods."""
     from batch.executors import make_executor
-    from evaluation.sim_study import plan_sim, run_sim, sim_protocol, summarize_sim, write_sim_report
+    from evaluation.sim_report import write_sim_report
+    from evaluation.sim_study import plan_sim, run_sim, sim_protocol, summarize_sim
     from batch.errors import BatchError
     from evaluation.report import EvalError
 

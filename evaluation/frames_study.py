@@ -1,4 +1,4 @@
-"""Several frames of a still scene on the simulated rig (issue #17): what pooling N frames buys, and
+"""Several frames of a still scene on the simulated rig: what pooling N frames buys, and
 whether the stated uncertainty covers the truth as often as it claims.
 
 Protocol: still scenes of the poster (indoor light, board 1 m in front of the wall) at 2, 3.5 and 5 m
@@ -35,8 +35,9 @@ from typing import Any
 
 import numpy as np
 
+from evaluation import report
 from batch.executors import make_executor
-from measure.metrics import accuracy
+from measure import accuracy
 
 BANDS: dict[str, tuple[float, ...]] = {"2-5 m": (2.0, 3.5, 5.0), "6-7 m": (6.0, 7.0)}
 DISTANCES_M: tuple[float, ...] = tuple(d for ds in BANDS.values() for d in ds)
@@ -106,7 +107,7 @@ def board_distance(frame, truth, p1, p2) -> float:
     """Distance (m) between the rays of pixels ``p1``, ``p2`` met with the true board: inverse depth
     affine in (x, y) over the truth's pixels near the true segment within 5 % of its ends' depth (a
     plane), so a click off the board still lands on the board's plane."""
-    from measure.sampling import ray
+    from measure import ray
 
     a, b = np.array(truth.p1_px), np.array(truth.p2_px)
     z0 = 0.5 * (truth.p1_m[2] + truth.p2_m[2])
@@ -127,9 +128,7 @@ def _job(job: FramesJob) -> dict[str, Any]:
 
 
 def _measure_still(frames, job: FramesJob) -> list[dict[str, Any]]:
-    from measure import MeasureError, MeasureOptions
-    from measure.distance import robust_with_terms
-    from measure.sequence import measure_sequence
+    from measure import MeasureError, MeasureOptions, measure_sequence, robust_with_terms
     from sim.scenes import get_view
     from sim.truth import ClickModel
 
@@ -165,8 +164,7 @@ def _measure_still(frames, job: FramesJob) -> list[dict[str, Any]]:
 
 
 def _measure_moving(frames, clicks, truth, job: FramesJob) -> list[dict[str, Any]]:
-    from measure import MeasureError
-    from measure.sequence import measure_sequence
+    from measure import MeasureError, measure_sequence
 
     out = []
     for kind, (p1, p2) in clicks.items():
@@ -268,6 +266,45 @@ def _pct(rate: dict[str, Any]) -> str:
     return f"{100 * rate['rate']:.0f} % ({100 * lo:.0f}-{100 * hi:.0f})"
 
 
+def frames_markdown(summary: dict[str, Any], protocol: dict[str, Any]) -> str:
+    """report.md from the study's ``summary`` (:func:`summarize`) and ``protocol``; the tables between
+    snippet markers "coverage" and "terms"."""
+    cells = summary["cells"]
+    cover = ["| distances | contention | clicks | N | cases (scenes) | mean A | std A | 1σ coverage | 95 % coverage | mean σ (%) | frames used |",
+             "|---|---|---|---|---|---|---|---|---|---|---|"]
+    for band in tuple(BANDS) + tuple(f"{d:g} m" for d in DISTANCES_M):
+        for c in ("both",) + CONTENTION:
+            for k in CLICKS:
+                for n in COUNTS:
+                    s = cells[_key(band, c, k, n)]
+                    if s["n"]:
+                        cover.append(f"| {band} | {c} | {k} | {n} | {s['n']} ({s['scenes']}) | {s['mean_A']:.2f} | {s['std_A'] or 0:.2f} | "
+                                     f"{_pct(s['coverage1'])} | {_pct(s['coverage95'])} | {s['sigma_pct']:.2f} | {s['frames_used']:.1f} |")
+    terms = ["| distances | clicks | N | click error rms | click σ | within | sensor error rms | sensor σ | within |",
+             "|---|---|---|---|---|---|---|---|---|"]
+    for band in BANDS:
+        for k in CLICKS:
+            for n in COUNTS:
+                s = cells[_key(band, "both", k, n)]
+                if s["n"]:
+                    terms.append(f"| {band} | {k} | {n} | {s['click_err_pct']:.2f} | {s['click_sigma_pct']:.2f} | {_pct(s['click_within'])} | "
+                                 f"{s['sensor_err_pct']:.2f} | {s['sensor_sigma_pct']:.2f} | {_pct(s['sensor_within'])} |")
+    mv = summary["moving"]
+    lines = ["# Several frames of a still scene (simulated rig)", "", __doc__.split("\n\n", 1)[1].strip(), "",
+             f"Scenes: {protocol.get('trials')} per (6-7 m distance, contention), {protocol.get('near_trials')} per (2-5 m distance, "
+             f"contention), seed {protocol.get('seed', 0)}; human clicks measured with click_px = {protocol.get('click_px', math.nan):.2f}; "
+             f"wall time {protocol.get('wall_time_s', 0):.0f} s ({protocol.get('workers', 1)} workers). "
+             "Coverage in brackets: Wilson 95 % interval of the rate; cases of one scene (two targets) share its frames.", "",
+             "## Coverage and spread", "", report.section("coverage", "\n".join(cover)),
+             "", "## Terms against their truth (both contention kinds)", "",
+             "rms error and mean stated part (% of the length), and how often the error is within its part (nominal 68 %).", "",
+             report.section("terms", "\n".join(terms)),
+             "", "## Moving scenes", "", f"{mv['refused']} of {mv['n']} moving 10-frame cases ({mv['n'] // len(CLICKS)} sequences x "
+             f"{len(CLICKS)} click kinds) refused (answer from the newest frame alone, with a \"scene moved\" reason); "
+             f"frames pooled: {mv['pooled_frames']}.", ""]
+    return "\n".join(lines)
+
+
 def write_report(out: Path, records: list[dict[str, Any]], protocol: dict[str, Any]) -> dict[str, Path]:
     import matplotlib
 
@@ -277,39 +314,7 @@ def write_report(out: Path, records: list[dict[str, Any]], protocol: dict[str, A
     out.mkdir(parents=True, exist_ok=True)
     summary = summarize(records)
     cells = summary["cells"]
-    lines = ["# Several frames of a still scene (simulated rig)", "", __doc__.split("\n\n", 1)[1].strip(), "",
-             f"Scenes: {protocol.get('trials')} per (6-7 m distance, contention), {protocol.get('near_trials')} per (2-5 m distance, "
-             f"contention), seed {protocol.get('seed', 0)}; human clicks measured with click_px = {protocol.get('click_px', math.nan):.2f}; "
-             f"wall time {protocol.get('wall_time_s', 0):.0f} s ({protocol.get('workers', 1)} workers). "
-             "Coverage in brackets: Wilson 95 % interval of the rate; cases of one scene (two targets) share its frames.", "",
-             "## Coverage and spread", "",
-             "| distances | contention | clicks | N | cases (scenes) | mean A | std A | 1σ coverage | 95 % coverage | mean σ (%) | frames used |",
-             "|---|---|---|---|---|---|---|---|---|---|---|"]
-    for band in tuple(BANDS) + tuple(f"{d:g} m" for d in DISTANCES_M):
-        for c in ("both",) + CONTENTION:
-            for k in CLICKS:
-                for n in COUNTS:
-                    s = cells[_key(band, c, k, n)]
-                    if not s["n"]:
-                        continue
-                    lines.append(f"| {band} | {c} | {k} | {n} | {s['n']} ({s['scenes']}) | {s['mean_A']:.2f} | {s['std_A'] or 0:.2f} | "
-                                 f"{_pct(s['coverage1'])} | {_pct(s['coverage95'])} | {s['sigma_pct']:.2f} | {s['frames_used']:.1f} |")
-    lines += ["", "## Terms against their truth (both contention kinds)", "",
-              "rms error and mean stated part (% of the length), and how often the error is within its part (nominal 68 %).", "",
-              "| distances | clicks | N | click error rms | click σ | within | sensor error rms | sensor σ | within |",
-              "|---|---|---|---|---|---|---|---|---|"]
-    for band in BANDS:
-        for k in CLICKS:
-            for n in COUNTS:
-                s = cells[_key(band, "both", k, n)]
-                if s["n"]:
-                    lines.append(f"| {band} | {k} | {n} | {s['click_err_pct']:.2f} | {s['click_sigma_pct']:.2f} | {_pct(s['click_within'])} | "
-                                 f"{s['sensor_err_pct']:.2f} | {s['sensor_sigma_pct']:.2f} | {_pct(s['sensor_within'])} |")
-    mv = summary["moving"]
-    lines += ["", "## Moving scenes", "", f"{mv['refused']} of {mv['n']} moving 10-frame cases ({mv['n'] // len(CLICKS)} sequences x "
-              f"{len(CLICKS)} click kinds) refused (answer from the newest frame alone, with a \"scene moved\" reason); "
-              f"frames pooled: {mv['pooled_frames']}.", ""]
-    (out / "report.md").write_text("\n".join(lines))
+    (out / "report.md").write_text(frames_markdown(summary, protocol))
     (out / "results.json").write_text(json.dumps({"protocol": protocol, "summary": summary}, indent=1))
     fig, axes = plt.subplots(1, 2, figsize=(11, 4))
     for k, style in zip(CLICKS, ("-", "--")):
@@ -334,7 +339,5 @@ def write_report(out: Path, records: list[dict[str, Any]], protocol: dict[str, A
         ax.set_xticks(COUNTS)
         ax.grid(alpha=0.3)
         ax.legend(fontsize=6)
-    fig.tight_layout()
-    fig.savefig(out / "frames.png", dpi=110)
-    plt.close(fig)
+    report.save(fig, out / "frames.png", dpi=110)
     return {"report": out / "report.md", "plot": out / "frames.png", "results": out / "results.json"}

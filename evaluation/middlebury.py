@@ -26,7 +26,7 @@ from typing import Any
 import numpy as np
 
 from evaluation import report
-from measure.metrics import accuracy, signed_error_pct
+from measure import accuracy, signed_error_pct
 from evaluation.sim_study import MethodOutcome, measure_all, warm_up
 from evaluation.report import METHODS, EvalError
 
@@ -303,6 +303,12 @@ def summarize_middlebury(setup: dict[str, Any], results: Sequence[SegmentResult]
     return out
 
 
+def plot_names() -> dict[str, str]:
+    """The plots of a report, by the name report.md refers to them with."""
+    return {"segments": "segments.png", **{f"bars_{c}": f"accuracy_by_scene_{c}.png" for c in CONDITIONS},
+            **{f"hist_{c}": f"error_histogram_{c}.png" for c in CONDITIONS}}
+
+
 def write_middlebury_report(out_dir: Path, summary: dict[str, Any], results: Sequence[SegmentResult]) -> dict[str, Path]:
     out_dir.mkdir(parents=True, exist_ok=True)
     names = list(summary["setup"]["scenes"])
@@ -310,7 +316,7 @@ def write_middlebury_report(out_dir: Path, summary: dict[str, Any], results: Seq
     for cond in CONDITIONS:
         ms = summary["conditions"][cond]["methods"]
         paths[f"bars_{cond}"] = report.plot_grouped_bars(
-            out_dir / f"accuracy_by_scene_{cond}.png",
+            out_dir / plot_names()[f"bars_{cond}"],
             names + ["all"],
             {m: {**ms[m]["by_scene"], "all": ms[m]["overall"]} for m in METHODS},
             title=f"Middlebury, {CONDITION_LABELS[cond]}: median accuracy per scene",
@@ -321,11 +327,11 @@ def write_middlebury_report(out_dir: Path, summary: dict[str, Any], results: Seq
         rows = [r for r in results if r.condition == cond]
         truth = np.array([r.truth_m for r in rows])
         paths[f"hist_{cond}"] = report.plot_error_histograms(
-            out_dir / f"error_histogram_{cond}.png",
+            out_dir / plot_names()[f"hist_{cond}"],
             {m: signed_error_pct(truth, np.array([r.outcome(m).distance_m for r in rows])) for m in METHODS},
             title=f"Middlebury, {CONDITION_LABELS[cond]}: signed relative error",
         )
-    paths["segments"] = plot_segments(out_dir / "segments.png", Path(summary["setup"]["data"]), names, results)
+    paths["segments"] = plot_segments(out_dir / plot_names()["segments"], Path(summary["setup"]["data"]), names, results)
     report.write_json(out_dir / "results.json", {**summary, "segments": [_segment_json(r) for r in results]})
     (out_dir / "report.md").write_text(middlebury_markdown(summary, {k: p.name for k, p in paths.items()}))
     return paths
@@ -357,11 +363,7 @@ def plot_segments(path: Path, data_dir: Path, names: Sequence[str], results: Seq
         ax.set_title(name, fontsize=9)
     for ax in axes:
         ax.axis("off")
-    fig.suptitle("Middlebury segments (all click pairs); green: robust within 5 % on SGBM, red: not", fontsize=10)
-    fig.tight_layout()
-    fig.savefig(path)
-    plt.close(fig)
-    return path
+    return report.save(fig, path, "Middlebury segments (all click pairs); green: robust within 5 % on SGBM, red: not")
 
 
 def _segment_json(r: SegmentResult) -> dict[str, Any]:
@@ -452,7 +454,7 @@ def middlebury_markdown(summary: dict[str, Any], plots: dict[str, str]) -> str:
             "",
             f"{c['n_common']} of {c['n_measurements']} measurements answered by every method. Median accuracy (mean ± std):",
             "",
-            report.markdown_table(
+            report.section(cond, report.markdown_table(
                 ["method", "all", "within 5 %"] + names + ["failed", "gap flagged"],
                 [
                     [
@@ -464,7 +466,7 @@ def middlebury_markdown(summary: dict[str, Any], plots: dict[str, str]) -> str:
                     + [str(ms[m]["failed"]), str(ms[m]["gap_detected"])]
                     for m in METHODS
                 ],
-            ),
+            )),
             "",
             f"![median accuracy per scene]({plots[f'bars_{cond}']})",
             "",

@@ -88,6 +88,23 @@ def markdown_table(header: Sequence[str], rows: Sequence[Sequence[str]]) -> str:
     return "\n".join(lines)
 
 
+def save(fig: Any, path: Path, title: str | None = None, **savefig: Any) -> Path:
+    """Lay out, write and close a matplotlib figure: its title (10 pt) when given, a tight layout,
+    the PNG at ``path`` (``savefig`` keywords passed on, e.g. dpi)."""
+    if title:
+        fig.suptitle(title, fontsize=10)
+    fig.tight_layout()
+    fig.savefig(path, **savefig)
+    pyplot().close(fig)
+    return path
+
+
+def section(name: str, text: str) -> str:
+    """``text`` between snippet markers, so a page of the manual can include it by name
+    (``--8<-- "docs/eval/sim/report.md:summary"``, the pymdownx snippets extension)."""
+    return f"<!-- --8<-- [start:{name}] -->\n{text}\n<!-- --8<-- [end:{name}] -->"
+
+
 def pyplot():
     """matplotlib.pyplot on the Agg backend (no display), imported only when a plot is drawn."""
     import matplotlib
@@ -147,10 +164,7 @@ def plot_grouped_bars(
     ax.set_ylim(*ylim)
     ax.grid(axis="y", alpha=0.3)
     ax.legend(fontsize=8, loc="upper left", bbox_to_anchor=(1.01, 1.0))
-    fig.tight_layout()
-    fig.savefig(path)
-    plt.close(fig)
-    return path
+    return save(fig, path)
 
 
 def plot_lines(
@@ -180,10 +194,7 @@ def plot_lines(
     ax.set_title(title)
     ax.grid(alpha=0.3)
     ax.legend(fontsize=7, loc="upper left", bbox_to_anchor=(1.01, 1.0))
-    fig.tight_layout()
-    fig.savefig(path)
-    plt.close(fig)
-    return path
+    return save(fig, path)
 
 
 def plot_error_histograms(path: Path, errors_pct: Mapping[str, np.ndarray], *, title: str, limit: float | None = None) -> Path:
@@ -218,8 +229,4 @@ def plot_error_histograms(path: Path, errors_pct: Mapping[str, np.ndarray], *, t
         )
         ax.axvline(0.0, color="k", lw=0.6)
     axes[-1].set_xlabel("signed error 100 (m - g) / g (%)")
-    fig.suptitle(title, fontsize=10)
-    fig.tight_layout()
-    fig.savefig(path)
-    plt.close(fig)
-    return path
+    return save(fig, path, title)

@@ -1,4 +1,4 @@
-"""Stress figures shared by the Middlebury and simulated stress protocols (issue #12).
+"""Stress figures shared by the Middlebury and simulated stress protocols: clicks as people make them.
 
 Each case is one click pair with a true length; it is measured by ``robust`` (the default, with its
 uncertainty, 95 % interval and verdict) and ``basic``. Per condition the summary gives: share
@@ -19,7 +19,7 @@ from typing import Any
 import numpy as np
 
 from evaluation import report
-from measure.metrics import accuracy
+from measure import accuracy
 
 
 @dataclass(frozen=True)
@@ -139,7 +139,7 @@ COLUMNS: tuple[tuple[str, str], ...] = (
     ("cov_2sigma", "2σ cov"),
     ("good", "good"),
     ("good_and_A_below_90", "good & A<90"),
-    ("cov_2sigma_among_good", "2σ cov | good"),
+    ("cov_2sigma_among_good", "2σ cov among good"),
     ("gap_rate_no_gap", "gap FP"),
     ("gap_rate_gap", "gap found"),
     ("robust_much_worse_than_basic", "robust≪basic"),
@@ -179,10 +179,7 @@ def plot_figures(path: Path, figs: dict[str, dict[str, Any]], title: str) -> Pat
     ax.set_ylim(0, 100)
     ax.set_title(title, fontsize=9)
     ax.legend(fontsize=7, ncol=4, loc="upper center")
-    fig.tight_layout()
-    fig.savefig(path)
-    plt.close(fig)
-    return path
+    return report.save(fig, path)
 
 
 def record_json(r: StressRecord) -> dict[str, Any]:
@@ -200,15 +197,23 @@ def write_stress_report(out_dir: Path, title: str, setup: dict[str, Any], splits
     """report.md (a table per split, e.g. dev / held-out), one PNG per split, results.json."""
     out_dir.mkdir(parents=True, exist_ok=True)
     paths: dict[str, Path] = {}
-    lines = [f"# {title}", "", *notes, ""]
     data: dict[str, Any] = {"setup": setup, "splits": {}}
     for split, recs in splits.items():
         recs = list(recs)
         figs = by_condition(recs)
         paths[split] = plot_figures(out_dir / f"stress_{split}.png", figs, f"{title}: {split}")
-        lines += [f"## {split} ({len(recs)} cases)", "", table(figs), "", f"![{split}]({paths[split].name})", ""]
         data["splits"][split] = {"figures": figs, "records": [record_json(r) for r in recs]}
     report.write_json(out_dir / "results.json", data)
-    (out_dir / "report.md").write_text("\n".join(lines))
+    (out_dir / "report.md").write_text(stress_markdown(title, notes, data))
     paths["report"] = out_dir / "report.md"
     return paths
+
+
+def stress_markdown(title: str, notes: Sequence[str], data: dict[str, Any]) -> str:
+    """report.md of a stress study from its results.json ``data``: the notes, then per split its
+    table (between snippet markers named after the split) and its plot."""
+    lines = [f"# {title}", "", *notes, ""]
+    for split, d in data["splits"].items():
+        lines += [f"## {split} ({len(d['records'])} cases)", "", report.section(split, table(d["figures"])), "",
+                  f"![{split}](stress_{split}.png)", ""]
+    return "\n".join(lines)

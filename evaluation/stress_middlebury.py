@@ -195,16 +195,23 @@ def run_stress_middlebury(
     return records
 
 
+TITLE = "Middlebury stress protocol"
+
+
 def write_stress_middlebury(out_dir: Path, records: Sequence[StressRecord], setup: dict[str, Any]) -> dict[str, Path]:
     from evaluation.stress import write_stress_report
 
-    names = sorted({r.case.group for r in records})
     splits = {
         "dev": [r for r in records if r.case.group in DEV_SCENES],
         "held-out": [r for r in records if r.case.group not in DEV_SCENES],
     }
-    notes = [
-        "Clicks as people make them on real stereo (evaluation/stress_middlebury.py, issue #12). "
+    return write_stress_report(out_dir, TITLE, setup, splits, notes(sorted({r.case.group for r in records})))
+
+
+def notes(names: Sequence[str]) -> list[str]:
+    """The report's opening paragraphs for the scenes ``names``."""
+    return [
+        "Clicks as people make them on real stereo (evaluation/stress_middlebury.py). "
         f"Scenes: {', '.join(names)}; dev = {', '.join(DEV_SCENES)} (the uncertainty scale and the "
         "verdict thresholds of measure/verdict.py were set on these), held-out = the rest.",
         "",
@@ -215,4 +222,11 @@ def write_stress_middlebury(out_dir: Path, records: Sequence[StressRecord], setu
         "(default) answer; coverage = share of answered cases whose error is within 1σ / 2σ; good & A<90 "
         "and good are shares of all cases; robust≪basic = robust A < 90 while basic A >= 90.",
     ]
-    return write_stress_report(out_dir, "Middlebury stress protocol", setup, splits, notes)
+
+
+def stress_middlebury_markdown(data: dict[str, Any]) -> str:
+    """report.md from its results.json ``data``."""
+    from evaluation.stress import stress_markdown
+
+    names = sorted({r["group"] for d in data["splits"].values() for r in d["records"]})
+    return stress_markdown(TITLE, notes(names), data)

@@ -1,4 +1,4 @@
-"""Simulated stress study (issue #12): segments across several surfaces, person height, posters, doorways.
+"""Simulated stress study: segments across several surfaces, person height, posters, doorways.
 
 Per (distance, seed) of the plan, on the simulated rig (``sim.scenario``, poster on its stand):
 
@@ -95,13 +95,23 @@ def run_stress_sim(seeds: Sequence[int], distances: Sequence[float] = DISTANCES_
     return [measure_case(f, c, "sim") for f, cases in stress_sim_cases(seeds, distances) for c in cases]
 
 
+TITLE = "Simulated stress study"
+NOTES = [
+    "Simulated stress study (evaluation/stress_sim.py): room segments across wall, board "
+    "and floor (clicks inside surfaces, truth from the true depth at the clicked pixels), person "
+    f"height, posters, doorways (gaps); distances {', '.join(f'{d:g}' for d in DISTANCES_M)} m. "
+    f"Dev seeds {list(DEV_SEEDS)}, held-out seeds {list(HELD_OUT_SEEDS)}.",
+]
+
+
 def write_stress_sim(out_dir: Path, dev: Sequence[StressRecord], held_out: Sequence[StressRecord], setup: dict[str, Any]) -> dict[str, Path]:
     from evaluation.stress import write_stress_report
 
-    notes = [
-        "Simulated stress study (evaluation/stress_sim.py, issue #12): room segments across wall, board "
-        "and floor (clicks inside surfaces, truth from the true depth at the clicked pixels), person "
-        f"height, posters, doorways (gaps); distances {', '.join(f'{d:g}' for d in DISTANCES_M)} m. "
-        f"Dev seeds {list(DEV_SEEDS)}, held-out seeds {list(HELD_OUT_SEEDS)}.",
-    ]
-    return write_stress_report(out_dir, "Simulated stress study", setup, {"dev": dev, "held-out": held_out}, notes)
+    return write_stress_report(out_dir, TITLE, setup, {"dev": dev, "held-out": held_out}, NOTES)
+
+
+def stress_sim_markdown(data: dict[str, Any]) -> str:
+    """report.md from its results.json ``data``."""
+    from evaluation.stress import stress_markdown
+
+    return stress_markdown(TITLE, NOTES, data)

@@ -1,4 +1,9 @@
-"""The paper's "Basic" baseline: window-median disparity at each end point, Eq. 2, |P1 - P2|."""
+"""The paper's "Basic" baseline (``method="basic"``): window-median disparity at each click, Eq. 2, |P1 - P2|.
+
+``basic_ends`` gives the click windows' end points (m) that every method reads (the basic answer,
+the paper's end point input, the robust method's fallback and checks); ``measure_basic`` is the
+method: both windows need depth, the answer is their distance (docs/method.md "Problem").
+"""
 
 from __future__ import annotations
 
@@ -7,9 +12,12 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from measure.answer import window_measurement
+from measure.edges import on_edge
+from measure.request import NO_DEPTH, Request, require_resolved_windows
 from measure.robust_range import median
 from measure.sampling import backproject, window_disparities
-from measure.types import Frame
+from measure.types import Frame, MeasureError, Measurement
 from measure.uncertainty import disparity_quantum, endpoint_depth_sigma, window_disparity_se, window_depth_sigma
 
 
@@ -52,3 +60,14 @@ def basic_ends(frame: Frame, xy1: tuple[float, float], xy2: tuple[float, float],
         sigma = math.nan
     se = (window_disparity_se(w1, q), window_disparity_se(w2, q))
     return BasicEnds(pts[0], pts[1], dist, sigma, (s1, s2), xy1, xy2, (float(d[0]), float(d[1])), se)
+
+
+def measure_basic(request: Request) -> Measurement:
+    """The basic answer: the distance (m) between the click windows' end points; MeasureError when a
+    window has no depth or its depth is unbounded within its error."""
+    require_resolved_windows(request)
+    basic, frame, xy1, xy2 = request.basic, request.frame, request.xy1, request.xy2
+    if not basic.ok:
+        raise MeasureError(f"{NO_DEPTH}: the basic method needs depth at both clicks; click on a surface with depth or use method='robust'")
+    edge = any(on_edge(frame, a, b, d) for a, b, d in ((xy1, xy2, basic.disparity[0]), (xy2, xy1, basic.disparity[1])))
+    return window_measurement(basic, "basic", request.t0, reasons=["end point on a depth edge"] if edge else [])

@@ -1,58 +1,25 @@
 """The disparity line on few quantized levels: interval-censored (ordered-probit) regression.
 
-Why: a sensor that rounds disparity to a quantum q reports level k for any value in [k - q/2, k + q/2).
-Along a segment whose disparity changes by less than a level or two, the samples take two or three
-levels with a transition or a few flickers between them (a staircase: 8 8 8 8 9 8 9 9 9). Least
-squares (and the bisquare IRLS of ``measure.dline``, whose scale floor q/sqrt(12) takes every such
-sample in) fits the staircase's step, not the line under it: for one clean step half-way along, its
-slope is 1.5 q over the segment whatever the true slope in (0, 2 q) is. Extrapolated to the clicks
-that puts the ends up to a level apart: at 7 m with fB = 60 px m, 0.6 m in depth.
+Model: a sensor rounds disparity to a quantum q, so sample i reports level d_i when
+alpha + beta t_i + e_i lies in [d_i - q/2, d_i + q/2), e_i normal with sd s (the noise before
+rounding). Its likelihood is Phi(a_i) - Phi(b_i), with a_i, b_i the interval's ends minus the line,
+over s. With two levels the data identify only beta / s and the crossing position, so s is a
+nuisance, marginalised. Steps:
 
-Model: sample i reports level d_i when alpha + beta t_i + e_i lies in [d_i - q/2, d_i + q/2), e_i
-normal with sd s (the sensor's noise before rounding). Its likelihood is Phi(a_i) - Phi(b_i) with
-a_i, b_i the interval's ends minus the line, over s. With two levels the data identify only beta / s
-and the crossing position (the flicker zone is wider the flatter the line is against the noise);
-s itself is bounded only by the absence of the levels beyond (a steep line with large noise would
-show them). So s is a nuisance, marginalised: for each s on a grid over (0, q] the maximum-likelihood
-line (Newton, log-concave), the Laplace approximation of the likelihood's integral over (alpha,
-beta) with flat priors, a flat prior on s; the answer is the posterior mean line and the mixture's
-covariance (each s's inverse information plus the spread of the lines between s values). The
-likelihood is tempered by the squared correlation inflation (``measure.uncertainty``): neighbouring
-stereo samples share their noise, so n samples count as n / inflation². A clean step (no flicker)
-bounds the slope to (0, 2 q / span) and the posterior puts the line in that range's upper part,
-near least squares; flicker over a wide zone with no third level brings it down to the slope
-the zone implies.
+1. For each s on a grid over (0, q]: the maximum-likelihood line (Newton, log-concave), tempered by
+   the squared correlation inflation (``measure.uncertainty``: n neighbouring stereo samples count as
+   n / inflation²).
+2. The Laplace approximation of the likelihood's integral over (alpha, beta) with flat priors, a
+   flat prior on s.
+3. The answer: the posterior mean line and the mixture's covariance (each s's inverse information
+   plus the spread of the lines between s values).
 
 Used on the robust line's support when its samples lie on 2 to ``MAX_LEVELS`` neighbouring levels
-(levels further apart are wrong matches or two surfaces, not one line's rounding): with more,
-the line crosses several half-levels, whose positions pin its slope, and least squares is within a
-fraction 1 / (levels - 1) of a step of it (and this model's cost grows with nothing in return).
-``measure.distance`` takes this line only where it is flatter than the least-squares one: the bias
-it corrects, the step's, only steepens. Where it comes out steeper, it is following a minority level
-at an end (one wrong match, or a click that slipped onto the next surface, is a hard half-level
-crossing to this likelihood and one residual to least squares): the least-squares line stays, with
-its mean squared error under this posterior (the covariance plus the squared offset between the
-two lines) as its covariance, so its sigma says what the levels leave open.
-
-Measured (eval sim, paper profile, seeds 0 / 1 / 2; robust mean A): 95.76 / 95.88 / 95.88 -> 96.55 /
-96.56 / 96.73, at 7 m 91.30 / 91.72 / 91.81 -> 93.71 / 93.86 / 94.38, robust - paper -0.06 / -0.08 /
--0.07 -> +0.73 / +0.61 / +0.78 (7 m -0.59 / -0.61 / -0.27 -> +1.82 / +1.53 / +2.30), std 6.73 / 6.55 /
-6.38 -> 4.10 / 4.23 / 3.68; 522 of 1800 answers change per seed, 30-39 lose over 2 points. Taking
-the censored line always: 96.49 / 96.55 / 96.64 (7 m 93.90 / 94.05 / 94.36) but 1491 changed
-answers, 109 losing over 2 points on seed 0 (poster lengths at 2-6 m -0.1 to -0.3, a single
-far level at a click tilting a flat line: 0.834 -> 0.939 m). A contaminated likelihood (5 % wrong
-matches) instead explained the informative flicker away as wrong matches: three 7-m yawed poster
-widths (truth 0.83 m; least squares 1.36 / 1.29 / 1.36) came out 1.18 / 1.09 / 1.26 m, against
-1.05 / 1.06 / 1.16 without it. Stress profile (1/4 px)
-unchanged, 97.55 ± 5.28; Middlebury SGBM unchanged (segments span many levels); ground truth rounded to
-integers + 50 % outliers: edge protocol mean 97.75 -> 97.81 (median 98.82), stress protocol
-unchanged but StereoBM dev no-gap 2σ coverage 73.9 -> 78.3 %; stress-sim within 0.02 points.
-The uncertainty stays honest (paper profile seed 0, the answers re-measured with and without this
-line): 6-7 m (896 answers) 1σ / 2σ coverage of the truth 63.6 / 86.4 -> 80.5 / 96.2 %, "good" 54.5
--> 48.9 % with 2σ among good 79.3 -> 93.6 %; posters at 2-4 m (775) 62.2 / 89.7 -> 72.9 / 96.0 %.
-Cost: 0.7 ms CPU per call where it runs (12 noise values x the support, vectorised; 111 samples, 5
-Newton steps), a level count elsewhere (the bench diagonal spans dozens of levels: unchanged).
-Units: t in px along the segment, d and q in px of disparity.
+(``few_levels``); ``measure.robust`` takes this line only where it is flatter than the least-squares
+one, else keeps least squares with this posterior's mean squared error as its covariance.
+Why: least squares fits a two-level staircase's step, not the line under it
+(docs/decisions/censored-line.md has the measurement). Units: t in px along the segment, d and q in
+px of disparity.
 """
 
 from __future__ import annotations
@@ -113,7 +80,7 @@ def censored_line(t: np.ndarray, d: np.ndarray, quantum: float, inflation: float
         inflation (px², px²/px, px²/px²), or None when the samples span fewer than two levels or more
         than ``MAX_LEVELS``, or the fit fails (no noise value's Newton run settles).
 
-    Example:
+    Examples:
         >>> import numpy as np
         >>> t = np.arange(100.0)  # true line 8.3 + 0.004 t: 0.40 px over the span, levels 8 and 9
         >>> d = np.round(8.3 + 0.004 * t + 0.15 * np.random.default_rng(0).standard_normal(100))
@@ -177,7 +144,7 @@ def censored_line(t: np.ndarray, d: np.ndarray, quantum: float, inflation: float
     inv = np.stack([np.stack([info11, -info01], 1), np.stack([-info01, info00], 1)], 1) / np.where(good, det, 1.0)[:, None, None]
     inv = np.where(good[:, None, None], inv, 0.0)
     dev = theta - mean
-    # Mixture covariance, without the tempering: measure.distance inflates the line's errors itself.
+    # Mixture covariance, without the tempering: measure.robust inflates the line's errors itself.
     cov_u = (w[:, None, None] * (inv / k + dev[:, :, None] * dev[:, None, :] / k)).sum(0)
     # Back to alpha + beta t: alpha = a_u - b_u t0 / half, beta = b_u / half.
     jac = np.array([[1.0, -t0 / half], [0.0, 1.0 / half]])

@@ -1,43 +1,24 @@
-"""The robust method's model: disparity as a robust straight line along the segment.
+"""The robust method's model: disparity as a robust straight line along the segment, d(t) = alpha + beta t.
 
-Why: along one image line the points of a straight 3D segment have inverse depth, i.e.
-disparity, exactly affine in the pixel position t (the 3D line lies in the plane of the
-viewing rays: a X + c Z = e with X = x Z gives 1/Z = (a x + c) / e). So "the robust 3D line
-met by the clicked pixels' viewing rays" is d(t) = alpha + beta t evaluated at the clicks,
-then Eq. 2 on the clicked pixels. Fitting it in (t, d) puts the error where it is: t is an
-exact pixel position, d carries the noise, quantization and outliers, with the same
-variance at every depth. The paper's total-least-squares line in 3D assumes isotropic
-noise although the noise runs along the viewing rays and grows as Z²; that tilts the line
-(too steep, measured on the synthetic posters) whenever the surface is not fronto-parallel.
+Along one image line the points of a straight 3D segment have disparity exactly affine in the pixel
+position t, so the robust 3D line met by the clicked pixels' viewing rays is d(t) at the clicks; t is
+exact, d carries the noise (docs/decisions/viewing-ray-ends.md).
 
-Estimator: FAST-MCD (p = 2) on (t, d) gives a robust start (an exact fit, e.g. half the
-samples on one quantized level, is only a start here); then Tukey-bisquare IRLS regression
-of d on t with the scale fixed at max(1.4826 MAD of the start's support residuals, q/sqrt(12))
-(q the disparity quantum): the floor keeps quantized data from collapsing onto one level.
+Steps (``fit_disparity_line``):
 
-Because FAST-MCD only supplies the start, it runs lighter than R&VD's defaults (which the
-paper's method keeps): ``starts_for(2, failure=1e-6)`` = 104 random 3-point starts instead of
-500 (at 50 % contamination a start is outlier-free with probability 1/8, so all 104 miss with
-probability (7/8)^104 < 1e-6; at 40 % below 1e-11), the 5 best per subsample go on instead of
-10, and the full data take two C-steps instead of iterating to convergence; the IRLS on all
-samples finishes the job. On 160 synthetic posters, 20 bench diagonals with 30-49 % outliers
-and the 49 Middlebury segments every distance agrees with the converged R&VD run to within
-0.16 accuracy points (mean accuracy unchanged to 0.001), at 0.7x the time
-(bench/RESULTS.md, "Measurement core").
+1. FAST-MCD (p = 2) on (t, d) with ``starts_for(2, failure=1e-6)`` random starts, the 5 best per
+   subsample and two C-steps on the full data: a robust start (an exact fit is only a start here).
+2. Tukey-bisquare IRLS regression of d on t with the scale fixed at max(1.4826 MAD of the start's
+   support residuals, q/sqrt(12)) (q the disparity quantum: quantized data do not collapse onto one
+   level).
+3. ``alt_start`` (the robust method passes the line through its click windows' medians): unless it
+   lies within the first line's tight band at both ends, the IRLS from it runs too, at the scale of
+   its own better half, then at the tighter of the two scales; that line wins when both its least
+   trimmed squares (h = support_fraction n) are smaller and it supports more samples within the tight
+   band.
 
-Second start (``alt_start``, the robust method passes the line through its click windows' medians):
-with half or more wrong matches on a segment FAST-MCD's half-sample holds some of them and its
-line is tilted; the IRLS from the second start runs too, at the scale of its own better half, then again at the
-tighter of the two scales (a wide scale takes wrong matches into the fit), and that line wins when
-both its least trimmed squares (h = support_fraction n smallest squared residuals) are smaller and
-it supports more samples within the tight band. Dev stress, ground truth with 50 % uniform
-outliers: robust much worse than basic 1.7 -> 0.3 %, A < 90 6.9 -> 5.6 % (held-out 2.4 -> 2.0 %,
-7.8 -> 7.3 %); SGBM and StereoBM within 0.05 points; eval sim unchanged (97.63; with the LTS test
-alone 69 answers, mostly posters at 6-7 m whose windows lie on the wall, lost over a point: 97.36 ± 4.91).
-A start that lies within the tight band of the first line at both ends would converge to it and
-is skipped (the common case: the bench diagonal's windows agree with its line; CPU median within
-the bench's run-to-run spread of the single start on a shared host).
-Units: t and d in pixels.
+The estimator's settings and the second start were measured against converged R&VD FAST-MCD:
+docs/decisions/line-estimator.md. Units: t and d in pixels.
 """
 
 from __future__ import annotations
@@ -73,7 +54,7 @@ class DisparityLine:
     Returns:
         A frozen line; :meth:`at` evaluates it, :meth:`cov_at` gives the covariance of two of its values.
 
-    Example:
+    Examples:
         >>> from measure.dline import DisparityLine
         >>> line = DisparityLine(10.0, 0.5, 0.1, np.eye(2) * 0.01, np.ones(4, bool), False)
         >>> print(line.at(4.0), line.cov_at(0.0, 1.0).round(3).tolist())
@@ -175,7 +156,7 @@ def fit_disparity_line(t: np.ndarray, d: np.ndarray, support_fraction: float, se
     Returns:
         The :class:`DisparityLine`, its ``support`` of shape (n,).
 
-    Example:
+    Examples:
         >>> import numpy as np
         >>> from measure.dline import fit_disparity_line
         >>> t = np.arange(40.0)

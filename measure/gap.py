@@ -1,43 +1,19 @@
 """Gap detection (docs/method.md step 6): is the segment behind both of its end points?
 
-The range of each 25-pixel extension beyond an end point (away from the other) is the
-Tukey bisquare M-estimate of the depths of its valid pixels. The paper declares a gap when
-both extensions are in front of the refined end points, ``Z_ext1 < Z1'`` and ``Z_ext2 < Z2'``.
-On a flat target (a poster on a wall) the extensions lie at the same depth as the end points
-and that bare comparison is a coin toss per side (``is_gap``, the paper's and the z-only ablation's
-rule; on a gap they fall back to the basic answer).
+- The paper's rule (``is_gap``, used by the paper method and the z-only ablation): the range of each
+  extension beyond an end point (away from the other) is the Tukey bisquare M-estimate of its valid
+  pixels' depths (``extension_depth``); a gap when both are in front of the refined end points,
+  ``Z_ext1 < Z1'`` and ``Z_ext2 < Z2'``.
+- The robust method's rule (``is_clear_gap``), in disparity: each end's surface (``end_surface``) is
+  its extension's valid pixels together with the segment's samples next to the click that lie in
+  front of the segment's robust line and are not supported by it (``leading_run``). It needs
+  ``MIN_EXTENSION_SAMPLES`` samples, and its Tukey location must exceed the segment's line at the end
+  by ``GAP_STEP_REL`` and by ``GAP_SIGMAS`` standard errors of the difference, each inflated for the
+  lag-one correlation of its residuals. On a gap the answer is measured between the clicks' rays at
+  the two end surfaces' depths.
 
-The robust method's rule (``is_clear_gap``, issue #12) asks for evidence at each end, in disparity
-(where stereo noise lives): the end's surface is its extension's valid pixels together with the
-segment's samples next to the click that lie in front of the segment's robust line and are not
-supported by it (``leading_run``; the surface the click is on, which also keeps an extension that
-leaves the image after a few pixels from deciding alone). It needs ``MIN_EXTENSION_SAMPLES`` = 10
-samples, and its Tukey location must exceed the segment's line at the end by ``GAP_STEP_REL`` = 15 %
-(a depth step; SGBM and StereoBM bias the last pixels before an edge of one surface by 4-8 %) and by
-``GAP_SIGMAS`` = 2 standard errors of the difference, each inflated for the lag-one correlation of
-its residuals (smooth SGBM noise makes per-pixel standard errors too small). On a gap the answer is
-measured between the clicks' rays at the two end surfaces' depths.
-
-Figures (stress protocol, dev / held-out Middlebury scenes; eval sim's 180 gap measurements):
-the first pass's rule (a fixed 20 % depth step, three depth sigmas) found 57.2 % of the sim gaps
-(doorways 76.7 %, boxes 37.8 %); this rule finds 71.1 % (78.9 / 63.3 %) with no false gap on the
-1800 posters and people. On the stress ``nogap`` segments (a nearer surface or nothing beyond one
-end) it fires on SGBM 0 / 0 %, GT + 50 % outliers 0 / 5.1 %, StereoBM 0 / 0 %. A 10 % step fires on
-2-14 % of those for 1.7 points more detection; without the segment's leading samples detection
-falls to 63 %. The ``recess`` segments (a nearer surface over both extensions in the ground truth,
-truth the recessed surface: the geometry of a gap) are answered as a gap in 15 / 22 % (SGBM),
-35 / 22 % (GT + outliers), 10 / 11 % (StereoBM); no rule on depths tells the two apart, so a gap
-answer carries the distance to the no-gap answer as model-choice error and is never "good". The
-remaining sim misses are mostly boxes whose background meets one box (one end's surface not in
-front; a one-sided rule fired on posters and people, see below) and doorways at 6-7 m whose steps
-lie within two standard errors.
-
-Tried and rejected (first pass, three-sigma margins; eval sim, 1800 + 180 gap measurements): a one-sided rule (one extension in
-front by its margin, the other not behind by more than its margin) catches gaps whose background
-meets one object, e.g. boxes before a slanted wall: detection 80.6 -> 95.6 %, but false gaps on
-posters and people at 6-7 m rise 0.1 -> 1.6 % and the non-gap mean accuracy falls 97.54 -> 96.62
-(std 2.5 -> 10.6); in-front/margin ratios of the false and the new true gaps overlap (1.0-4.9 and
-1.0-2.6), so no threshold separates them.
+Why evidence at both ends: on a poster on a wall the bare comparison is a coin toss per side, and
+smooth SGBM noise makes per-pixel standard errors too small (docs/decisions/gap-evidence.md).
 """
 
 from __future__ import annotations

@@ -1,6 +1,6 @@
 """An end's surface from the image around its click: a robust plane of disparity over a half-window.
 
-Used by the robust method (``measure.distance``) for an end whose samples along the segment form a
+Used by the robust method (``measure.robust``) for an end whose samples along the segment form a
 piece that disagrees with the global line (``measure.surfaces``: at least ``MIN_PIECE_PX`` px, offset
 beyond 10 %) but too few, too rough or too contended for a line of their own: one image column or row
 through a contended band can hold a handful of scattered values while the columns beside it show the

@@ -4,73 +4,28 @@ Inputs: ``frames`` in time order (the last is the newest, the one the clicks wer
 from one camera (same size, intrinsics in px, baseline in m); clicked pixels (x, y). Output: one
 :class:`Measurement` (metres) with ``frames_used`` and ``single_frame_uncertainty_m``.
 
-1. **Per frame**: the robust answer of every frame (``distance.robust_with_terms``).
+1. **Per frame**: the robust answer of every frame (``robust.robust_with_terms``).
 2. **Motion check** (``still_frames``): an older frame joins only if, against the newest, (a) the
    image around each click and around the segment's middle has not shifted (a Lucas-Kanade step on
    blurred ``PATCH_PX`` grey patches: shift at most ``MOTION_PX`` or within four standard errors),
    and (b) the disparity in a band around each half of the segment has not changed by more than
    ``MOTION_DEPTH_REL`` of itself or four standard errors. Only the unbroken run of still frames
-   ending at the newest is pooled, and only when the move before it was a step (the first moved
-   frame differs from its newer neighbour by most of the move, and the run's frames are quiet
-   against it); a gradual move (every frame a little) pools nothing. Either way the reasons say
-   "scene moved (...): k of N frames pooled"; with k = 1 the answer is the newest frame's alone. A
-   moving scene is never averaged.
+   ending at the newest is pooled, and only when the move before it was a step; a gradual move pools
+   nothing. Either way the reasons say "scene moved (...): k of N frames pooled".
 3. **Pooling** (``pool``): "samples" puts the segment samples of all still frames into one robust
-   fit (docs/method.md steps 1-6 on the pooled samples; the end windows, edges and gap extensions of the
-   newest frame); "fits" combines the per-frame end depths on the clicks' rays by Tukey's bisquare
-   (``robust_range.tukey_location``). Chosen by measurement: "samples" (figures below). A pooled fit
-   whose model (line, surfaces, gap) most frames do not choose falls back to "fits", with a warning: a
-   repeated error counts N times in the pooled samples (at 2 m a static wrong-match pattern at the
-   board's edge made the pooled fit see a surface of its own, 956 mm against 838 true; every frame
-   alone, and their combination, said 837-839 mm).
-4. **Uncertainty** (``pooled_sigma``): the single-frame model's terms (``measure.uncertainty``) of
-   the newest frame and of the fit on the pooled samples, each pooled as what it is:
+   fit (the end windows, edges and gap extensions of the newest frame); "fits" combines the
+   per-frame end depths on the clicks' rays by Tukey's bisquare (``robust_range.tukey_location``). A
+   pooled fit whose model (line, surfaces, gap) most frames do not choose falls back to "fits".
+4. **Uncertainty** (``pooled_sigma``): the single-frame model's terms (``measure.uncertainty``) of the
+   newest frame and of the pooled fit, each pooled as what it is: the click term whole (``click_px``:
+   None = ``options.click_px`` calibrated with the rest; a number is the caller's knowledge and enters
+   the 95 % interval as a normal error, ``Z95`` sigmas); quantization and model choice never averaged;
+   the fit term times the design effect sqrt(1 + (N - 1) rho), rho the static share of the scatter
+   (``static_share``); the structure term's bias b² = (N s_N² - mean s_i²) / (N - 1), at least rho
+   mean s_i². The newest frame's sigma and interval cap the pooled ones; "fits" floors sigma at the
+   per-frame distances' spread over sqrt(N).
 
-   - click: the same clicks in every frame, never averaged: the newest frame's term, whole.
-     ``click_px`` states the clicks' one-sigma error along the segment (None: ``options.click_px``,
-     calibrated together with the rest, as one frame does; a number replaces ``options.click_px``; 0:
-     clicks known exact). A stated click part is the caller's knowledge: it skips the sensor calibration (``SIGMA_SCALE``,
-     ``INTERVAL_SCALE``, set on real stereo's heavy tail) and enters the 95 % interval as a normal
-     error, ``Z95`` sigmas;
-   - quantization and model choice: shared rounding levels and the same choice, never averaged;
-   - fit: the pooled fit counts every sample as independent; the share rho of the per-pixel scatter
-     that repeats in every frame (``static_share``: one minus the mean within-pixel variance over the
-     frames over the variance about the line, pixels valid in every frame, wrong matches left out)
-     does not average: the pooled term times the design effect sqrt(1 + (N - 1) rho);
-   - structure (the median residual next to each end, a possible bias of the line there): per frame
-     E s_i² = b² + v, pooled E s_N² = b² + v / N, so b² = (N s_N² - mean s_i²) / (N - 1), and at least
-     rho mean s_i². The noise part v is in the fit term already.
-
-   On the simulator, where each error is known (evaluation/frames_study.py, "terms against their
-   truth"), this found what was wrong before: the click term assumed 1.5 px where the simulated taps
-   err by 3.15 px rms (under-wide with human clicks once pooling had shrunk the rest), a click term
-   was charged to exact clicks (over-wide), and the structure term, mostly noise, was charged as a
-   bias that does not average. The newest frame's sigma and interval cap the pooled ones; "fits"
-   floors sigma at the per-frame distances' spread over sqrt(N).
-
-Figures (``depthruler eval frames``, docs/eval/frames/report.md, 2026-12-01: the poster's width and
-length in 340 still 10-frame scenes at 6-7 m and 120 at 2-5 m, half with a repeating contention
-pattern; human clicks stated as ``click_px`` = 3.15, their rms; Wilson 95 % intervals in brackets).
-At 6-7 m, N = 1 -> 10, 680 cases per click kind:
-
-- clicks on the true end pixels (``click_px=0``): std of A 0.68 -> 0.07, mean A 99.53 -> 99.92;
-  one-sigma coverage 98 (97-99) -> 94 (92-95) %, 95 % interval 100 -> 100 %;
-- simulated human clicks: std of A 2.09 -> 1.88, mean A 97.29 -> 97.48; one-sigma coverage
-  70 (66-73) -> 66 (63-70) %, 95 % interval 98 (97-99) -> 95 (93-96) %.
-
-At 2-5 m (240 cases): exact 98 -> 92 % / 100 -> 100 %, human 64 -> 65 % / 95 -> 93 %. The sensor part
-is over-wide by the same factor with one frame and with ten (its error over it: 68 % quantile 0.38-0.40
-at N = 1, 0.41-0.44 at N = 10): pooling is modelled as it happens, and what remains is the
-single-frame model's calibration on real stereo (Middlebury, ``measure.uncertainty``), which the
-simulator's lighter errors do not need. Pool "samples" vs "fits" at N = 10 (exact clicks, 8 scenes per
-cell, the study before this one): std of A 0.08 / 0.12 vs 0.15 / 0.13 (fresh / static contention).
-
-Moving scenes (camera turning 1 px a frame, walking 3 cm a frame, board turning 1 degree a frame):
-12 of 12 sequences (24 of 24 with both click kinds) answered from the newest frame alone; of the
-1360 still 10-frame cases at 6-7 m, 1359 pooled every frame (one saw its depth move 1.1 %: newest
-frame alone), at 2-5 m all 480. Phase correlation for the image test locked onto sensor noise
-on patches of little texture (4-12 px between still frames at 2 m): replaced by the Lucas-Kanade
-step with its standard error.
+Why these choices, with their measurement on the simulator: docs/decisions/several-frames.md.
 """
 
 from __future__ import annotations
@@ -81,7 +36,7 @@ from dataclasses import replace
 
 import numpy as np
 
-from measure.distance import robust_with_terms
+from measure.robust import robust_with_terms
 from measure.robust_range import median, tukey_location
 from measure.sampling import SegmentSamples, ray, sample_segment, segment_pixels
 from measure.types import Frame, MeasureError, MeasureOptions, Measurement
@@ -136,8 +91,7 @@ def image_shift(a: Frame, b: Frame, points: Sequence[tuple[float, float]]) -> fl
     """Largest significant image shift (px) between frames ``a`` and ``b`` over grey patches centred
     on ``points``: one Lucas-Kanade step on patches blurred by ``BLUR_PX`` (a first-order fit of
     b - a to a's gradient), counted only where it exceeds ``MOTION_SIGMAS`` of its own standard error
-    (a patch without texture says nothing). Phase correlation was tried first: on patches of little
-    texture it locked onto the sensor noise and reported 4-12 px shifts between still frames."""
+    (a patch without texture says nothing; why not phase correlation: docs/decisions/several-frames.md)."""
     import cv2
 
     worst = 0.0
@@ -253,10 +207,8 @@ def measure_sequence(
     """Distance (m) between clicked pixels ``p1``, ``p2`` pooled over the still ``frames`` (oldest first;
     the newest last); see the module docstring. Only the robust method pools; raises MeasureError.
 
-    Only the newest unbroken run of frames without image shift or depth change is pooled. On the
-    simulator at 6-7 m (module docstring, 680 cases per click kind) ten frames cut the std of A from
-    0.64 to 0.07 with exact clicks (one-sigma coverage 98 -> 92 %, 95 % interval 100 -> 100 %) and
-    from 2.09 to 1.88 with human clicks (71 -> 66 %, 98 -> 95 %): the clicks' error does not average.
+    Only the newest unbroken run of frames without image shift or depth change is pooled. Pooling
+    shrinks the sensor's part of the error, not the clicks' (docs/eval/frames/report.md measures both).
 
     Args:
         frames: frames of one camera, oldest first, all with the same (H, W) float32 disparity (px)
@@ -280,7 +232,7 @@ def measure_sequence(
         MeasureError: no frames, mismatched frames, an unknown ``pool``, a method other than robust, or
             the newest frame cannot be measured.
 
-    Example:
+    Examples:
         >>> import numpy as np
         >>> from measure import Frame, PinholeCamera
         >>> from measure.sequence import measure_sequence

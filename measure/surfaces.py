@@ -1,44 +1,31 @@
 """Model selection for the robust method: one straight surface, or a surface of its own at each end.
 
 The robust disparity line d(t) = alpha + beta t (``measure.dline``) is the right model when both
-clicks lie on one straight surface: the paper's assumption. A segment from a wall down to the floor,
-or across a board standing in front of a wall, is two or three pieces; one robust line then fits the
-dominant piece and puts the other end at that piece's depth, precisely and wrongly.
+clicks lie on one straight surface, the paper's assumption; a segment from a wall down to the floor
+is two pieces, and one line puts the other end at the dominant piece's depth.
 
-Test (cheap, run on every measurement): the run of samples next to each end that the global line
-does not support (the longest leading run of which at most ``PIECE_INLIERS`` are supported, so
-that scattered wrong matches do not cut it short) is that end's own piece. An end *disagrees* when its piece spans at least ``MIN_PIECE_PX`` px (a click that
-slipped a few pixels off an object onto the background behind it is not meant to measure the
-background) with at least ``MIN_LOCAL`` valid samples, and their
-median residual from the global line exceeds ``max(4 s, 10 % of the end's disparity)``
-(s = 1.4826 MAD of the line's support residuals). The 10 % floor is a depth change that smooth, correlated stereo
-error does not make over a piece of this size: on the Middlebury stress segments (one straight
-surface each) SGBM and StereoBM bias the last few pixels before an edge by 4-8 %, while the wall,
-board and floor of the simulated rooms differ by 14-300 %. A disagreeing end gets its own robust
-line, fit on its piece's samples within ``PIECE_FIT_PX`` of the click (same estimator), if its
-residual scatter is at most ``LOCAL_ROUGHNESS`` times the main surface's and its disparity
-changes by at most ``MAX_PIECE_CHANGE`` across the piece (wrong matches in a
-contended band next to an edge pair up by chance but scatter widely), if that line supports ``LOCAL_SUPPORT`` of the
-piece (scattered wrong matches form no line) and differs from the global one at the click by the
-same threshold; its depth is that line's at the click: still on
-the clicked pixel's viewing ray. A disagreeing piece that yields no such line (rough, steep, too
-little support) but is dense along the segment (``_dense_span``: 15 px without a hole wider than
-7.5 px) is reported in ``EndModels.pieces``; ``measure.distance`` then looks for that end's surface
-in the image around the click (``measure.neighbourhood``).
+Steps (``select_end_models``, run on every measurement):
 
-Residual structure at an end on the global line: the median residual of the supported samples in
-the segment's last tenth next to it (a shoe in front of the leg, a rounded head top, the slight
-bend SGBM gives a surface's last pixels). When it is more than ``NEAR_SIGMAS`` = 2 standard errors
-off the line (1.2533 s / sqrt(k) for k samples, inflated for lag-one correlation), more than one
-disparity quantum (a median of quantized samples resolves no finer) and from at least ``MIN_LOCAL``
-supported samples, the end takes that level, its variance the standard error squared; otherwise
-the offset is an uncertainty term only. Person height (stress study, 24 dev people) +2.28 ->
-+1.87 % (held-out +2.32 -> +1.48 %); rooms wall-floor +0.5 points; Middlebury stress within 0.05
-points; eval sim 97.53 -> 97.63 (person 97.40 -> 97.78). Without the quantum floor, integer
-disparity (the edge protocol's contended ground truth) moved ends by a level and lost up to 12
-points on single segments; from 5 supported samples, half-contended poster edges at 6-7 m moved
-ends (eval sim 97.49 ± 3.16).
-Units: t, window in px along the segment; disparities in px.
+1. Each end's *piece*: the longest leading run of samples next to it of which at most
+   ``PIECE_INLIERS`` are supported by the global line (scattered wrong matches do not cut it short).
+2. An end *disagrees* when its piece spans at least ``MIN_PIECE_PX`` px with at least ``MIN_LOCAL``
+   valid samples and their median residual exceeds max(4 s, ``DISAGREE_REL`` of the end's disparity)
+   (s = 1.4826 MAD of the line's support residuals).
+3. A disagreeing end gets its own robust line, fit on its piece's samples within ``PIECE_FIT_PX`` of
+   the click, if its scatter is at most ``LOCAL_ROUGHNESS`` times the main surface's, its disparity
+   changes by at most ``MAX_PIECE_CHANGE`` across the piece, it supports ``LOCAL_SUPPORT`` of the
+   piece and it differs from the global line at the click by the same threshold; the end's depth is
+   that line's at the click, still on the clicked pixel's ray.
+4. A disagreeing piece without such a line but dense along the segment (``_dense_span``: 15 px
+   without a hole wider than 7.5 px) is reported in ``EndModels.pieces`` for
+   ``measure.neighbourhood``.
+5. An end on the global line whose supported samples in the segment's last tenth sit, by their
+   median, more than ``NEAR_SIGMAS`` standard errors (1.2533 s / sqrt(k), inflated for lag-one
+   correlation), one disparity quantum and from at least ``MIN_LOCAL`` samples off the line takes that
+   level; otherwise the offset is an uncertainty term only.
+
+``on_depth_edge`` and ``clean_window_disparity`` read the image around a click. Why these
+thresholds: docs/decisions/end-surfaces.md. Units: t, window in px along the segment; disparities in px.
 """
 
 from __future__ import annotations

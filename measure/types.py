@@ -29,7 +29,7 @@ class MeasureError(ValueError):
     Returns:
         The exception; it is raised, not returned.
 
-    Example:
+    Examples:
         >>> from measure import MeasureError, MeasureOptions
         >>> try:
         ...     MeasureOptions(window=4)
@@ -110,7 +110,7 @@ class PinholeCamera:
         A frozen, validated camera; raises :class:`MeasureError` naming a value that is not a
         finite number or outside its physical range.
 
-    Example:
+    Examples:
         >>> from measure import PinholeCamera
         >>> cam = PinholeCamera(fx=60.0, fy=60.0, cx=31.5, cy=23.5, width=64, height=48)
         >>> half = cam.scaled(32, 24)
@@ -169,7 +169,7 @@ class Frame:
     Returns:
         A frozen, validated frame; raises :class:`MeasureError` naming a wrong shape, dtype or number.
 
-    Example:
+    Examples:
         >>> import numpy as np
         >>> from measure import Frame, PinholeCamera
         >>> cam = PinholeCamera(fx=60.0, fy=60.0, cx=31.5, cy=23.5, width=64, height=48)
@@ -298,14 +298,13 @@ class MeasureOptions:
             caller knows it: 0 for exact pixel coordinates (a program, detected corners, a replayed
             annotation), about 1.5 for a mouse (the default), more for a finger on a touch screen (its
             tap's error at the displayed scale, converted to image pixels). The calibration was set
-            with the default: on real stereo (Middlebury SGBM, exact end pixels) 0 covers the truth
-            at 2 sigma in only about 70 % of cases, an end error of about 0.5 px that the model does
-            not explain yet (README "Trust"), so values below 1 claim more than is measured.
+            with the default, so values below 1 claim more than is measured
+            (docs/decisions/uncertainty-calibration.md).
 
     Returns:
         Frozen, validated options; raises :class:`MeasureError` naming a value out of range.
 
-    Example:
+    Examples:
         >>> from measure import MeasureOptions
         >>> opts = MeasureOptions(method="basic", window=7)
         >>> print(opts.method, opts.window, opts.support_fraction)
@@ -371,7 +370,7 @@ class Measurement:
     Returns:
         A frozen result; :meth:`to_dict` gives its JSON form.
 
-    Example:
+    Examples:
         >>> import numpy as np
         >>> from measure import Frame, PinholeCamera
         >>> cam = PinholeCamera(fx=60.0, fy=60.0, cx=31.5, cy=23.5, width=64, height=48)

@@ -1,55 +1,28 @@
-"""One-sigma uncertainty of a measured distance (metres).
+"""One-sigma uncertainty of a measured distance (metres), and its calibration.
 
-The model has two parts, added in quadrature:
+Terms, added in quadrature:
 
-1. **Fit term** (robust and paper methods, fit "line"). The robust line T + s v is estimated
-   from the n support points whose scatter perpendicular to v, Sigma_perp = (I - v v')
-   S (I - v v') with S the consistency-corrected MCD covariance, is the disparity noise
-   propagated through Z = fB/d (it is almost all along the viewing rays) plus any surface
-   roughness. For a total-least-squares line the centroid error has covariance
-   Sigma_perp / n and the direction error Sigma_perp / sum(s_i²) (s_i the support points'
-   positions along the line), independent of each other. Both are propagated to the
-   distance by central differences of the end-point construction along the principal
-   directions of Sigma_perp (12 evaluations, one vectorised call): the extrapolation to
-   an end point far outside the support, or a ray nearly parallel to the line, shows up
-   as a large uncertainty, which is what an end point without depth deserves.
-2. **Quantization term.** Samples on one disparity level share one rounding error, which no
-   fit averages away. With disparity quantum q (the smallest step between the valid
-   samples' disparity values, at most 1 px) a common disparity offset of q/sqrt(12) per
-   level, averaged over the L distinct levels in the support, changes every depth by
-   Z²/(fB) q / sqrt(12 L) and so the distance by D Z / (fB) q / sqrt(12 L) (relative
-   error of depth = relative error of scale). Noise before the rounding dithers it (then
-   it is part of the residuals, not shared): the term is scaled by exp(-2 pi² s² / q²)
-   with s the noise beyond the rounding's own q²/12. For a constant-depth or plane exact
-   fit this is the whole uncertainty.
+1. **Fit term** (robust and paper methods, fit "line"): the robust line's centroid and direction
+   errors (Sigma_perp / n and Sigma_perp / sum(s_i²), with Sigma_perp the MCD scatter perpendicular
+   to the line) propagated to the distance by central differences of the end-point construction
+   (``line_fit_sigma``, 12 evaluations in one vectorised call). An end far outside the support, or a
+   ray nearly parallel to the line, shows as a large uncertainty.
+2. **Quantization term** (``quantization_sigma``): samples on one disparity level share one rounding
+   error. With quantum q (``disparity_quantum``) and L levels in the support the distance moves by
+   D Z / (fB) q / sqrt(12 L), damped by exp(-2 pi² s² / q²) for noise s before the rounding. For a
+   constant-depth or plane exact fit this is the whole uncertainty.
+3. **Window ends** (basic, the paper's end point input, gap answers): the standard error of the median
+   depth, Z²/(fB) 1.2533 * 1.4826 MAD(d) / sqrt(k) for k window disparities (floored at the
+   quantization term), propagated through dD/dZ_i = r_i . (P_i - P_j) / D (``endpoint_depth_sigma``).
+4. **Robust method extras**: the fit term inflated for residuals correlated along the segment
+   (``correlation_inflation``), the click position (``click_sigma``: each end moved
+   ``MeasureOptions.click_px`` along the segment on its own model), the model choice (``MODEL_SHARE``
+   of the distance to the other model's answer) and the residual structure next to each end
+   (``measure.surfaces``). Never zero (``MIN_RELATIVE_SIGMA``).
 
-Window-based end points (basic, the paper's end point input, gap answers) carry the
-standard error of their median depth: Z²/(fB) times 1.2533 * 1.4826 MAD(d) / sqrt(k) for
-k window disparities (floored at the quantization term), propagated through dD/dZ_i =
-r_i . (P_i - P_j) / D.
-
-Beyond the fit (robust method): the fit term is inflated for residuals correlated along the
-segment (``correlation_inflation``: stereo matching windows share errors between neighbours), and
-four terms are added in quadrature: the click position (``click_sigma``: each end moved
-the caller's ``MeasureOptions.click_px`` along the segment on its own model: 0 for exact pixel
-coordinates, 1.5 px for a mouse), the model choice (``MODEL_SHARE`` of the
-distance to the other model's answer when an end has a surface of its own or a gap is measured),
-the residual structure next to each end (the median residual of the supported samples nearest to
-it, ``measure.surfaces``: a shoe in front of a leg, edge fattening; counted as a possible bias) and
-the quantization term above. Never zero (``MIN_RELATIVE_SIGMA``).
-
-Calibration (split-conformal style, set once on dev data): the ratios |error| / model sigma on the
-dev half of the Middlebury stress protocol with SGBM (evaluation/stress_middlebury.py, scenes
-Adirondack, Piano, Playroom, Shelves; 360 click pairs) have 68 / 90 / 95 % quantiles 0.87 / 2.41 /
-3.85 (held-out scenes: 0.74 / 2.07 / 3.18). The reported one-sigma is ``SIGMA_SCALE`` = 1.25 model
-sigmas (so 2 sigma reaches the 90 % quantile) and the 95 % interval ``interval_m`` is
-``INTERVAL_SCALE`` = 3.9 model sigmas either side. Held-out scenes and the other disparity sources are the check (README "Accuracy").
-After the second pass of model selection (extrapolated ends from their click windows, surfaces
-beside the segment, nearest-sample levels, a second start of the line) the dev quantiles are 0.74 /
-2.24 / 3.73 (held-out 0.59 / 1.98 / 2.45): more answers are accurate, the tail is not. The scales
-were kept: set by the same rule (2 sigma at the 90 % quantile: 1.12) 1σ would cover 79 % of the
-dev cases, still above 76 %, with 2σ at the 90 % edge; with 1.25, 1σ / 2σ cover 80.4 / 91.3 %.
-tests/measure/test_measure_uncertainty.py checks coverage of the truth on the reduced stress protocol.
+Calibration (``calibrated_sigma``, ``interval``): the reported one-sigma is ``SIGMA_SCALE`` model
+sigmas and the 95 % interval ``INTERVAL_SCALE`` model sigmas either side, set on the dev half of the
+Middlebury stress protocol (docs/decisions/uncertainty-calibration.md has the quantiles behind both).
 """
 
 from __future__ import annotations

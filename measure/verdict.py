@@ -3,11 +3,9 @@
 "good" means: the truth is expected inside the stated 95 % interval and that interval is narrow
 (half-width at most ``GOOD_HALF_WIDTH`` of the distance, i.e. one sigma at most 8 %). Any reason
 below except the two ``INFORMATIONAL`` ones makes an answer "check"; very few samples or an
-interval wider than ``UNRELIABLE_HALF_WIDTH`` make it "unreliable". "end point on a depth edge" and
-"end point extrapolated" are reported but do not demote an answer by themselves: the robust method
-takes end points on the clicks' rays from the fitted surface, so an edge click is its normal case
-(dev Middlebury SGBM: A < 90 in 15 % / 14 % of the cases with these reasons against 30-43 % for the
-others; counting them would halve the "good" share for no gain in its accuracy).
+interval wider than ``UNRELIABLE_HALF_WIDTH`` make it "unreliable". Why "end point on a depth edge"
+and "end point extrapolated" only inform: an edge click is the robust method's normal case
+(docs/decisions/verdict-reasons.md).
 
 Reasons (the phrases the CLI, API and page show):
 - "few valid samples": fewer than ``FEW_SAMPLES`` valid samples along the segment, or fewer than
@@ -23,10 +21,6 @@ Reasons (the phrases the CLI, API and page show):
 - "end point extrapolated": an end is farther than ``EXTRAPOLATED_PX`` px (and 15 % of the length)
   from the nearest sample that supports its model, or has no depth at all.
 - "uncertainty above N %": the interval's half-width exceeds ``GOOD_HALF_WIDTH``.
-
-The thresholds and the uncertainty scale in ``measure.uncertainty`` were set on the dev half of the
-stress protocols (evaluation/stress_middlebury.py dev scenes, evaluation/stress_sim.py dev seeds)
-and checked on the held-out half; README "Accuracy" gives both sets of figures.
 """
 
 from __future__ import annotations

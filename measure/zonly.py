@@ -1,23 +1,12 @@
-"""The paper's ablation "robust fit of Z alone" (docs/method.md "Results to beat": +0.6 points only).
+"""The paper's ablation "robust fit of Z alone" (docs/method.md "Results to beat").
 
-Inputs as :func:`measure.measure_distance`. The depth Z (m) of the valid samples is fit
-robustly as a straight line Z(t) of the pixel position t (px) along the segment, by
-FAST-MCD (p = 2) on (t, Z) — an exact fit (at least h samples on one quantized depth, or on
-one line) is taken as the model, as the paper does — and its first principal component
-otherwise. The end points are the clicked pixels with depth Z(0) and Z(|p2 - p1|),
-back-projected by Eq. 2. Gap detection as in the paper (step 6).
-
-The paper gives the ablation one sentence: "fitting a robust line to the depth values (or just
-the Z-coordinate of the 3D point), rather than modeling the 3D points themselves". It does not
-say how the end points are rebuilt from the fitted depth; this reading does what the paper does
-with its own predicted range in the constant-depth exact fit ("re-compute the predicted points P1
-and P2 using this predicted range measurement in Equation 2"). Two other readings were measured on
-the simulator's paper profile (360 measurements, seed 0; paper - basic +2.40 there): keeping X, Y
-of the window-median end points and replacing only Z, +2.30; one robust depth for the whole
-segment, +1.93; this one, +2.23. A bisquare regression line instead of FAST-MCD (the M-estimator
-the paper uses for its robust ranges), of Z or of disparity: +1.64 / +1.53 against paper's +1.56 on
-another 360. On a straight target every reading removes the end points' depth errors that the 3D
-line removes, so none comes near the paper's +0.6 (README "Simulated rig, paper profile").
+Inputs as :func:`measure.measure_distance`. Steps: the depth Z (m) of the valid samples is fit
+robustly as a straight line Z(t) of the pixel position t (px) along the segment, by FAST-MCD
+(p = 2) on (t, Z): an exact fit (at least h samples on one quantized depth, or on one line) is
+taken as the model, as the paper does, and its first principal component otherwise. The end points
+are the clicked pixels with depth Z(0) and Z(|p2 - p1|), back-projected by Eq. 2. Gap detection as
+in the paper (step 6). The paper does not say how the end points are rebuilt from the fitted depth;
+the readings measured are in docs/decisions/z-only-reading.md.
 """
 
 from __future__ import annotations
@@ -28,7 +17,7 @@ import time
 import numpy as np
 
 from measure.basic import basic_ends
-from measure.distance import MIN_FIT_SAMPLES, NO_DEPTH, validate_request
+from measure.request import MIN_FIT_SAMPLES, NO_DEPTH, validate_request
 from measure.dline import mcd_line
 from measure.gap import extension_depth, is_gap
 from measure.mcd import fast_mcd

@@ -1,120 +1,38 @@
 """Sensor model of the paper's three-camera rig (a Dell Venue 8 with RealSense Snapshot, docs/method.md "Results to beat").
 
-The rig: one high-resolution reference (colour) camera and two lower-resolution auxiliary cameras.
-Each auxiliary camera forms a stereo pair with the reference camera: the *wide* pair (aux camera
-``baseline_wide_m`` to the right) and the *narrow* pair (aux camera ``baseline_narrow_m`` to the left).
-The baselines are plausible choices for a tablet, not figures published for the device. Disparity is
-reported registered to the reference camera and expressed for the wide pair, so a frame's
-``baseline_m`` is ``baseline_wide_m`` and ``doffs`` is 0: ``Z = fx * baseline_wide_m / d``.
+The rig: one high-resolution reference (colour) camera and two lower-resolution auxiliary cameras,
+each forming a stereo pair with it: the *wide* pair (``baseline_wide_m``, aux camera to the right)
+and the *narrow* pair (``baseline_narrow_m``, to the left); plausible tablet baselines, not published
+figures. Disparity is registered to the reference camera and expressed for the wide pair: a frame's
+``baseline_m`` is ``baseline_wide_m``, ``doffs`` is 0, ``Z = fx * baseline_wide_m / d`` (px, m).
 
-Effects, each a field of :class:`SensorModel` (the effect disappears at 0 / False):
+Effects (``sense``), each a field of :class:`SensorModel` (0 / False = off):
 
-- per pixel one pair's estimate is used: the wide pair's, except where the wide aux camera cannot see
-  the point (occlusion) and the narrow one can; occluded for both = hole;
-- auxiliary cameras have ``aux_block`` x ``aux_block`` reference pixels per pixel, so every random
-  effect comes in blocks of that size;
-- Gaussian noise ``noise_px`` (reference px of the wide pair; the narrow pair's noise is larger by the
-  baseline ratio), independent per aux pixel or, with ``noise_window_px``, the mean of such noise over
-  a matching window (same sigma, spatially correlated); plus ``calibration_px``, one-sigma offset
-  common to the whole frame;
-- pair contention: in contended regions (``contention_at="edges"``: within ``contention_band_px`` of a
-  depth discontinuity; ``"disagreement"``: within it of a strip that one aux camera sees and the other
-  does not; and in blobs covering ``contention_low_texture`` of the low-texture area and
-  ``contention_area`` of the textured area) a share ``contention`` of the pixels
-  carries the wrong pair's match, an outlier: ``outlier_model="mismatch"`` moves the disparity by
-  ``mismatch_min_px``..``mismatch_max_px`` either way (a wrong match along the epipolar line);
-  ``"baseline"`` converts the other pair's disparity with the wrong baseline (depth scaled by the ratio);
-  ``"other-surface"`` takes the true disparity of the surface across the nearest edge (the nearer one
-  for a background pixel, the farther one for a foreground pixel; no error away from edges);
-- edge fattening: foreground disparity bleeds ``edge_fattening_px`` into the background along rows,
-  ``edge_fattening_vertical_px`` (default half of it) along columns;
-- a depth edge (for the contended band and the fattening) is a step of more than ``edge_jump_px``
-  between neighbouring pixels' true disparity, or surface next to nothing. No smooth surface of the
-  scenes comes near 0.5 px per pixel (the floor changes by ~0.04 px per row), while a board 0.5 m in
-  front of a wall at 7 m still steps by ~0.6 px;
-- holes (NaN): ``hole_fraction`` of low-texture pixels (blocks of ``hole_block_px``), occlusions, and
-  ``stray_hole_fraction`` everywhere; ``stray_outlier_fraction`` of random disparities everywhere;
-- quantization of the output to multiples of ``quantization`` px (1 = integer disparity, 0 = none);
-- ``static_contention``: the contention outliers repeat frame after frame (seeded by ``static_seed``),
-  as a still scene's wrong matches do; otherwise they are drawn afresh per frame like the noise;
-- an optional confidence map that is lower in contended and low-texture regions and lower still on
-  outliers (correlated with the errors, but not a perfect oracle).
+- Per pixel one pair's estimate: the wide pair's unless its aux camera cannot see the point and the
+  narrow one can; occluded for both = hole. Random effects come in ``aux_block`` px blocks.
+- Gaussian noise ``noise_px`` (wide-pair px; the narrow pair's larger by the baseline ratio), per
+  aux pixel or, with ``noise_window_px``, averaged over a matching window (spatially correlated);
+  plus ``calibration_px``, a one-sigma offset common to the whole frame.
+- Pair contention: in contended regions (``contention_at="edges"``: within ``contention_band_px``
+  of a depth edge; ``"disagreement"``: of a strip one aux camera sees and the other does not; blobs
+  over ``contention_low_texture`` / ``contention_area`` of the low-texture / textured area) a share
+  ``contention`` of the pixels carries the wrong pair's match: ``outlier_model="mismatch"`` moves it
+  by ``mismatch_min_px``..``mismatch_max_px`` either way, ``"baseline"`` converts the other pair's
+  disparity with the wrong baseline, ``"other-surface"`` takes the surface's across the nearest edge.
+  ``static_contention`` repeats these outliers frame after frame (``static_seed``).
+- Edge fattening: foreground disparity bleeds ``edge_fattening_px`` into the background along rows,
+  ``edge_fattening_vertical_px`` (default half of it) along columns. A depth edge is a step of more
+  than ``edge_jump_px`` between neighbouring pixels' true disparity, or surface next to nothing.
+- Holes (NaN): ``hole_fraction`` of low-texture pixels (blocks of ``hole_block_px``), occlusions, and
+  ``stray_hole_fraction`` everywhere; ``stray_outlier_fraction`` of random disparities everywhere.
+- Quantization of the output to multiples of ``quantization`` px (1 = integer, 0 = none), and an
+  optional confidence map, lower in contended and low-texture regions and lower still on outliers.
 
 ``noise_px`` and ``hole_fraction`` default to the lighting preset's values (sim.textures.LIGHTING).
-
-Profiles (``PROFILES``; ``sim:...?profile=paper``, ``depthruler eval sim --profile paper``)
---------------------------------------------------------------------------------------------
-``stress`` (the default; the field defaults above): a 12-px band of 50 % contention around every depth
-edge and in blobs of textured and textureless area, outliers 2-8 px either way whatever the disparity,
-1/4-px disparity, independent noise per aux pixel, a poster board on a stand 0.5-1.5 m in front of the
-wall, and taps aimed at the boundary pixel itself (2.5 px scatter, a quarter of them up to 6 px
-beyond it). At 6-7 m a 5x5 median at a clicked edge then often lands on an outlier or on the wall
-behind, which is a good torture test and a factor ten harsher than the paper's tablet.
-
-``paper``: the Dell Venue 8 as the paper describes it. Each choice, and the evidence for it:
-
-- integer disparity (``quantization=1``): Fig. 3's caption text, "due to integer quantization of
-  disparity, the Z-component of the noisy points lie at four distinct depths"; the Motivation names
-  quantization as a main error source;
-- noise correlated over the matching window (``noise_window_px=9``): the paper names "windowed
-  correlation based range measurement systems" as the class; neighbouring estimates share most of
-  their window, so their errors are one smooth field (a mean over the window), not independent per
-  pixel. 9 px is a common block size at 720p, not a fitted value;
-- a disparity offset common to the whole frame, 0.3 px one-sigma (``calibration_px=0.3``): the paper
-  lists calibration beside disparity estimation as a source of error in the 3D points ("inherently
-  noisy due to errors in disparity estimation, calibration etc."); a tablet's stereo calibration
-  drifts with temperature and flex by a few tenths of a pixel. It also stops the simulator's round
-  numbers (fx B = 60 px m) from putting 2, 4 and 6 m on exact integer disparities, where integer
-  quantization would be error-free while 7 m (8.57 px) straddles a step, which a real device's
-  calibration does not do either;
-- edge fattening of half that window in both directions (``edge_fattening_px=4``,
-  ``edge_fattening_vertical_px=4``): the window is square, so a window straddling a horizontal edge is
-  pulled to the textured side as much as one straddling a vertical edge; Fig. 1's caption sees the
-  inaccuracies "along the edges of the target board, especially along the bottom edge" (a horizontal
-  edge), which a vertical half-width would hide;
-- contention only where the two pairs disagree (``contention_at="disagreement"``, ``contention_band_px=4``,
-  ``contention_area=0``, ``contention_low_texture=0``): the paper's "contention between the two camera
-  pairs" needs the pairs to see different things, which happens where one aux camera is occluded and the
-  other is not (a window of half-width 4 px touching that strip), not on a textured poster both see
-  alike; textureless wall is not matched at all (holes, ``hole_fraction``). There up to half the pixels
-  are wrong ("up to 50% outliers", the reason for h = 0.5N: ``contention=0.5`` stays);
-- a contention outlier is the other surface's disparity (``outlier_model="other-surface"``): the pair
-  that cannot see a point matches the surface across the edge that hides it, so the error is the local
-  depth step, whose size in pixels follows the disparity, instead of a fixed 2-8 px that at 7 m
-  (8.6 px of disparity) throws a point tens of metres away;
-- the target is "a textured poster" (Results: "length and width of a textured poster"), hung on the
-  wall (``mount="wall"``): the extensions beyond its ends then lie at the end points' depth, so the
-  paper's strict "in front" comparison can fire on a non-gap measurement, as it did on 6.8 % of the
-  paper's. Here it fires more often and at every distance (12-13 % of poster measurements, half of
-  them at >= 6 m; the paper: 81 % at >= 6 m). Fig. 1's "disparity inaccuracies ... along the edges of
-  the target board" speak for a depth edge around it, i.e. a board standing free; on a stand 0.5-1.5 m
-  in front of the wall the false gaps fall to 0.3 %, all at >= 6 m (the paper's pattern), but taps just
-  off the board land on the wall: basic falls to 87-89 and paper - basic rises to +7 to +8 (seed 0,
-  both protocols), a regime the paper's +2.6 rules out, so the wall stays;
-- touch-screen taps scattered by "one or a few pixels" (``ClickModel(off_object_prob=0)``: the
-  project's 2.5-px one-sigma tap scatter around the true end pixel, without the stress profile's extra
-  quarter of taps pushed up to 6 px further out): the paper's own words for the user error of "clicks
-  or touch" are "a point that is one or a few pixels away from the object of interest", and that
-  scatter around a boundary pixel already lands about half the taps just off the object, which is the
-  failure the paper describes. Tried instead: 0.8 mm of finger scatter on the Venue 8's screen without
-  zooming (5.7 image px), which gives paper - basic +3.2 to +3.5, +4.7 to +5.4 at 6-7 m, z_only - basic
-  +3.5 to +3.8 on seeds 0-2: within the paper's first two figures but further from all the others.
-
-Everything else (baselines, aux resolution, lighting presets of noise and holes, stray holes and
-outliers) is shared by both profiles. No value was fitted to the paper's results (the tap scatter was
-chosen between two readings, see above, and both are reported); what the profile gives
-on the 1800-measurement study in the paper's sets of seven (seeds 0, 1, 2; docs/eval/sim-paper/,
-README "Simulated rig, paper profile"): paper - basic +2.24, +2.24, +2.43 points (the paper: +2.6),
-at 6-7 m +4.15, +4.31, +4.65 (about +4), +0.1 to +0.4 at 2-4 m, the standard deviation of A 3.32,
-3.68, 3.84 points lower (the paper's "5% reduction", read as points like each of its other "%" of a
-change; 35-40 % of basic's, so not 5 % of it: evaluation/paper_figures.py). Not reproduced: z_only
-gains about as much as paper (+2.2 to +2.5; the paper: +0.6), and no sensor effect the paper names
-would separate them: on a straight target the gain is in the end points' depths (z_only moves
-nothing else and gains as much), which a robust depth line along the segment corrects as well as
-the 3D line (measure/zonly.py gives the readings measured); false gaps are 11.1-11.6 % (6.8 %), only
-50-53 % of them at >= 6 m (81 %): on the wall-hung poster the comparison is a coin toss at every
-distance (12-13 % of poster measurements), and a board on a stand, which gives the paper's
-distance pattern, gives 0.3 % and a far harsher basic (87-89).
+``PROFILES`` (``sim:...?profile=paper``, ``depthruler eval sim --profile paper``): ``stress`` (the
+default: the field defaults above, the poster on a stand, taps aimed at the boundary pixel with a
+quarter of them up to 6 px beyond it) and ``paper`` (the tablet as the paper describes it; each
+choice and its evidence: docs/decisions/paper-profile.md).
 """
 
 from __future__ import annotations

@@ -173,7 +173,7 @@ def test_middlebury_results_and_targets(middlebury_run, middlebury_dir):
     assert sum(s["n_segments"] for s in r["setup"]["scenes"].values()) >= 30
     for s in r["setup"]["scenes"].values():
         assert s["sgbm_config"]["num_disparities"] % 16 == 0
-    # Targets (issue 8): robust median >= 95 and robust above basic by >= 8 points. basic's median
+    # Targets: robust median >= 95 and robust above basic by >= 8 points. basic's median
     # is high on these segments while its failures are gross, so the +8 is on the mean, and
     # robust must win on the median too (as tests/measure/test_middlebury_accuracy.py reads the target).
     sgbm = r["conditions"]["sgbm"]["methods"]

@@ -1,4 +1,4 @@
-"""Fuzzing the measurement core (issue 22): random frames, cameras, clicks and options.
+"""Fuzzing the measurement core: random frames, cameras, clicks and options.
 
 Every case either raises MeasureError with a message or returns a finite, sane Measurement;
 never another exception, a hang or a warning. Frames: 8-200 px, all-NaN, holes, constant,
@@ -179,8 +179,8 @@ def test_z_only_ablation_answers_or_raises_measure_error(case):
     _run(measure_z_only, case)
 
 
-def test_the_issue_reproduction_answers_or_raises():
-    """Issue 22's reproduction: iteration 11 crashed the paper method; 1e30 overflowed FAST-MCD."""
+def test_the_first_fuzz_findings_answer_or_raise():
+    """The first fuzzing run's findings: iteration 11 crashed the paper method; 1e30 overflowed FAST-MCD."""
     rng = np.random.default_rng(1)
     w, h = 19, 167
     answered = beyond = 0

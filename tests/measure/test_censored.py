@@ -15,7 +15,7 @@ import cv2
 import numpy as np
 import pytest
 
-import measure.distance as md
+import measure.robust as robust
 from measure import Frame, PinholeCamera, measure_distance
 from measure.censored import censored_line
 from measure.sampling import sample_segment
@@ -54,7 +54,7 @@ def test_two_level_staircase_measures_near_the_truth(yaw_deg):
     new = [measure_distance(f, *CLICKS) for f, _ in cases]
     truth = np.array([g for _, g in cases])
     err = np.array([m.distance_m for m in new]) - truth
-    with mock.patch.object(md, "_censored", lambda t, d, line, quantum: line):
+    with mock.patch.object(robust, "_censored", lambda t, d, line, quantum: line):
         old = np.array([measure_distance(f, *CLICKS).distance_m for f, _ in cases]) - truth
     # Truth 1.37 m over 19 two-level cases per yaw: least squares' step errs by 0.18-0.20 m on average,
     # the censored line by 0.10-0.12 m.

@@ -1,4 +1,4 @@
-"""The docstring examples of measure's public API run as doctests (issue #21)."""
+"""The docstring examples of measure's public API run as doctests."""
 
 from __future__ import annotations
 

@@ -1,11 +1,11 @@
-"""The robust method's end-model passes (measure.distance._robust) hand each other every EndModels field."""
+"""The robust method's end-model passes (measure.robust) hand each other every EndModels field."""
 
 from __future__ import annotations
 
 import numpy as np
 import pytest
 
-import measure.distance as distance
+import measure.robust as robust
 from measure import Frame, MeasureOptions, measure_distance
 
 from factories import SMALL_B, SMALL_CAM, SMALL_F, SMALL_H, SMALL_W
@@ -40,14 +40,14 @@ def test_clean_end_keeps_the_other_ends_piece(seed, monkeypatch):
     A = 93.6."""
     frame = _recess_and_contended_box(seed)
     seen = []
-    clean = distance._clean_ends
+    clean = robust._clean_ends
 
     def spy(*args):
         out = clean(*args)
         seen.append((args[-1], out))
         return out
 
-    monkeypatch.setattr(distance, "_clean_ends", spy)
+    monkeypatch.setattr(robust, "_clean_ends", spy)
     m = measure_distance(frame, P1, P2, MeasureOptions())
     truth = float(np.linalg.norm(_point(P2, NEAR) - _point(P1, FAR)))
     on_wall = float(np.linalg.norm(_point(P2, WALL) - _point(P1, FAR)))

@@ -1,4 +1,4 @@
-"""Accuracy on synthetic posters (issue 3 "Done when"): 2, 4, 6, 7 m, 1/4-px quantization,
+"""Accuracy on synthetic posters against the targets: 2, 4, 6, 7 m, 1/4-px quantization,
 50 % contention outliers near the edges, click jitter. A = 100 - 100 |g - m| / g."""
 
 from __future__ import annotations

@@ -1,6 +1,6 @@
 """Real disparity: OpenCV SGBM on the Middlebury scenes, measured along ground-truth edge-to-edge segments.
 
-Issue 3 "Done when": the robust method's median accuracy is >= 95. It must also beat "basic" by
+The target: the robust method's median accuracy is >= 95. It must also beat "basic" by
 >= 8 points: on these segments basic's *median* is high (most window medians at the exact end
 pixels are right) but its failures are gross (an end window on the background: A far below 0),
 so the +8 is asserted on the mean, and robust must also win on the median.

@@ -40,7 +40,7 @@ def test_click_at_the_rim_sees_its_own_surface():
 
 def test_scattered_values_show_their_scatter():
     # Uniform wrong matches: either no plane or one whose scatter (px) gives it away; the caller
-    # (measure.distance._neighbourhood_ends) rejects planes rougher than an own line may be.
+    # (measure.robust._neighbourhood_ends) rejects planes rougher than an own line may be.
     rng = np.random.default_rng(0)
     d = rng.uniform(5.0, 60.0, (120, 160)).astype(np.float32)
     p = end_plane(d, _valid, (80.0, 60.0), (80.0, 10.0), quantum=1 / 16)

@@ -1,4 +1,4 @@
-"""Several frames of a still scene (measure.sequence, issue #17): pooling gain, coverage, motion refusal, API."""
+"""Several frames of a still scene (measure.sequence): pooling gain, coverage, motion refusal, API."""
 
 from __future__ import annotations
 

@@ -1,4 +1,4 @@
-"""The simulated rig measured against its own parameters and ground truth (issue 4)."""
+"""The simulated rig measured against its own parameters and ground truth."""
 
 from __future__ import annotations
 

@@ -1,4 +1,4 @@
-"""The simulator's ``paper`` profile (issue 19): its sensor effects, and the paper's relative findings
+"""The simulator's ``paper`` profile: its sensor effects, and the paper's relative findings
 on a reduced study (the full 1800-measurement figures are in docs/eval/sim-paper/)."""
 
 from __future__ import annotations
@@ -126,7 +126,7 @@ def test_report_puts_the_papers_figures_beside_ours(reduced):
 
 @pytest.mark.slow
 def test_z_only_gains_as_much_as_paper_on_a_straight_target(reduced):
-    # Not the paper's +0.6 (README "Simulated rig, paper profile"): on a flat poster the gain is in
+    # Not the paper's +0.6 (docs/decisions/z-only-reading.md): on a flat poster the gain is in
     # the end points' depths, which the robust depth line corrects as well as the 3D line. Seeds 0-9:
     # the two gains differ by -0.03 to +0.38 points.
     z = reduced["methods"]["z_only"]["overall"]["mean"] - reduced["methods"]["basic"]["overall"]["mean"]
