@@ -27,7 +27,7 @@ from device.calibration.stereo import StereoCalibration  # noqa: E402
 from device.sources.sgbm import SGBMConfig, compute_disparity  # noqa: E402
 from bench.results_file import cpu_name, replace_section  # noqa: E402
 from device.sources.stereo_pair import StereoProcessor  # noqa: E402
-from evaluation.middlebury import default_data_dir  # noqa: E402
+from evaluation.middlebury_data import default_data_dir  # noqa: E402
 
 SCENE = default_data_dir() / "Motorcycle"
 SIZES = ((640, 480), (1280, 720))

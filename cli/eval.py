@@ -113,7 +113,7 @@ def middlebury_command(
     if protocol not in ("edge", "stress"):
         raise typer.BadParameter(f"--protocol {protocol!r} is unknown; use edge or stress")
     if data is None:
-        from evaluation.middlebury import default_data_dir
+        from evaluation.middlebury_data import default_data_dir
 
         data = default_data_dir()
     if protocol == "stress":

@@ -20,6 +20,7 @@ app = typer.Typer(
 from cli import batch as batch_cmd  # noqa: E402 — after the DepthAI setting
 from cli import bench as bench_cmd  # noqa: E402
 from cli import check as check_cmd  # noqa: E402
+from cli import data as data_cmd  # noqa: E402
 from cli import devices as devices_cmd  # noqa: E402
 from cli import eval as eval_cmd  # noqa: E402
 from cli import recording as recording_cmd  # noqa: E402
@@ -40,6 +41,7 @@ for name, command in {
     app.command(name, context_settings=getattr(command, "context_settings", None))(command)
 app.add_typer(eval_cmd.app, name="eval")
 app.add_typer(batch_cmd.app, name="batch")
+app.add_typer(data_cmd.app, name="data")
 
 
 def main() -> None:

@@ -16,7 +16,6 @@ points of their end pixels.
 from __future__ import annotations
 
 import math
-import os
 import time
 from collections.abc import Callable, Sequence
 from dataclasses import asdict, dataclass
@@ -30,11 +29,6 @@ from measure import accuracy, signed_error_pct
 from evaluation.sim_study import MethodOutcome, measure_all, warm_up
 from evaluation.report import METHODS, EvalError
 
-
-def default_data_dir() -> Path:
-    """$DEPTHRULER_SHARED/data/middlebury, or ../shared/data/middlebury beside the project root."""
-    shared = os.environ.get("DEPTHRULER_SHARED") or Path(__file__).resolve().parents[2] / "shared"
-    return Path(shared) / "data" / "middlebury"
 
 CONDITIONS: tuple[str, ...] = ("sgbm", "gt_contended")
 CONDITION_LABELS = {
