@@ -12,9 +12,9 @@ app = typer.Typer(help="The real stereo scenes (Middlebury 2014) the evaluation 
 
 @app.command("fetch")
 def fetch_command(
-    dest: Path = typer.Option(None, "--dest", help="Folder for the scenes (default: the one the tests and `eval middlebury` read)."),
+    dest: Path = typer.Option(None, "--dest", help="Folder for the scenes; left out, the folder the tests and `eval middlebury` read."),
     from_dir: Path = typer.Option(None, "--from", help="A folder that already holds MiddEval3-data-Q.zip and MiddEval3-GT0-Q.zip (no download)."),
-    url: str = typer.Option(None, "--url", help="Base URL of the two archives (default: vision.middlebury.edu)."),
+    url: str = typer.Option(None, "--url", help="Base URL of the two archives; left out, vision.middlebury.edu."),
 ) -> None:
     """Download the eight scenes, check every file's SHA-256, and put them where the tests find them."""
     from evaluation.middlebury_data import BASE_URL, DataError, fetch
@@ -29,7 +29,7 @@ def fetch_command(
 
 @app.command("check")
 def check_command(
-    data: Path = typer.Option(None, "--data", help="Folder of the scenes (default: the one the tests read)."),
+    data: Path = typer.Option(None, "--data", help="Folder of the scenes; left out, the folder the tests read."),
 ) -> None:
     """Say whether every file of the eight scenes is present and matches its recorded SHA-256."""
     from evaluation.middlebury_data import FETCH_COMMAND, default_data_dir, verify
