@@ -5,7 +5,7 @@ Spec: ``video:PATH?layout=side-by-side|top-bottom&calib=FILE[&calib_units=mm&dis
 top half is the left camera), or ``video:LEFT,RIGHT?calib=FILE`` for one file per camera. ``calib`` takes
 the project's JSON, OpenCV YAML/XML or a ROS camera_info pair (device/calibration/files.py).
 
-Frames are decoded with OpenCV's FFmpeg backend and handed to :class:`device.sources.stereo_pair.StereoProcessor`.
+Frames are decoded with OpenCV's FFmpeg backend and handed to :class:`device.sources.stereo_processing.StereoProcessor`.
 What a file can do that a camera cannot, and how it is handled:
 
 - **end of file** raises :class:`SourceEnded` (the live view keeps the last frame), or with ``loop=1``
@@ -39,7 +39,7 @@ from device.base import SourceInfo, SourceSpec
 from device.calibration.files import CalibrationRef
 from device.errors import SourceEnded, SourceError, SourceNotFound
 from device.sources.sgbm import SGBMConfig
-from device.sources.stereo_pair import CALIB_KEYS, SGBM_OPTIONS, ProcessedPairSource, calibration_from_params, sgbm_from_params
+from device.sources.stereo_processing import CALIB_KEYS, SGBM_OPTIONS, ProcessedPairSource, calibration_from_params, sgbm_from_params
 
 LAYOUTS = ("side-by-side", "top-bottom", "two-files")
 
