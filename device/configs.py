@@ -109,7 +109,7 @@ def convert(value: object, hint: Any, o: Opt, key: str, error: type[Exception], 
     try:
         if isinstance(value, str):
             text = value.strip()
-            if nullable and not text and name not in ("str", "path"):
+            if nullable and not text:
                 return None
             if name == "bool":
                 return parse_flag(text) if text else False
@@ -126,6 +126,8 @@ def convert(value: object, hint: Any, o: Opt, key: str, error: type[Exception], 
                 return tuple(p.strip() for p in text.split(",") if p.strip())
             return text.upper() if o.case == "upper" else text.lower() if o.case == "lower" else text
         if name == "bool" and isinstance(value, bool):
+            return value
+        if name == "path" and isinstance(value, Path):
             return value
         if name == "int" and not isinstance(value, bool) and isinstance(value, (int, float)):
             if float(value).is_integer():
@@ -273,6 +275,13 @@ def from_table(table: Mapping[str, object]) -> object:
         module.config_from_spec(SourceSpec(kind))  # the kind's own error when its target is required
     rest = {k: v for k, v in table.items() if k not in ("kind", entry.target)}
     return build(getattr(module, entry.config), rest, target=target, kind=kind)
+
+
+def spec_from_table(table: Mapping[str, object]) -> SourceSpec:
+    """The spec a TOML ``[source]`` table (or an API body) means, after its kind's config accepted it:
+    ``{kind = "sim", scene = "boxes", distance = 6}`` is ``sim:boxes?distance=6``."""
+    config = from_table(table)
+    return to_spec(str(table["kind"]).lower(), config)
 
 
 def _target_text(config: object) -> tuple[str, Any]:

@@ -34,7 +34,8 @@ class Opt:
     ((key, part): spelled with a sibling as ``key=AxB``), ``extras`` (further keys, name -> type,
     collected into this field as sorted (name, value) pairs) and ``default_text`` (the default in
     words when it depends on other options). ``choices`` may be a function returning them, read
-    at each check (a registry that grows)."""
+    at each check (a registry that grows). ``example`` is a valid value other than the default, for
+    free text that no bound describes (a scene's object, a board's squares): docs and tests use it."""
 
     help: str = ""
     unit: str = ""
@@ -53,6 +54,7 @@ class Opt:
     joined: tuple[str, int] | None = None
     extras: Callable[[], Mapping[str, Any]] | None = None
     default_text: str = ""
+    example: Any = None
 
 
 def option(default: Any = dataclasses.MISSING, *, factory: Callable[[], Any] | None = None, **opt: Any) -> Any:
@@ -126,7 +128,7 @@ def requirement(hint: Any, o: Opt) -> str:
     if choices_of(o) is not None:
         return "one of " + ", ".join(choices_of(o))  # type: ignore[arg-type]
     if name == "bool":
-        return "true or false"
+        return "a boolean, true or false (1/0, yes/no or on/off in a spec)"
     word = {"int": "whole number", "float": "finite number"}.get(name, f"a {name}")
     if name in ("int", "float"):
         word = ("an odd " if o.odd else "a ") + word
@@ -247,6 +249,34 @@ class OptionField:
         """What a value must be, in words (:func:`requirement`)."""
         return requirement(self.hint, self.opt)
 
+    def problem(self, value: object) -> str:
+        """Why ``value`` does not fit (:func:`problem`), "" when it does."""
+        return problem(value, self.hint, self.opt)
+
+    def example(self) -> Any:
+        """A valid value other than the default: ``opt.example``, else one made from the bounds and
+        choices (None when only ``opt.example`` could say one: free text)."""
+        if self.opt.example is not None:
+            return self.opt.example
+        allowed = self.choices()
+        if allowed is not None:
+            return next((c for c in allowed if c != self.default), None)
+        if self.kind == "bool":
+            return not self.default if isinstance(self.default, bool) else True
+        if self.kind not in ("int", "float"):
+            return None
+        o, base = self.opt, self.default if isinstance(self.default, (int, float)) else (self.opt.min or 0)
+        step = o.multiple_of or (2 if o.odd else 1)
+        lo, hi = o.min, o.max
+        tries = [base + step, base - step, base * 2, (lo + hi) / 2 if lo is not None and hi is not None else base + 0.25,
+                 (lo or 0) + step] if self.kind == "int" else [base * 1.5, base + 0.25, base * 0.5,
+                                                             (lo + hi) / 2 if lo is not None and hi is not None else 1.0]
+        for value in tries:
+            value = int(value) if self.kind == "int" else float(value)
+            if value != self.default and not self.problem(value):
+                return value
+        return None
+
 
 def options_of(cls: type) -> tuple[OptionField, ...]:
     """The fields of dataclass ``cls`` declared with :func:`option`, in order."""
@@ -276,5 +306,6 @@ def describe(cls: type) -> list[dict[str, Any]]:
             "min": o.min, "max": o.max, "min_open": o.min_open, "max_open": o.max_open, "odd": o.odd,
             "multiple_of": o.multiple_of, "choices": None if choices_of(o) is None else list(choices_of(o)),  # type: ignore[arg-type]
             "unit": o.unit, "help": o.help, "target": o.target, "joined": list(o.joined) if o.joined else None,
+            "example": jsonable(o.example),
         })  # fmt: skip
     return out

@@ -143,6 +143,7 @@ class OptionFieldOut(_Out):
     help: str
     target: bool
     joined: list[Any] | None
+    example: Any
 
 
 class OptionsOut(_Out):

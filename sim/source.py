@@ -18,7 +18,7 @@ import numpy as np
 
 from device import configs
 from device.base import Backend, SourceBase, SourceInfo, SourceSpec
-from device.errors import SourceError, SourceTimeout
+from device.errors import SourceError, SourceNotFound, SourceTimeout
 from measure import Frame, check_options, option
 
 from sim.scenario import make_model, simulate_frame
@@ -42,7 +42,7 @@ class SimConfig:
     its metadata (docs/usage.md "Source options" lists them)."""
 
     scene: str = option("poster", target=True, key="scene", choices=tuple(SCENES), help="the scene shown")
-    target: str | None = option(None, help="which object of the scene the truth and the clicks are on (default: the scene's)")
+    target: str | None = option(None, example="poster-width", help="which object of the scene the truth and the clicks are on (default: the scene's)")
     distance_m: float = option(4.0, key="distance", min=0.0, min_open=True, unit="m", help="distance of the scene from the camera")
     lighting: str = option("indoor", choices=tuple(LIGHTING), help="lighting: sets the sensor noise and the holes")
     profile: str = option("stress", choices=tuple(PROFILES), help="sensor profile (sim.sensor.PROFILES): stress, or paper (the paper's tablet)")
@@ -61,14 +61,16 @@ class SimConfig:
     mode: str = option("model", choices=MODES, help="model: the sensor model; stereo: rendered pair through SGBM")
     baseline_error: float = option(0.0, min=-0.5, max=0.5, min_open=True, max_open=True,
                                    help="the frames report a baseline off by this share: a wrong calibration for the check to find")
-    squares: str = option(f"{CHARUCO_BOARD[0]}x{CHARUCO_BOARD[1]}", help="the charuco scene's board: COLSxROWS squares")
+    squares: str = option(f"{CHARUCO_BOARD[0]}x{CHARUCO_BOARD[1]}", example="9x6", help="the charuco scene's board: COLSxROWS squares")
     square_mm: float = option(CHARUCO_BOARD[2] * 1000, min=0.0, min_open=True, unit="mm", help="the charuco board's square side")
     marker_mm: float = option(CHARUCO_BOARD[3] * 1000, min=0.0, min_open=True, unit="mm", help="the charuco board's marker side")
-    dictionary: str = option(CHARUCO_BOARD[4], help="the charuco board's ArUco dictionary")
-    sensor: tuple[tuple[str, object], ...] = option(factory=tuple, extras=_sensor_keys,
+    dictionary: str = option(CHARUCO_BOARD[4], example="DICT_4X4_50", help="the charuco board's ArUco dictionary")
+    sensor: tuple[tuple[str, object], ...] = option(factory=tuple, extras=_sensor_keys, example=(("noise_px", 0.3),),
                                                     help="any other SensorModel field by name, e.g. noise_px=0.3")
 
     def __post_init__(self) -> None:
+        if self.scene not in SCENES:  # a missing thing, not a bad number: SourceNotFound
+            raise SourceNotFound(f"unknown sim scene {self.scene!r}; use one of {', '.join(SCENES)} (e.g. 'sim:person')")
         check_options(self, SourceError, "sim option ")
         try:  # fail when the config is made, not at the first read
             self.scene_params()
