@@ -39,10 +39,12 @@ def source_config(spec: str | SourceSpec | Mapping[str, object]) -> object:
 
 
 def kind_of(config: object) -> str:
-    """The registered kind whose config dataclass ``config`` is (SourceError if none is)."""
+    """The registered kind whose config dataclass ``config`` is (SourceError if none is). A kind's module
+    may be a package that defines the dataclass in one of its modules (``device.sources.bag.config``)."""
     cls = type(config)
     for kind, entry in BACKENDS.items():
-        if entry.module == cls.__module__ and entry.config == cls.__qualname__:
+        inside = cls.__module__ == entry.module or cls.__module__.startswith(entry.module + ".")
+        if inside and entry.config == cls.__qualname__:
             return kind
     raise SourceError(f"{cls.__qualname__} is not the config of a registered source kind ({', '.join(BACKENDS)})")
 

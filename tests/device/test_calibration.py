@@ -9,16 +9,10 @@ import numpy as np
 import pytest
 from typer.testing import CliRunner
 
-from device.calibration.stereo import (
-    FORMAT,
-    BoardSpec,
-    calibrate_stereo,
-    calibration_from_json,
-    capture_views,
-    load_calibration,
-    load_image_pairs,
-    render_board_view,
-)
+from device.calibration.board import BoardSpec, render_board_view
+from device.calibration.capture import capture_views
+from device.calibration.solve import calibrate_stereo, load_image_pairs
+from device.calibration.stereo import FORMAT, calibration_from_json, load_calibration
 from device.errors import CalibrationError
 from device.sources.stereo_pair import ImagePairGrabber
 from cli.main import app

@@ -14,7 +14,8 @@ import pytest
 from scipy.spatial import cKDTree
 from typer.testing import CliRunner
 
-from device.calibration.stereo import BoardSpec, StereoCalibration, write_board_png
+from device.calibration.board import BoardSpec, write_board_png
+from device.calibration.stereo import StereoCalibration
 from device.calibration.files import CalibrationRef, load_any, write
 from device.errors import CalibrationError
 from device.sources.stereo_pair import rectification
