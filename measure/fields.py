@@ -130,6 +130,8 @@ def requirement(hint: Any, o: Opt) -> str:
     if name == "bool":
         return "a boolean, true or false (1/0, yes/no or on/off in a spec)"
     word = {"int": "whole number", "float": "finite number"}.get(name, f"a {name}")
+    if name in ("int", "float") and o.min == 0 and o.min_open and o.max is None and not (o.odd or o.multiple_of):
+        return f"a positive {'whole ' if name == 'int' else ''}number" + (f" ({o.unit})" if o.unit else "")
     if name in ("int", "float"):
         word = ("an odd " if o.odd else "a ") + word
         if o.multiple_of:
