@@ -304,3 +304,86 @@ def to_table(kind: str, config: object) -> dict[str, Any]:
     if text:
         table[backend(kind).target] = _typed(value) if isinstance(value, (tuple, list)) else text
     return {**table, **values_of(config, text=False)}
+
+
+def _cell(value: Any) -> str:
+    if value is None or value == "":
+        return "—"
+    if isinstance(value, bool):
+        return "true" if value else "false"
+    if isinstance(value, (tuple, list)):
+        return ", ".join(_cell(v) for v in value) or "—"
+    return f"`{_text(value)}`"
+
+
+def _bounds(f: OptionField) -> str:
+    o, allowed = f.opt, f.choices()
+    if allowed is not None:
+        return ", ".join(f"`{c}`" for c in allowed)
+    if f.kind == "bool":
+        return "true, false"
+    parts = []
+    if o.min is not None or o.max is not None:
+        lo = "" if o.min is None else ("> " if o.min_open else "≥ ") + _text(o.min)
+        hi = "" if o.max is None else ("< " if o.max_open else "≤ ") + _text(o.max)
+        parts.append(" and ".join(p for p in (lo, hi) if p))
+    if o.odd:
+        parts.append("odd")
+    if o.multiple_of:
+        parts.append(f"multiple of {o.multiple_of}")
+    return ", ".join(parts) or "—"
+
+
+def markdown(cls: type, target_key: str = "") -> str:
+    """The option table of dataclass ``cls`` in Markdown (docs/usage.md holds one per option set,
+    checked against this by tests/device/test_configs.py): spelling, type, default, allowed, unit, what."""
+    rows = ["| option | type | default | allowed | unit | what |", "| --- | --- | --- | --- | --- | --- |"]
+
+    def add(c: type) -> None:
+        joined: dict[str, list[OptionField]] = {}
+        for f in options_of(c):
+            o = f.opt
+            if o.nested:
+                add(f.base)
+                continue
+            if o.joined:
+                joined.setdefault(o.joined[0], []).append(f)
+                if len(joined[o.joined[0]]) == 2:
+                    w, h = sorted(joined[o.joined[0]], key=lambda g: g.opt.joined[1])  # type: ignore[index]
+                    rows.append(f"| `{o.joined[0]}` | WxH | `{w.default}x{h.default}` | {_bounds(w)} each | {o.unit} "
+                                f"| {w.help_text()}, {h.help_text()} |")
+                continue
+            key = f"any of {', '.join(f'`{k}`' for k in o.extras())}" if o.extras is not None and len(o.extras()) < 6 \
+                else "any SensorModel field" if o.extras is not None else f"`{(target_key if o.target else '') or f.key}`"
+            if o.target:
+                key += " (target)"
+            default = o.default_text or ("required" if f.required else _cell(f.default))
+            kind = "by name" if o.extras is not None else f.kind
+            rows.append(f"| {key} | {kind} | {default} | {_bounds(f)} | {o.unit} | {f.help_text()} |")
+
+    add(cls)
+    return "\n".join(rows) + "\n"
+
+
+def option_tables() -> dict[str, str]:
+    """Name -> Markdown table of every option set: ``measure`` and each source kind."""
+    from measure import MeasureOptions
+
+    out = {"measure": markdown(MeasureOptions)}
+    for kind in sorted(BACKENDS):
+        out[kind] = markdown(config_class(kind), BACKENDS[kind].target)
+    return out
+
+
+def fill_tables(page: str) -> str:
+    """``page`` with every block between ``<!-- options:NAME -->`` and ``<!-- /options:NAME -->``
+    replaced by :func:`option_tables`'s table NAME (docs/usage.md is written with it)."""
+    tables = option_tables()
+    for name, table in tables.items():
+        start, end = f"<!-- options:{name} -->\n", f"<!-- /options:{name} -->"
+        a = page.find(start)
+        b = page.find(end, a)
+        if a >= 0 and b >= 0:
+            page = page[: a + len(start)] + table + page[b:]
+    return page
+

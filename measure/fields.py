@@ -251,6 +251,10 @@ class OptionField:
         """What a value must be, in words (:func:`requirement`)."""
         return requirement(self.hint, self.opt)
 
+    def help_text(self) -> str:
+        """The one-line help, with ``|`` escaped for a Markdown table."""
+        return self.opt.help.replace("|", "\\|")
+
     def problem(self, value: object) -> str:
         """Why ``value`` does not fit (:func:`problem`), "" when it does."""
         return problem(value, self.hint, self.opt)

@@ -7,6 +7,7 @@ from __future__ import annotations
 import json
 import math
 import tomllib
+from pathlib import Path
 from urllib.parse import parse_qsl
 
 import pytest
@@ -188,3 +189,20 @@ def test_measure_option_errors_are_typed():
         configs.build(MeasureOptions, {"click_px": math.nan}, error=MeasureError)
     with pytest.raises(MeasureError, match="unknown MeasureOptions option 'colour'; use any of: method, support_fraction"):
         configs.build(MeasureOptions, {"colour": "red"}, error=MeasureError)
+
+
+REWRITE = ('.venv/bin/python -c "import pathlib, device.configs as c; p = pathlib.Path(\'docs/usage.md\'); '
+           'p.write_text(c.fill_tables(p.read_text()))"')
+
+
+def test_the_manual_s_option_tables_are_the_metadata():
+    page = (Path(__file__).resolve().parents[2] / "docs" / "usage.md").read_text()
+    for name in configs.option_tables():
+        assert f"<!-- options:{name} -->" in page, f"docs/usage.md has no table for {name}"
+    assert configs.fill_tables(page) == page, f"docs/usage.md's option tables differ from the metadata; run {REWRITE}"
+
+
+def test_a_drifted_table_is_found():
+    page = (Path(__file__).resolve().parents[2] / "docs" / "usage.md").read_text()
+    assert configs.fill_tables(page.replace("| `window` | int | `5` |", "| `window` | int | `7` |")) == page
+    assert page.replace("| `window` | int | `5` |", "| `window` | int | `7` |") != page
