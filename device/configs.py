@@ -153,6 +153,9 @@ def build(cls: type[T], values: Mapping[str, object], *, target: object = None, 
     collected: dict[tuple[str, ...], dict[str, Any]] = {}
     label = kind or cls.__name__
     for key, value in values.items():
+        if isinstance(value, Mapping):
+            raise error(f"{label} option {key} is a table; write the options of a kind flat in its own table "
+                        f"(e.g. ndisp = 64 under [source], not under [source.{key}])")
         if key in sl:
             slot = sl[key]
             if slot.parts:
