@@ -73,8 +73,8 @@ class ServerConfig(_Model):
 
 class ServeConfig(_Model):
     server: ServerConfig = ServerConfig()
-    # The [source] table as the spec string it means (device.spec_from_table), checked by the kind's
-    # own parser: the table and a --source string are two spellings of the kind's one config dataclass.
+    # The [source] table as the spec string it means (device.spec_from_table), parsed by the one parser
+    # (device.configs): the table and a --source string are two spellings of the kind's config dataclass.
     source: str | None = None
 
 
@@ -90,13 +90,12 @@ def _describe(error: Any) -> str:
 def source_table_spec(table: object, origin: str = "<config>") -> str:
     """The spec string of a ``[source]`` table, after the kind's parser accepted it (ConfigError names
     ``origin``, the kind and what is allowed)."""
-    from device import SourceError, SourceSpec, source_config, spec_from_table
+    from device import SourceError, spec_from_table
 
     if not isinstance(table, dict):
         raise ConfigError(f"{origin}: source must be a table ([source] with kind = ...), not {table!r}")
     try:
-        text = str(spec_from_table(table))
-        source_config(SourceSpec.parse(text))  # what the service will parse, checked now
+        text = str(spec_from_table(table))  # parsed into the kind's config, written back as its spec
     except (SourceError, ValueError) as exc:  # ValueError: a config dataclass's own check
         raise ConfigError(f"{origin}: source: {exc}") from None
     return text

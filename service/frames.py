@@ -279,9 +279,9 @@ class Capture:
         ring: FrameRing,
         *,
         spec: str = "",
-        fps: float = 15.0,
-        backoff_initial_s: float = 0.5,
-        backoff_max_s: float = 10.0,
+        fps: float,
+        backoff_initial_s: float,
+        backoff_max_s: float,
         read_timeout_s: float = 2.0,
     ) -> None:
         self.factory = factory

@@ -8,8 +8,7 @@ from typing import Annotated, Any, Literal
 from fastapi import APIRouter, Query, Request
 from fastapi.responses import JSONResponse, PlainTextResponse, Response
 
-from measure import MeasureOptions, measure_distance
-from measure.sequence import measure_sequence
+from measure import measure_distance, measure_sequence
 
 from service.deps import MeasurementDep, MeasurementId, State
 from service.render import encode_png, frame_json, make_thumb, png_from_jpeg, quarter
@@ -41,13 +40,13 @@ def measure(state: State, body: MeasureIn) -> Response:
     measurement and its frame are on disk; an error status means nothing was stored."""
     entry = state.ring.get(body.frame_id)
     frame = entry.frame
-    options = body.options.model_dump()
+    options, core = body.options.model_dump(), body.options.to_options()
     used = [entry]
     if body.frames > 1:
         used = list(reversed(state.ring.before(entry.id, body.frames - 1))) + [entry]
-        result = measure_sequence([e.frame for e in used], body.p1, body.p2, MeasureOptions(**options))
+        result = measure_sequence([e.frame for e in used], body.p1, body.p2, core)
     else:
-        result = measure_distance(frame, body.p1, body.p2, MeasureOptions(**options))
+        result = measure_distance(frame, body.p1, body.p2, core)
     context = {"frame_index": replay["index"]} if isinstance(replay := frame.meta.get("replay"), dict) else {}
     if body.frames > 1:
         # The ids of the frames pooled, oldest first (the motion check may keep fewer than offered).
