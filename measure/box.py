@@ -48,6 +48,7 @@ MIN_SIDE_POINTS = 8
 CREASE_BAND_PX = 14
 CREASE_RESIDUAL = 4.0
 CREASE_GAIN = 25.0
+CREASE_BINS = 5
 
 
 def _outline(mask: np.ndarray) -> np.ndarray:
@@ -145,38 +146,46 @@ def _rectangle(top: Plane, grown: GrownPlane, frame: Frame) -> dict:
 def _creases(frame: Frame, top: Plane, mask: np.ndarray, pc: np.ndarray, u: np.ndarray, v: np.ndarray,
              centre: np.ndarray, e: np.ndarray, pos: np.ndarray, half: np.ndarray, seen: np.ndarray) -> np.ndarray:
     """Eq. 16: each side's crease with the face beyond it, where the disparity residual to the top plane
-    starts a linear trend (a hinge fit over the band ``CREASE_BAND_PX`` either side of the side); NaN
-    for a side with no such trend (a depth step to the background: its outline stands)."""
+    starts a linear trend: a hinge fit to the residual's medians in one-pixel bins across the band of
+    ``CREASE_BAND_PX`` either side of the side. The trend must be significant, reach the inlier
+    tolerance within the band and be seen in ``CREASE_BINS`` bins beyond the hinge (a face, not the
+    thin fattened halo beyond a depth step). NaN for a side without: its outline stands."""
     import cv2
 
-    h, w = frame.shape
     ys, xs = np.nonzero(cv2.dilate(mask.astype(np.uint8), np.ones((2 * CREASE_BAND_PX + 1,) * 2, np.uint8)))
-    d = frame.disparity[ys, xs]
-    r = d - top.disparity_at(xs, ys)
+    r = frame.disparity[ys, xs] - top.disparity_at(xs, ys)
     tol = INLIER_SIGMAS * max(top.sigma_px, top.quantum * 0.75)
     keep = np.abs(r) <= CREASE_RESIDUAL * tol  # outliers and the background beyond a depth step drop out
     xs, ys, r = xs[keep], ys[keep], r[keep]
     p3 = top.points_at(xs, ys)
-    q = np.stack([(p3 - pc) @ u, (p3 - pc) @ v], axis=1) - centre
-    s = q @ e.T
+    s = (np.stack([(p3 - pc) @ u, (p3 - pc) @ v], axis=1) - centre) @ e.T
     foot = float(np.median(np.linalg.norm(top.points_at(xs + 1.0, ys) - p3, axis=1))) if len(xs) else 0.0
     out = np.full(4, np.nan)
-    sigma2 = max(top.sigma_px, top.quantum / math.sqrt(12.0)) ** 2
+    noise2 = (1.2533 * max(top.sigma_px, top.quantum / math.sqrt(12.0))) ** 2 * CORRELATED_PX
+    nb = 2 * CREASE_BAND_PX
+    centres = (np.arange(nb) - CREASE_BAND_PX + 0.5) * foot
     for k in range(4):
-        if not seen[k]:
+        if not seen[k] or foot <= 0:
             continue
         along, across, sign = (1, 0, 1.0) if k == 0 else (1, 0, -1.0) if k == 1 else (0, 1, 1.0) if k == 2 else (0, 1, -1.0)
         t = sign * s[:, across] - pos[k]
-        sel = (np.abs(s[:, along]) <= SIDE_SPAN * half[along]) & (np.abs(t) <= CREASE_BAND_PX * foot)
-        if sel.sum() < 4 * MIN_SIDE_POINTS:
-            continue
-        tk, rk = t[sel], r[sel]
-        grid = np.arange(-CREASE_BAND_PX, 1.0, 0.25) * foot
-        hinge = np.maximum(tk[None, :] - grid[:, None], 0.0)
-        su, sru = (hinge**2).sum(axis=1), (hinge * rk).sum(axis=1)
-        gain = np.where(su > 0, sru**2 / np.maximum(su, 1e-30), 0.0)  # SSE removed by the hinge
+        sel = (np.abs(s[:, along]) <= SIDE_SPAN * half[along]) & (np.abs(t) < CREASE_BAND_PX * foot)
+        b = np.floor(t[sel] / foot).astype(int) + CREASE_BAND_PX
+        rk = r[sel]
+        counts = np.bincount(b, minlength=nb)[:nb]
+        order = np.argsort(b, kind="stable")
+        groups = np.split(rk[order], np.cumsum(counts)[:-1])
+        med = np.array([float(np.median(g)) if len(g) else 0.0 for g in groups])
+        w = counts.astype(float)
+        grid = np.arange(-CREASE_BAND_PX, 0.25, 0.25) * foot
+        hinge = np.maximum(centres[None, :] - grid[:, None], 0.0)
+        su, sru = (w * hinge**2).sum(axis=1), (w * hinge * med).sum(axis=1)
+        gain = np.where(su > 0, sru**2 / np.maximum(su, 1e-30), 0.0)
         best = int(np.argmax(gain))
-        if gain[best] > CREASE_GAIN * sigma2 and (hinge[best] > 0).sum() >= 2 * MIN_SIDE_POINTS:
+        slope = sru[best] / su[best] if su[best] > 0 else 0.0
+        reach = abs(slope) * (CREASE_BAND_PX * foot - grid[best])
+        beyond = int(((centres > grid[best]) & (counts >= MIN_SIDE_POINTS)).sum())
+        if gain[best] > CREASE_GAIN * noise2 and reach >= tol and beyond >= CREASE_BINS:
             out[k] = pos[k] + grid[best]
     return out
 

@@ -71,10 +71,13 @@ def parallel_support(frame: Frame, mask: np.ndarray, top: Plane, seed: int = 0, 
     # Two neighbouring bins together: a level straddling a bin edge still counts once.
     pair = hist[:-1] + hist[1:] if len(hist) > 1 else hist
     dense = np.flatnonzero(pair >= LEVEL_SHARE * len(xs))
-    for k in dense[:MAX_CANDIDATES]:
+    for k in dense[np.argsort(-pair[dense], kind="stable")][:MAX_CANDIDATES]:  # densest level first
         level = (below >= edges[k] - LEVEL_BIN_M) & (below <= edges[k] + 3 * LEVEL_BIN_M)
         try:
             plane = fit_plane(frame, xs[level], ys[level], seed)
+            # Refit on the whole ring from there: inliers chosen by their residual to the plane, not by
+            # their noisy level, which would truncate the noise on one side and bias the plane.
+            plane = fit_plane(frame, xs, ys, seed, start=plane)
         except MeasureError:
             continue
         if angle_deg(plane, top) <= PARALLEL_DEG and plane.n_support >= MIN_PLANE_PIXELS * 4:
