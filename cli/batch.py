@@ -152,6 +152,10 @@ def diff_command(
 
     con = Console()
     con.print(f"A {a}: {d['rows_a']} rows; B {b}: {d['rows_b']} rows; matched {d['matched']} (only in A {d['only_in_a']}, only in B {d['only_in_b']})")
+    for side in ("a", "b"):
+        run = d["runs"][side]
+        opts = ", ".join(f"{k}={v}" for k, v in sorted(run["options"].items())) or "defaults"
+        con.print(f"{side.upper()} options: {opts}" + (f" (depthruler {run['version']})" if run["version"] else ""))
     con.print("status: " + ", ".join(f"{k} {v}" for k, v in sorted(d["status"].items())))
     med, mx = d["median_abs_change_m"], d["max_abs_change_m"]
     con.print(

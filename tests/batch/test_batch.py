@@ -241,10 +241,12 @@ def test_diff_counts_moves_beyond_uncertainty(archive, tmp_path):
     d = diff_results(a, b)
     assert d["matched"] == len(ra) == 16 and d["moved_beyond_uncertainty"] == want > 0
     assert d["status"] == {"answered -> answered": 16}
+    assert d["runs"]["a"]["options"] == {} and d["runs"]["b"]["options"] == {"method": "basic"}
     same = diff_results(a, a)
     assert same["moved_beyond_uncertainty"] == 0 and same["unchanged_exactly"] == 16
     res = invoke(["batch", "diff", str(a), str(b), "--json"])
     assert json.loads(res)["moved_beyond_uncertainty"] == want
+    assert "B options: method=basic" in invoke(["batch", "diff", str(a), str(b)])
     close_readers()
 
 
