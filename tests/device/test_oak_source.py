@@ -66,11 +66,11 @@ def test_spec_parsing_and_bad_options():
         config_from_spec(SourceSpec.parse("oak?auto_calibration=always"))
     with pytest.raises(SourceError, match="FAST_ACCURACY"):
         config_from_spec(SourceSpec.parse("oak?preset=turbo"))
-    with pytest.raises(SourceError, match="unknown OAK option 'colour'"):
+    with pytest.raises(SourceError, match="unknown oak option 'colour'"):
         config_from_spec(SourceSpec.parse("oak?colour=1"))
     with pytest.raises(SourceError, match="fps"):
         config_from_spec(SourceSpec.parse("oak?fps=abc"))
-    with pytest.raises(SourceError, match="0..255"):
+    with pytest.raises(SourceError, match="confidence_threshold=300 must be a whole number from 0 to 255"):
         OakConfig(confidence_threshold=300)
 
 

@@ -3,14 +3,14 @@
 from __future__ import annotations
 
 import dataclasses
-import math
 from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 
-from measure import Frame
+from measure import Frame, check_options, option
 
+from device import configs
 from device.base import SourceBase, SourceInfo, SourceSpec
 from device.errors import RecordingError, SourceError
 from device.pacing import Pacer
@@ -24,20 +24,16 @@ from device.formats.recording.reader import Recording, open_recording
 
 @dataclass(frozen=True)
 class ReplayConfig:
-    """``path``: the recording; ``loop``: start again at the end; ``realtime``: pace frames by their
-    recorded timestamps (divided by ``speed``) instead of as fast as possible; ``start``: first frame."""
+    """A recording played back: each field's spelling, bounds and help are in its metadata."""
 
-    path: Path
-    loop: bool = False
-    realtime: bool = False
-    speed: float = 1.0
-    start: int = 0
+    path: Path = option(target=True, key="path", example="recordings/example", help="the recording folder")
+    loop: bool = option(False, help="start again at the end")
+    realtime: bool = option(False, help="pace frames by their recorded timestamps instead of as fast as read")
+    speed: float = option(1.0, min=0.0, min_open=True, help="playback speed with realtime (1 = as recorded)")
+    start: int = option(0, min=0, help="index of the first frame")
 
     def __post_init__(self) -> None:
-        if not (self.speed > 0 and math.isfinite(self.speed)):
-            raise SourceError(f"speed={self.speed} must be a positive number (1 = as recorded)")
-        if self.start < 0:
-            raise SourceError(f"start={self.start} must be a frame index >= 0")
+        check_options(self, SourceError, "replay option ")
 
 
 class ReplaySource(SourceBase):
@@ -113,23 +109,6 @@ class ReplaySource(SourceBase):
         super().close()
 
 
-_REPLAY_PARAMS = ("loop", "realtime", "speed", "start")
-
-
 def config_from_spec(spec: SourceSpec) -> ReplayConfig:
-    """ReplayConfig from ``replay:DIR?loop=1&realtime=1&speed=2&start=10``."""
-    if not spec.target:
-        raise RecordingNotFound("replay needs a recording directory: replay:path/to/recording")
-    spec.check_keys(_REPLAY_PARAMS)
-    try:
-        speed = float(spec.params.get("speed", "1"))
-        start = int(spec.params.get("start", "0"))
-    except ValueError as exc:
-        raise SourceError(f"replay options speed/start must be numbers: {exc}") from exc
-    return ReplayConfig(
-        path=Path(spec.target),
-        loop=spec.flag("loop", False),
-        realtime=spec.flag("realtime", False),
-        speed=speed,
-        start=start,
-    )
+    """ReplayConfig from ``replay:DIR?loop=1&realtime=1&speed=2&start=10`` (device.configs)."""
+    return configs.from_spec(ReplayConfig, spec, RecordingNotFound("replay needs a recording directory: replay:path/to/recording"))

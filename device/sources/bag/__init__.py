@@ -25,7 +25,7 @@ from device.sources.bag.geometry import MAX_SPLAT_PX, Rigid, align_depth_to_colo
 from device.sources.bag.layout import Layout, detect_layout
 from device.sources.bag.messages import DEFAULT_ROS_DEPTH_UNIT_M, camera_from_info, decode_color, decode_depth
 from device.sources.bag.reader import BagContents, BagReader, summarize_bag
-from device.sources.bag.source import BagSource, config_from_spec, options_from_spec
+from device.sources.bag.source import BagSource, config_from_spec
 from device.sources.bag.storage import BAG_SUFFIXES, is_bag_path, topic_times
 
 __all__ = [
@@ -49,7 +49,6 @@ __all__ = [
     "decode_depth",
     "detect_layout",
     "is_bag_path",
-    "options_from_spec",
     "pair_by_time",
     "summarize_bag",
     "topic_times",

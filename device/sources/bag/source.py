@@ -7,6 +7,7 @@ from pathlib import Path
 
 from measure import Frame
 
+from device import configs
 from device.base import SourceBase, SourceInfo, SourceSpec
 from device.errors import SourceError
 from device.formats.recording.playback import Playback
@@ -89,32 +90,7 @@ class BagSource(SourceBase):
         super().close()
 
 
-_PARAMS = ("depth", "color", "depth_info", "color_info", "baseline", "depth_unit", "skew_ms", "registered", "loop", "realtime", "speed", "start")
-
-
-def options_from_spec(spec: SourceSpec) -> BagOptions:
-    spec.check_keys(_PARAMS)
-
-    try:
-        start = int(spec.params.get("start", "0"))
-    except ValueError:
-        raise SourceError(f"bag option start={spec.params['start']!r} must be a frame index") from None
-    speed = spec.number("speed")
-    return BagOptions(
-        topics=tuple((k, spec.params[k]) for k in ("depth", "color", "depth_info", "color_info") if spec.params.get(k)),
-        baseline_m=spec.number("baseline"),
-        depth_unit_m=spec.number("depth_unit"),
-        skew_ms=spec.number("skew_ms"),
-        registered=spec.flag("registered", False),
-        loop=spec.flag("loop", False),
-        realtime=spec.flag("realtime", False),
-        speed=1.0 if speed is None else speed,  # not `or 1.0`: speed=0 is refused, not played at 1
-        start=start,
-    )
-
-
 def config_from_spec(spec: SourceSpec) -> BagConfig:
-    """BagConfig from ``bag:PATH?depth=TOPIC&color=TOPIC&baseline=0.05&depth_unit=0.001&skew_ms=20&loop=1``."""
-    if not spec.target:
-        raise BagNotFound("bag needs a path: bag:path/to/file.bag, bag:path/to/ros2_bag_folder or bag:path/to/file.mcap")
-    return BagConfig(Path(spec.target), options_from_spec(spec))
+    """BagConfig from ``bag:PATH?depth=TOPIC&color=TOPIC&baseline=0.05&depth_unit=0.001&skew_ms=20&loop=1`` (device.configs)."""
+    return configs.from_spec(BagConfig, spec, BagNotFound(
+        "bag needs a path: bag:path/to/file.bag, bag:path/to/ros2_bag_folder or bag:path/to/file.mcap"))

@@ -2,11 +2,14 @@
 
 from __future__ import annotations
 
-from dataclasses import dataclass, fields
+from dataclasses import dataclass
 
 import depthai as dai
 
-from device.base import SourceSpec, parse_flag
+from measure import check_options, option
+
+from device import configs
+from device.base import SourceSpec
 from device.errors import SourceError
 
 PRESETS: tuple[str, ...] = (
@@ -43,39 +46,27 @@ class OakConfig:
     :meth:`OakSource.open` looks for the device.
     """
 
-    mxid: str = ""
-    fps: float = 15.0
-    width: int = 1280
-    height: int = 720
-    mono_width: int = 640
-    mono_height: int = 400
-    preset: str = "DEFAULT"
-    subpixel: bool | None = None
-    lr_check: bool | None = None
-    extended_disparity: bool | None = None
-    confidence_threshold: int | None = None
-    confidence_map: bool = True
-    align: str = "auto"
-    auto_calibration: str = "off"
-    search_timeout_ms: int = 1000
+    mxid: str = option("", target=True, key="mxid", example="1844301011B546F500",
+                       default_text="the first OAK found", help="the device id (`depthruler devices` lists them)")
+    fps: float = option(15.0, min=0.0, max=120.0, min_open=True, unit="frames/s", help="camera frame rate")
+    width: int = option(1280, joined=("size", 0), min=16, unit="px", help="output (colour) width")
+    height: int = option(720, joined=("size", 1), min=16, unit="px", help="output (colour) height")
+    mono_width: int = option(640, min=16, unit="px", help="mono (stereo input) width")
+    mono_height: int = option(400, min=16, unit="px", help="mono (stereo input) height")
+    preset: str = option("DEFAULT", choices=PRESETS, case="upper", help="DepthAI v3 stereo preset")
+    subpixel: bool | None = option(None, default_text="the preset's", help="subpixel disparity")
+    lr_check: bool | None = option(None, default_text="the preset's", help="left-right consistency check")
+    extended_disparity: bool | None = option(None, default_text="the preset's", help="extended disparity range (closer objects)")
+    confidence_threshold: int | None = option(None, min=0, max=255, default_text="the preset's",
+                                              help="keep pixels whose confidence (255 = best) is above this (v3 scale)")
+    confidence_map: bool = option(True, help="deliver the confidence map (with align=left)")
+    align: str = option("auto", choices=ALIGNS, case="lower", help="auto | color: depth on the colour image | left: the rectified left mono")
+    auto_calibration: str = option("off", choices=tuple(AUTO_CALIBRATION), case="lower",
+                                   help="DepthAI's automatic recalibration (on_start/continuous may write to the device)")
+    search_timeout_ms: int = option(1000, min=100, max=60_000, unit="ms", help="how long open() looks for the device")
 
     def __post_init__(self) -> None:
-        if self.preset not in PRESETS:
-            raise SourceError(f"OAK preset {self.preset!r} is unknown; use one of {', '.join(PRESETS)}")
-        if not (0 < self.fps <= 120):
-            raise SourceError(f"OAK fps={self.fps} must lie in (0, 120]")
-        for name in ("width", "height", "mono_width", "mono_height"):
-            if getattr(self, name) < 16:
-                raise SourceError(f"OAK {name}={getattr(self, name)} must be at least 16 pixels")
-        if self.confidence_threshold is not None and not (0 <= self.confidence_threshold <= 255):
-            raise SourceError(f"OAK confidence_threshold={self.confidence_threshold} must lie in 0..255")
-        if self.align not in ALIGNS:
-            raise SourceError(f"OAK align={self.align!r} is unknown; use one of {', '.join(ALIGNS)}")
-        if self.auto_calibration not in AUTO_CALIBRATION:
-            raise SourceError(f"OAK auto_calibration={self.auto_calibration!r} is unknown; "
-                              f"use one of {', '.join(AUTO_CALIBRATION)}")
-        if not (100 <= self.search_timeout_ms <= 60_000):
-            raise SourceError(f"OAK search_timeout_ms={self.search_timeout_ms} must lie in 100..60000")
+        check_options(self, SourceError, "OAK option ")
 
     @property
     def size(self) -> tuple[int, int]:
@@ -83,30 +74,6 @@ class OakConfig:
 
 
 def config_from_spec(spec: SourceSpec) -> OakConfig:
-    """OakConfig from ``oak[:<mxid>][?preset=HIGH_DETAIL&fps=10&size=1280x720&subpixel=1&lr_check=1
-    &extended_disparity=0&confidence_threshold=55&confidence_map=1&align=auto&auto_calibration=off
-    &search_timeout_ms=2000]``; options left out keep the preset's (or the default) value."""
-    known = {f.name for f in fields(OakConfig)} - {"mxid", "width", "height"}
-    kwargs: dict = {"mxid": spec.target}
-    for key, value in spec.params.items():
-        try:
-            if key == "size":
-                w, _, h = value.lower().partition("x")
-                kwargs["width"], kwargs["height"] = int(w), int(h)
-            elif key == "preset":
-                kwargs["preset"] = value.upper()
-            elif key in ("align", "auto_calibration"):
-                kwargs[key] = value.lower()
-            elif key in ("subpixel", "lr_check", "extended_disparity", "confidence_map"):
-                kwargs[key] = parse_flag(value)
-            elif key == "fps":
-                kwargs["fps"] = float(value)
-            elif key in ("confidence_threshold", "search_timeout_ms", "mono_width", "mono_height"):
-                kwargs[key] = int(value)
-            else:
-                raise SourceError(
-                    f"unknown OAK option {key!r} in {str(spec)!r}; use: size, {', '.join(sorted(known))}"
-                )
-        except (ValueError, KeyError) as exc:
-            raise SourceError(f"OAK option {key}={value!r} in {str(spec)!r} is not valid") from exc
-    return OakConfig(**kwargs)
+    """OakConfig from ``oak[:<mxid>][?preset=HIGH_DETAIL&fps=10&size=1280x720&...]`` (device.configs);
+    options left out keep the preset's (or the default) value."""
+    return configs.from_spec(OakConfig, spec)
