@@ -24,7 +24,7 @@ from hypothesis import strategies as st
 from device.calibration.files import CalibrationRef, write
 from device.calibration.stereo import StereoCalibration, load_calibration
 from device.errors import CalibrationError
-from fuzzing import typed_or_answer
+from fuzzing import byte_edits, typed_or_answer
 
 R_LR, _ = cv2.Rodrigues(np.array([0.002, -0.015, 0.004]))
 CALIB = StereoCalibration(
@@ -32,8 +32,8 @@ CALIB = StereoCalibration(
     D1=np.array([0.05, -0.1, 0.001, 0.0, 0.02]), K2=np.array([[995.0, 0, 630.25], [0, 997.0, 362.75], [0, 0, 1]]),
     D2=np.zeros(5), R=R_LR, T=np.array([-0.06, 0.0004, 0.0008]), rms=0.3, created="2026-12-01T00:00:00+00:00",
 )
-TOKENS = [b"\xff", b"\x00", b"-", b"9", b"e999", b"[", b"]", b"{", b"}", b".nan", b".inf", b"abc", b":", b",",
-          b'"', b"'", b"\n  ", b"!!opencv-matrix", b"rows: 100000000", b"<", b"</", b">", b"&amp;", b"%YAML:1.0\n"]
+TOKENS = (b"\xff", b"\x00", b"-", b"9", b"e999", b"[", b"]", b"{", b"}", b".nan", b".inf", b"abc", b":", b",",
+          b'"', b"'", b"\n  ", b"!!opencv-matrix", b"rows: 100000000", b"<", b"</", b">", b"&amp;", b"%YAML:1.0\n")
 SECOND = 1.0  # each read must end within this
 
 
@@ -80,23 +80,6 @@ def valid_files(folder: Path) -> dict[str, list[Path]]:
             for fmt, ext in (("opencv-yaml", "yaml"), ("opencv-xml", "xml"), ("ros", "yaml"), ("json", "json"))}
 
 
-@st.composite
-def mutations(draw: st.DrawFn, data: bytes) -> bytes:
-    out = bytearray(data)
-    for _ in range(draw(st.integers(1, 6))):
-        i = draw(st.integers(0, max(0, len(out) - 1)))
-        op = draw(st.integers(0, 3))
-        if op == 0 and out:
-            out[i] = draw(st.integers(0, 255))
-        elif op == 1:
-            del out[i: i + draw(st.integers(1, 40))]
-        elif op == 2:
-            out[i:i] = draw(st.sampled_from(TOKENS))
-        else:
-            out[i:i] = out[i: i + draw(st.integers(1, 200))] * draw(st.integers(1, 4))  # a repeated stretch
-    return bytes(out)
-
-
 @pytest.fixture(scope="module")
 def originals(tmp_path_factory) -> dict[str, list[bytes]]:
     files = valid_files(tmp_path_factory.mktemp("valid"))
@@ -113,7 +96,7 @@ def test_mutated_calibration_files_load_or_raise_calibration_error(originals, tm
     paths = []
     for k, doc in enumerate(docs):
         p = folder / f"c{k}{suffix}"
-        p.write_bytes(data.draw(mutations(doc)) if k == hit else doc)
+        p.write_bytes(data.draw(byte_edits(doc, TOKENS, edits=6, cut=40, repeat=True)) if k == hit else doc)
         paths.append(p)
     read(",".join(map(str, paths)))
 
