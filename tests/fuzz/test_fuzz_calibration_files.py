@@ -196,3 +196,30 @@ def test_the_valid_files_still_load(tmp_path: Path) -> None:
     (tmp_path / "l.yaml").write_text(ros_yaml("left"))
     (tmp_path / "r.yaml").write_text(ros_yaml("right"))
     assert CalibrationRef(f"{tmp_path / 'l.yaml'},{tmp_path / 'r.yaml'}").load().baseline_m == pytest.approx(0.06)
+
+
+def test_serve_stops_on_an_unreadable_calibration_instead_of_retrying(tmp_path: Path) -> None:
+    """A video source whose calib= is garbage: the service reports "failed" once, naming the file, and does
+    not reopen it (it retried such a file for ever while the reader raised SystemError)."""
+    import time
+
+    from fastapi.testclient import TestClient
+
+    from service.app import create_app
+
+    video = tmp_path / "pair.avi"
+    writer = cv2.VideoWriter(str(video), cv2.CAP_FFMPEG, cv2.VideoWriter.fourcc(*"MJPG"), 10.0, (128, 48))
+    for _ in range(3):
+        writer.write(np.zeros((48, 128, 3), np.uint8))
+    writer.release()
+    calib = tmp_path / "stereo.yaml"
+    calib.write_bytes(CASES["deep-flow"][0])
+    app = create_app(f"video:{video}?calib={calib}", db_path=tmp_path / "h.db", reconnect_initial_s=0.02)
+    with TestClient(app, base_url="http://127.0.0.1") as c:
+        deadline = time.monotonic() + 20
+        while c.get("/api/source").json()["state"] not in ("failed", "streaming") and time.monotonic() < deadline:
+            time.sleep(0.02)
+        time.sleep(0.2)  # a retry would show in the count by now (backoff 0.02 s)
+        s = c.get("/api/source").json()
+    assert s["state"] == "failed" and s["retries"] == 0, s
+    assert "CalibrationError" in s["message"] and str(calib) in s["message"], s
