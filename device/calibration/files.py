@@ -24,6 +24,7 @@ and every file is validated through it. Conventions:
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, replace
 from pathlib import Path
 
@@ -32,7 +33,8 @@ import numpy as np
 
 from measure import check_options, option
 
-from device.calibration.stereo import DISTORTION_MODELS, StereoCalibration, calibration_from_json, load_calibration
+from device.calibration.storage import read_storage
+from device.calibration.stereo import DISTORTION_MODELS, MAX_IMAGE_SIDE, StereoCalibration, calibration_from_json, load_calibration
 from device.errors import CalibrationError
 
 UNITS = {"m": 1.0, "mm": 1e-3}
@@ -81,7 +83,7 @@ def load_any(ref: str, *, units: str = "m", distortion_model: str | None = None)
             raise CalibrationError(f"{paths[0]}: the project's JSON is in metres with its distortion model "
                                    "inside; drop calib_units/distortion from the spec")
         return load_calibration(paths[0])
-    nodes = [_read_storage(p) for p in paths]
+    nodes = [read_storage(p) for p in paths]
     if len(nodes) == 2 and all("camera_matrix" in n for n in nodes):
         data = _from_ros(nodes[0], nodes[1], " + ".join(map(str, paths)))
     elif any("camera_matrix" in n for n in nodes):
@@ -101,53 +103,56 @@ def load_any(ref: str, *, units: str = "m", distortion_model: str | None = None)
     return calibration_from_json(data, source=ref)
 
 
-def _read_storage(path: Path) -> dict:
-    """Top-level nodes of a FileStorage (YAML or XML; also reads ROS YAML, which has no %YAML header)."""
-    try:
-        fs = cv2.FileStorage(str(path), cv2.FILE_STORAGE_READ | cv2.FILE_STORAGE_FORMAT_AUTO)
-    except cv2.error as exc:
-        raise CalibrationError(f"{path} is not an OpenCV FileStorage / ROS YAML file ({exc.err})") from exc
-    if not fs.isOpened():
-        raise CalibrationError(f"cannot read {path} as OpenCV YAML/XML")
-    try:
-        root = fs.root()
-        return {name: _node_value(root.getNode(name)) for name in root.keys()}
-    finally:
-        fs.release()
-
-
-def _node_value(node: cv2.FileNode):
-    if node.isMap():
-        if {"rows", "cols", "data"} <= set(node.keys()) and not node.getNode("dt").isNone():
-            return node.mat()  # !!opencv-matrix
-        return {k: _node_value(node.getNode(k)) for k in node.keys()}
-    if node.isSeq():
-        return [_node_value(node.at(i)) for i in range(node.size())]
-    if node.isString():
-        return node.string()
-    if node.isInt() or node.isReal():
-        return node.real()
-    mat = node.mat()
-    return mat if mat is not None else None
-
-
-def _matrix(value, rows: int | None = None) -> np.ndarray:
-    """A matrix from an opencv-matrix, a ROS {rows, cols, data} map or a nested list."""
+def _matrix(value, source: str, name: str) -> np.ndarray:
+    """A finite float matrix from an opencv-matrix, a ROS {rows, cols, data} map or a (nested) list of
+    numbers; CalibrationError naming the field otherwise."""
     if isinstance(value, dict) and "data" in value:
-        a = np.asarray(value["data"], np.float64)
-        r, c = int(value.get("rows", 1)), int(value.get("cols", a.size))
-        return a.reshape(r, c)
-    a = np.asarray(value, np.float64)
-    return a.reshape(rows, -1) if rows else a
+        data = value["data"]
+        flat = _numbers(data if isinstance(data, list) else [data], source, f"{name}.data")
+        r, c = (_whole(value.get(k, default), source, f"{name}.{k}") for k, default in (("rows", 1), ("cols", flat.size)))
+        if r * c != flat.size:
+            raise CalibrationError(f"{source}: field {name} says {r}x{c} but its data holds {flat.size} numbers")
+        a = flat.reshape(r, c)
+    elif isinstance(value, np.ndarray):
+        a = value.astype(np.float64)
+    else:
+        rows_in = value if isinstance(value, list) and value and all(isinstance(v, list) for v in value) else [value]
+        if len({len(r) if isinstance(r, list) else 1 for r in rows_in}) != 1:
+            raise CalibrationError(f"{source}: field {name} has rows of different lengths")
+        a = np.array([_numbers(r if isinstance(r, list) else [r], source, name) for r in rows_in], np.float64)
+        a = a if len(rows_in) > 1 else a.ravel()
+    if not np.all(np.isfinite(a)):
+        raise CalibrationError(f"{source}: field {name} holds a value that is not a finite number")
+    return a
+
+
+def _numbers(items: list, source: str, name: str) -> np.ndarray:
+    if not all(isinstance(v, (int, float)) and not isinstance(v, bool) for v in items):
+        raise CalibrationError(f"{source}: field {name} must hold numbers only, got {items[:6]!r}")
+    return np.asarray(items, np.float64)
+
+
+def _whole(value, source: str, name: str, top: int = MAX_IMAGE_SIDE) -> int:
+    """A whole number 1..top from a number (or a numeric string), or CalibrationError naming the field."""
+    try:
+        v = float(value) if not isinstance(value, bool) else math.nan
+    except (TypeError, ValueError):
+        v = math.nan
+    if not (math.isfinite(v) and v == round(v) and 1 <= v <= top):
+        raise CalibrationError(f"{source}: field {name} must be a whole number 1..{top}, got {value!r}")
+    return int(v)
 
 
 def _image_size(d: dict, source: str) -> list[int]:
     for key in ("image_size", "imageSize", "size"):
         if key in d:
-            return [int(round(v)) for v in np.asarray(_matrix(d[key]), float).ravel()[:2]]
+            wh = _matrix(d[key], source, key).ravel()
+            if wh.size != 2:
+                raise CalibrationError(f"{source}: field {key} must be [width, height] in pixels, got {wh.tolist()}")
+            return [_whole(v, source, key) for v in wh]
     for w, h in (("image_width", "image_height"), ("width", "height"), ("imageWidth", "imageHeight")):
         if w in d and h in d:
-            return [int(round(float(d[w]))), int(round(float(d[h])))]
+            return [_whole(d[w], source, w), _whole(d[h], source, h)]
     raise CalibrationError(
         f"{source}: the image size is missing; add image_width and image_height (pixels of one camera's image "
         "at calibration) to the file: OpenCV's stereo_calib sample does not write them"
@@ -161,10 +166,12 @@ def _from_opencv(d: dict, source: str) -> dict:
         if found is None:
             raise CalibrationError(f"{source}: no {' / '.join(names)} in the file (OpenCV stereo calibration needs "
                                    "M1, D1, M2, D2, R, T and the image size)")
-        out[field] = _matrix(d[found]).tolist()
+        out[field] = _matrix(d[found], source, found).tolist()
     R = np.asarray(out["R"], np.float64)
     if R.size == 3:  # a Rodrigues vector, as some tools write R
         out["R"] = cv2.Rodrigues(R.reshape(3, 1))[0].tolist()
+    elif R.size != 9:
+        raise CalibrationError(f"{source}: field R has {R.size} numbers; it must be a 3x3 rotation or a Rodrigues 3-vector")
     out["image_size"] = _image_size(d, source)
     if "distortion_model" in d:
         out["distortion_model"] = ROS_MODELS.get(str(d["distortion_model"]), str(d["distortion_model"]))
@@ -182,13 +189,14 @@ def _from_ros(left: dict, right: dict, source: str) -> dict:
     if sizes[0] != sizes[1]:
         raise CalibrationError(f"{source}: the cameras have different image sizes {sizes[0]} and {sizes[1]}")
     try:
-        K1, K2 = _matrix(left["camera_matrix"], 3), _matrix(right["camera_matrix"], 3)
-        R1, R2 = _matrix(left["rectification_matrix"], 3), _matrix(right["rectification_matrix"], 3)
-        P2 = _matrix(right["projection_matrix"], 3)
-        D1 = _matrix(left["distortion_coefficients"]).ravel()
-        D2 = _matrix(right["distortion_coefficients"]).ravel()
+        K1, K2 = (_ros_matrix(c, "camera_matrix", source, (3, 3)) for c in (left, right))
+        R1, R2 = (_ros_matrix(c, "rectification_matrix", source, (3, 3)) for c in (left, right))
+        P2 = _ros_matrix(right, "projection_matrix", source, (3, 4))
+        D1, D2 = (_matrix(c["distortion_coefficients"], source, "distortion_coefficients").ravel() for c in (left, right))
     except KeyError as exc:
         raise CalibrationError(f"{source}: camera_info field {exc} is missing") from exc
+    if not P2[0, 0] > 0:
+        raise CalibrationError(f"{source}: the right camera's projection_matrix has fx' = {P2[0, 0]:g}; it must be > 0")
     if abs(P2[0, 3]) <= 0:
         raise CalibrationError(f"{source}: the right camera's projection_matrix has Tx = 0; the files are not "
                                "a calibrated stereo pair (left first, then right)")
@@ -197,6 +205,13 @@ def _from_ros(left: dict, right: dict, source: str) -> dict:
         "image_size": sizes[0], "K1": K1.tolist(), "K2": K2.tolist(), "D1": D1.tolist(), "D2": D2.tolist(),
         "R": (R2.T @ R1).tolist(), "T": T.tolist(), "distortion_model": ROS_MODELS[next(iter(models))],
     }
+
+
+def _ros_matrix(camera: dict, key: str, source: str, shape: tuple[int, int]) -> np.ndarray:
+    a = _matrix(camera[key], source, key)
+    if a.size != shape[0] * shape[1]:
+        raise CalibrationError(f"{source}: field {key} has {a.size} numbers; it must be {shape[0]}x{shape[1]}")
+    return a.reshape(shape)
 
 
 def write(calib: StereoCalibration, out: str | Path, fmt: str) -> list[Path]:

@@ -38,6 +38,7 @@ import numpy as np
 from measure import MeasureError, PinholeCamera
 
 from device.calibration.board import BoardSpec
+from device.calibration.storage import MAX_FILE_BYTES
 from device.errors import CalibrationError
 
 MAX_IMAGE_SIDE = 65536  # px; a calibration for larger images is a corrupt file (rectification maps would not fit)
@@ -129,6 +130,9 @@ def load_calibration(path: str | Path) -> StereoCalibration:
             f"calibration file {str(path)!r} does not exist; create it with "
             "`depthruler calibrate --images DIR --out FILE` or fix the calib= path"
         )
+    if path.stat().st_size > MAX_FILE_BYTES:
+        raise CalibrationError(f"calibration file {str(path)!r} has {path.stat().st_size} bytes; a calibration has a few "
+                               f"thousand (at most {MAX_FILE_BYTES}): is it the right file?")
     try:
         data = json.loads(path.read_text(encoding="utf-8"))
     except (OSError, UnicodeDecodeError, json.JSONDecodeError, RecursionError) as exc:

@@ -34,7 +34,7 @@ from measure import Frame, MeasureError, PinholeCamera, check_options, option
 from device import configs
 from device.base import SourceBase, SourceInfo, SourceSpec
 from device.errors import CalibrationError, RecordingError, SourceError, SourceNotFound
-from device.formats.recording import EndOfRecording
+from device.formats.recording.playback import Playback
 
 DEFAULT_BASELINE_M = 0.075
 DEFAULT_DEPTH_SCALE = 1000.0
@@ -183,7 +183,8 @@ def _visualise(depth_m: np.ndarray) -> np.ndarray:
 
 
 class DepthFolderSource(SourceBase):
-    """Frames from a depth-PNG folder, in file-name order; EndOfRecording at the end unless looping."""
+    """Frames from a depth-PNG folder, in file-name order; EndOfRecording at the end unless looping, unreadable
+    images skipped."""
 
     def __init__(self, config: DepthFolderConfig | str | Path) -> None:
         self.config = config if isinstance(config, DepthFolderConfig) else DepthFolderConfig(path=Path(config))
@@ -191,7 +192,8 @@ class DepthFolderSource(SourceBase):
         self._depth: list[Path] = []
         self._color: list[Path] | None = None
         self._intr: DepthIntrinsics | None = None
-        self._pos = 0
+        self.playback: Playback | None = None
+        self.warnings: list[str] = []  # images skipped because they could not be read (newest, updated in place)
 
     def open(self) -> None:
         import cv2
@@ -206,7 +208,10 @@ class DepthFolderSource(SourceBase):
         intr = DepthIntrinsics(**{**intr.__dict__, **overrides})
         if not intr.baseline_m > 0 or not intr.depth_scale > 0:
             raise CalibrationError(f"baseline_m={intr.baseline_m} and depth_scale={intr.depth_scale} must be positive")
-        self._depth, self._color, self._intr, self._pos = depth, color, intr, 0
+        self._depth, self._color, self._intr = depth, color, intr
+        self.playback = Playback(len(depth), what=f"the depth folder {folder}", loop=self.config.loop,
+                                 loop_hint="use depthpng:DIR?loop=1 to repeat")
+        self.playback.warnings = self.warnings
         self.info = SourceInfo(
             kind="depthpng",
             name=folder.name,
@@ -227,17 +232,19 @@ class DepthFolderSource(SourceBase):
         return img
 
     def read(self, timeout_s: float = 1.0) -> Frame:
+        """The next image pair in name order; an unreadable one is skipped (``warnings``), the end ends or
+        loops as configured (device/formats/recording/playback.py)."""
+        if self.playback is None or not self.is_open:
+            raise SourceError("the depth-folder source is not open; call open() or use it in a with block")
+        return self.playback.next(self.frame, timeout_s)
+
+    def frame(self, i: int) -> Frame:
+        """Frame ``i`` (file-name order), read directly (an unreadable image raises RecordingError)."""
         import cv2
 
         intr = self._intr
         if intr is None or not self.is_open:
             raise SourceError("the depth-folder source is not open; call open() or use it in a with block")
-        if self._pos >= len(self._depth):
-            if not self.config.loop:
-                raise EndOfRecording(f"{self.config.path}: all {len(self._depth)} depth images were read; use depthpng:DIR?loop=1 to repeat")
-            self._pos = 0
-        i = self._pos
-        self._pos += 1
         cam = intr.camera
         raw = self._read_depth_png(self._depth[i], cv2)
         if raw.shape != (cam.height, cam.width):
@@ -268,6 +275,7 @@ class DepthFolderSource(SourceBase):
 
     def close(self) -> None:
         self._intr = None
+        self.playback = None
         super().close()
 
 

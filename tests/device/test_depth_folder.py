@@ -142,7 +142,31 @@ def test_bad_folders(tmp_path: Path) -> None:
     victim.write_bytes(b"garbage")
     with open_source(f"depthpng:{folder}") as src:
         assert src.read().meta["file"] == "000000.png"
+        assert src.read().meta["file"] == "000002.png"  # the damaged one is skipped, the others still read
+        assert str(victim) in src.warnings[0]
         with pytest.raises(RecordingError) as exc:
-            src.read()
+            src.frame(1)  # read directly, it says what is wrong
         assert str(victim) in str(exc.value)
-        assert src.read().meta["file"] == "000002.png"  # the others are still readable
+
+
+def test_a_corrupt_image_is_skipped_per_pass_and_an_all_corrupt_folder_ends(tmp_path: Path) -> None:
+    """One corrupt colour PNG among 4: played past, once per pass with loop=1; a folder whose every depth
+    PNG after the first is unreadable (the first is read at open) ends in one read with loop=1 too."""
+    from device import SourceEnded
+
+    folder = open3d_folder(tmp_path / "o3d", n=4)
+    (folder / "color" / "000002.png").write_bytes(b"not a png")
+    with open_source(f"depthpng:{folder}") as src:
+        assert [src.read().meta["frame_index"] for _ in range(3)] == [0, 1, 3]
+        with pytest.raises(EndOfRecording, match=r"1 damaged frame\(s\) skipped in this pass: 2"):
+            src.read()
+    with open_source(f"depthpng:{folder}?loop=1") as src:
+        assert [src.read().meta["frame_index"] for _ in range(3 * 10)] == [0, 1, 3] * 10
+        assert src.playback.skipped_total == 10 and list(src.playback.skipped) == [2]
+        assert "000002.png" in src.warnings[-1]
+    bad = open3d_folder(tmp_path / "bad", n=3)
+    with open_source(f"depthpng:{bad}?loop=1") as src:
+        for png in (bad / "depth").glob("*.png"):
+            png.write_bytes(b"\x89PNG truncated")
+        with pytest.raises(SourceEnded, match="no frame of the depth folder .* can be read"):
+            src.read()

@@ -53,3 +53,28 @@ def finite(value: Any) -> bool:
         return all(math.isfinite(float(v)) for v in (value if isinstance(value, (tuple, list)) else [value]))
     except (TypeError, ValueError):
         return False
+
+
+RECORDING_TOKENS = (b"\xff", b"\x00", b"\n", b"{", b"}", b'"', b"9" * 20, b"NaN", b"-", b"\xc3")
+
+
+@st.composite
+def byte_edits(draw: st.DrawFn, data: bytes, tokens: tuple[bytes, ...] = RECORDING_TOKENS, *, edits: int = 5,
+               cut: int = 16, repeat: bool = False) -> bytes:
+    """``data`` with 1..``edits`` edits: a byte replaced, up to ``cut`` bytes deleted, a token inserted, and
+    the tail cut off (or, with ``repeat``, a stretch of up to 200 bytes repeated up to 4 times)."""
+    out = bytearray(data)
+    for _ in range(draw(st.integers(1, edits))):
+        i = draw(st.integers(0, max(0, len(out) - 1)))
+        op = draw(st.integers(0, 3))
+        if op == 0 and out:
+            out[i] = draw(st.integers(0, 255))
+        elif op == 1:
+            del out[i : i + draw(st.integers(1, cut))]
+        elif op == 2:
+            out[i:i] = draw(st.sampled_from(tokens))
+        elif repeat:
+            out[i:i] = out[i : i + draw(st.integers(1, 200))] * draw(st.integers(1, 4))
+        else:
+            del out[i:]
+    return bytes(out)

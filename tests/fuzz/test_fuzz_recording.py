@@ -24,7 +24,7 @@ from hypothesis import strategies as st
 from device.base import SourceInfo
 from device.errors import RecordingError
 from device.formats.recording import FRAMES, MANIFEST, Recording, RecordingWriter, open_recording, summarize
-from fuzzing import EDGE_FLOATS, ODD_TEXT, typed_or_answer
+from fuzzing import EDGE_FLOATS, ODD_TEXT, byte_edits, typed_or_answer
 from measure import Frame, PinholeCamera
 
 W, H = 24, 16
@@ -95,23 +95,6 @@ def mutated_json(draw: st.DrawFn, doc: dict) -> dict:
         else:
             doc = draw(mutated_value(doc)) if isinstance(doc, dict) else doc
     return doc
-
-
-@st.composite
-def byte_edits(draw: st.DrawFn, data: bytes) -> bytes:
-    out = bytearray(data)
-    for _ in range(draw(st.integers(1, 5))):
-        i = draw(st.integers(0, max(0, len(out) - 1)))
-        op = draw(st.integers(0, 3))
-        if op == 0 and out:
-            out[i] = draw(st.integers(0, 255))
-        elif op == 1:
-            del out[i : i + draw(st.integers(1, 16))]
-        elif op == 2:
-            out[i:i] = draw(st.sampled_from([b"\xff", b"\x00", b"\n", b"{", b"}", b'"', b"9" * 20, b"NaN", b"-", b"\xc3"]))
-        else:
-            del out[i:]
-    return bytes(out)
 
 
 def _read_everything(rec_dir: Path) -> None:
