@@ -24,6 +24,7 @@ from __future__ import annotations
 
 import csv
 import dataclasses
+import functools
 import hashlib
 import json
 import math
@@ -48,7 +49,7 @@ class TaskError(BatchError):
     """A task table that cannot be read, or one bad cell of a row; names the file, row or column."""
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, slots=True)
 class Task:
     """One measurement to make. ``index`` is the row's position in the table (the key ``--resume``
     uses); ``frame`` is an int index, or a saved frame's uid for the service history; ``options``
@@ -119,6 +120,13 @@ def normalise_source(source: str, base: Path | str) -> str:
         p = Path(target).expanduser()
         target = str(p if p.is_absolute() else (base / p).resolve())
     return f"{kind.lower()}:{target}" + (q + query if query else "")
+
+
+@functools.lru_cache(maxsize=4096)
+def _normalised(source: str, base: Path | str) -> str:
+    """:func:`normalise_source`, once per distinct source of a table (a table names few recordings
+    many times, and each call touches the filesystem)."""
+    return normalise_source(source, base)
 
 
 def shown(value: Any, limit: int = 40) -> str:
@@ -287,7 +295,7 @@ def parse_row(index: int, row: dict[str, Any] | BadLine, base: Path | str) -> Ta
             continue
         options[name] = value
     raw_source = row.get("source")
-    source = check("source", lambda v: normalise_source("" if _empty(v) else str(v), base), raw_source)
+    source = check("source", lambda v: _normalised("" if _empty(v) else str(v), base), raw_source)
     if None in row:  # csv.DictReader keeps a row's cells beyond the header under the key None
         bad["row"] = f"the row has {len(row[None])} more cell(s) than the header; quote cells that hold commas"
     extra = {k: v for k, v in row.items() if k is not None and k not in REQUIRED and k not in OPTION_FIELDS}
