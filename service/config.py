@@ -43,7 +43,10 @@ class ServerConfig(_Model):
     insecure_no_token: bool = False  # serve on a non-loopback host without a token (anyone there can use it)
     allowed_hosts: tuple[str, ...] = ()  # extra Host names to answer (a DNS name of this machine)
     ring_size: int = Field(32, ge=2, le=4096)  # frames in memory: width x height x 7 bytes each
-    max_frozen: int = Field(16, ge=1, le=1024)
+    max_frozen: int = Field(64, ge=1, le=1024)  # frames frozen at once (memory); beyond, the least recently used is released
+    freeze_ttl_s: float = Field(60.0, gt=0, le=86_400)  # a frozen frame nobody used for this long is released
+    measure_workers: int = Field(0, ge=0, le=256)  # measurements at once; 0: the CPU count
+    measure_queue: int = Field(8, ge=0, le=100_000)  # measurements waiting for a worker; 429 beyond
     capture_fps: float = Field(15.0, gt=0, le=1000)
     reconnect_initial_s: float = Field(0.5, gt=0, le=60)
     reconnect_max_s: float = Field(10.0, gt=0, le=600)

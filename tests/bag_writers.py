@@ -118,11 +118,12 @@ class BagOut:
         self.w.open()
         self.conns: dict[str, object] = {}
 
-    def write(self, topic: str, t_ns: int, msg) -> None:
+    def write(self, topic: str, t_ns: int, msg, *, cut: bool = False) -> None:
+        """Write ``msg``; ``cut``: only the first half of its serialized bytes (a damaged message)."""
         if topic not in self.conns:
             self.conns[topic] = self.w.add_connection(topic, msg.__msgtype__, typestore=self.ts)
         data = self.ts.serialize_ros1(msg, msg.__msgtype__) if self.ros1 else self.ts.serialize_cdr(msg, msg.__msgtype__)
-        self.w.write(self.conns[topic], t_ns, data)
+        self.w.write(self.conns[topic], t_ns, data[: len(data) // 2] if cut else data)
 
     def close(self) -> None:
         self.w.close()
@@ -131,10 +132,11 @@ class BagOut:
 TINY_CAM = PinholeCamera(fx=50.0, fy=50.0, cx=15.5, cy=11.5, width=32, height=24)
 
 
-def write_timed_bag(path: Path, kind: str, times_ns, stamps_ns=None, no_depth=()) -> Path:
+def write_timed_bag(path: Path, kind: str, times_ns, stamps_ns=None, no_depth=(), cut=(), short=()) -> Path:
     """depthai-ros topics with tiny frames: colour message k (every pixel k % 256) and its registered depth
     (2 m) recorded at ``times_ns[k]`` and stamped ``stamps_ns[k]`` (default: the record time), written in
-    the order given; the colour messages numbered in ``no_depth`` have no depth."""
+    the order given; the colour messages numbered in ``no_depth`` have no depth, those in ``cut`` a depth
+    message cut to half its bytes, those in ``short`` a depth image holding half the pixels it claims."""
     out = BagOut(path, kind)
     out.write("/oak/rgb/camera_info", T0, info_msg(out.ts, out.ros1, T0, "rgb", TINY_CAM))
     out.write("/oak/stereo/camera_info", T0, info_msg(out.ts, out.ros1, T0, "rgb", TINY_CAM))
@@ -143,7 +145,10 @@ def write_timed_bag(path: Path, kind: str, times_ns, stamps_ns=None, no_depth=()
         img = np.full((TINY_CAM.height, TINY_CAM.width, 3), k % 256, np.uint8)
         out.write("/oak/rgb/image_raw", int(t), image_msg(out.ts, out.ros1, int(st), "rgb", img, "bgr8"))
         if k not in no_depth:
-            out.write("/oak/stereo/image_raw", int(t), image_msg(out.ts, out.ros1, int(st), "rgb", z, "16UC1"))
+            msg = image_msg(out.ts, out.ros1, int(st), "rgb", z, "16UC1")
+            if k in short:
+                msg.data = msg.data[: msg.data.size // 2]
+            out.write("/oak/stereo/image_raw", int(t), msg, cut=k in cut)
     out.close()
     return path
 

@@ -217,7 +217,7 @@ def test_calibration_rectifies_and_measures_the_board(views):
     Rows must align (epipolar lines horizontal) and the 3D distance between far-apart corners,
     from disparity alone, must match the printed board.
     """
-    from device.sources.stereo_pair import StereoProcessor
+    from device.sources.stereo_processing import StereoProcessor
 
     calib = calibrate_stereo(views, BOARD)
     proc = StereoProcessor(calib)

@@ -24,8 +24,8 @@ from device.sources.stereo_pair import (
     StereoPairSource,
     V4L2Grabber,
     config_from_spec,
-    rectification,
 )
+from device.sources.stereo_processing import rectification
 from factories import rendered_pair
 
 # Share of non-occluded ground-truth pixels whose SGBM disparity (default SGBMConfig:

@@ -59,7 +59,10 @@ def decode_color(msg: Any, topic: str) -> np.ndarray:
                    "mono8": cv2.COLOR_GRAY2BGR, "8uc1": cv2.COLOR_GRAY2BGR, "yuv422": cv2.COLOR_YUV2BGR_UYVY,
                    "uyvy": cv2.COLOR_YUV2BGR_UYVY, "yuv422_yuy2": cv2.COLOR_YUV2BGR_YUY2, "yuyv": cv2.COLOR_YUV2BGR_YUY2}
     if enc in conversions:
-        return np.ascontiguousarray(cv2.cvtColor(px, conversions[enc]))
+        try:
+            return np.ascontiguousarray(cv2.cvtColor(px, conversions[enc]))
+        except cv2.error as exc:  # e.g. a yuv422 image of odd width
+            raise BagError(f"{topic}: a {msg.width}x{msg.height} {msg.encoding} image cannot be converted to colour ({exc.err})") from exc
     if enc in ("bgr8", "8uc3"):
         return np.ascontiguousarray(px)
     raise BagError(f"{topic}: {msg.encoding} is a depth encoding, not colour; name the colour topic with color=TOPIC")

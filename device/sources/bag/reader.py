@@ -19,7 +19,7 @@ from typing import Any
 
 import numpy as np
 
-from measure import Frame, PinholeCamera
+from measure import Frame, MeasureError, PinholeCamera
 
 from device.errors import SourceError
 from device.sources.bag.config import BagConfig, BagOptions
@@ -99,7 +99,9 @@ class BagReader:
     def _conns(self, topic: str) -> list[Any]:
         return [c for c in self._reader.connections if c.topic == topic]
 
-    def _first(self, topic: str | None) -> Any | None:
+    def _first(self, topic: str | None, *, damaged_ok: bool = False) -> Any | None:
+        """The first message of ``topic`` (None without one); ``damaged_ok``: the first that decodes, None if
+        none does (an image topic whose frames are damaged still opens; its frames are skipped when read)."""
         if not topic:
             return None
         conns = self._conns(topic)
@@ -108,7 +110,17 @@ class BagReader:
         gen = self._reader.messages(connections=conns)
         try:
             for conn, _, raw in gen:
-                return self._deserialize(raw, conn, topic)
+                try:
+                    return self._deserialize(raw, conn, topic)
+                except BagError:
+                    if not damaged_ok:
+                        raise
+        except BagError:
+            raise
+        except Exception as exc:  # rosbags' readers raise their own, struct, zstd/lz4 and OS errors on a damaged chunk
+            if not damaged_ok:
+                raise BagError(f"{self.path}: the messages of {topic} cannot be read ({type(exc).__name__}: {exc}); "
+                               "the bag is damaged") from exc
         finally:
             gen.close()
         return None
@@ -259,7 +271,10 @@ class BagReader:
         lags = []
         for i in sorted({0, times.size // 2, times.size - 1}):
             if 0 <= i < times.size:
-                msg, t = self._message(topic, times, i)
+                try:
+                    msg, t = self._message(topic, times, i)
+                except BagError:
+                    continue  # a damaged message gives no sample; its frame is skipped when read
                 if _stamp_ns(msg):
                     lags.append(t - _stamp_ns(msg))
         return int(np.median(lags)) if lags else None
@@ -277,8 +292,9 @@ class BagReader:
             baseline, baseline_from = self.options.baseline_m, "baseline= option"
         elif stereo_mm and stereo_mm > 0:
             baseline, baseline_from = stereo_mm / 1000.0, "recorded Stereo Baseline option"
-        first = self._first(layout.depth_topic)  # one image: its encoding says whether depth is in units or metres
-        encoding = str(getattr(first, "encoding", "compressed"))
+        # One image: its encoding says whether depth is in units or metres.
+        first = self._first(layout.depth_topic, damaged_ok=True)
+        encoding = "unreadable" if first is None else str(getattr(first, "encoding", "compressed"))
         return (None if encoding.lower() == "32fc1" else unit), encoding, baseline, baseline_from
 
     # -- frames --------------------------------------------------------------------------------
@@ -291,6 +307,11 @@ class BagReader:
             for j, (conn, ts, raw) in enumerate(gen):
                 if j == k:
                     return self._deserialize(raw, conn, topic), ts
+        except BagError:
+            raise
+        except Exception as exc:  # rosbags' readers raise their own, struct, zstd/lz4 and OS errors on a damaged chunk
+            raise BagError(f"{self.path}: message {i} of {topic} (time {t} ns) cannot be read ({type(exc).__name__}: {exc}); "
+                           "the bag is damaged there") from exc
         finally:
             gen.close()
         raise BagError(f"{self.path}: message {i} of {topic} (time {t} ns) listed in the index is missing; the bag is damaged")
@@ -311,17 +332,23 @@ class BagReader:
             # Bag times pair the wrong neighbour when one topic is delayed more than the skew; stamps decide.
             for dj in (di - 1, di + 1, di - 2, di + 2):
                 if 0 <= dj < c.depth_ns.size:
-                    msg, t = self._message(c.layout.depth_topic, c.depth_ns, dj)
+                    try:
+                        msg, t = self._message(c.layout.depth_topic, c.depth_ns, dj)
+                    except BagError:
+                        continue  # a damaged neighbour is no candidate; the frame keeps the depth it has
                     if abs(_stamp_ns(msg) - sc) < abs(sd - sc):
                         depth_msg, depth_t, sd, di = msg, t, _stamp_ns(msg), dj
         image = decode_color(color_msg, c.layout.color_topic)
-        cam = c.color_camera
-        if image.shape[:2] != (cam.height, cam.width):
-            cam = cam.scaled(image.shape[1], image.shape[0])
         depth = decode_depth(depth_msg, c.layout.depth_topic, c.depth_unit_m or DEFAULT_ROS_DEPTH_UNIT_M)
-        dcam = c.depth_camera
-        if depth.shape != (dcam.height, dcam.width):
-            dcam = dcam.scaled(depth.shape[1], depth.shape[0])
+        cam, dcam = c.color_camera, c.depth_camera
+        try:
+            if image.shape[:2] != (cam.height, cam.width):
+                cam = cam.scaled(image.shape[1], image.shape[0])
+            if depth.shape != (dcam.height, dcam.width):
+                dcam = dcam.scaled(depth.shape[1], depth.shape[0])
+        except MeasureError as exc:
+            raise BagError(f"{self.path}: frame {i}'s images ({image.shape[1]}x{image.shape[0]} colour, {depth.shape[1]}x"
+                           f"{depth.shape[0]} depth) do not fit their camera_info ({exc}); the messages are damaged") from exc
         z = align_depth_to_color(depth, dcam, cam, c.depth_to_color)
         skew = (sd - sc) / 1e9 if c.stamps_comparable else (depth_t - color_t) / 1e9
         meta = {

@@ -10,7 +10,7 @@ from measure import Frame
 from device import configs
 from device.base import SourceBase, SourceInfo, SourceSpec
 from device.errors import SourceError
-from device.formats.recording import EndOfRecording
+from device.formats.recording.playback import Playback
 from device.pacing import Pacer
 from device.sources.bag.config import BagConfig, BagOptions
 from device.sources.bag.errors import BagError, BagNotFound
@@ -26,8 +26,8 @@ class BagSource(SourceBase):
         self.options = self.config.options
         self.info = SourceInfo(kind="bag", name=self.path.name)
         self.bag: BagReader | None = None
-        self._pos = 0
-        self._pacer = Pacer()
+        self.playback: Playback | None = None
+        self.warnings: list[str] = []  # frames skipped because they could not be decoded (newest, updated in place)
 
     def open(self) -> None:
         bag = BagReader(self.path, self.options)
@@ -43,9 +43,13 @@ class BagSource(SourceBase):
             raise SourceError(f"start={self.options.start} is past the end: {self.path} has {len(c)} frames")
         t = c.color_ns[c.pairs[0]]
         offsets = (t - t[0]) / 1e9
-        self._pacer = Pacer(offsets, self.options.speed)
+        self.playback = Playback(
+            len(c), what=f"the bag {self.path}", loop=self.options.loop, realtime=self.options.realtime,
+            start=self.options.start, pacer=Pacer(offsets, self.options.speed), loop_hint="use bag:PATH?loop=1 to repeat it",
+        )
+        self.playback.warnings = self.warnings
         fps = (len(t) - 1) / offsets[-1] if len(t) > 1 and offsets[-1] > 0 else 0.0
-        self.bag, self._pos = bag, self.options.start
+        self.bag = bag
         self.info = SourceInfo(
             kind="bag",
             name=self.path.name,
@@ -67,30 +71,22 @@ class BagSource(SourceBase):
 
     def seek(self, i: int) -> None:
         """Make frame ``i`` the next one ``read`` returns."""
-        if not 0 <= i < len(self):
+        if self.playback is None:
             raise IndexError(f"frame {i} is out of range: {self.path} has {len(self)} frames")
-        self._pos = i
-        self._pacer.restart()
+        self.playback.seek(i)
 
     def read(self, timeout_s: float = 1.0) -> Frame:
-        if self.bag is None or not self.is_open:
+        """The next frame in order; a damaged message's frame is skipped (``warnings``, ``playback.skipped``),
+        the end ends or loops as configured (device/formats/recording/playback.py)."""
+        if self.bag is None or self.playback is None or not self.is_open:
             raise SourceError("the bag source is not open; call open() or use it in a with block")
-        n = len(self)
-        if self._pos >= n:
-            if not self.options.loop:
-                raise EndOfRecording(f"the bag {self.path} reached its end after {n} frames; use bag:PATH?loop=1 to repeat it")
-            self._pos = 0
-            self._pacer.restart()
-        i = self._pos
-        if self.options.realtime:
-            self._pacer.wait_for(i, timeout_s, "the bag")
-        self._pos += 1
-        return self.bag.frame(i)
+        return self.playback.next(self.bag.frame, timeout_s)
 
     def close(self) -> None:
         if self.bag is not None:
             self.bag.close()
         self.bag = None
+        self.playback = None
         super().close()
 
 
