@@ -9,8 +9,8 @@ A task table has one row per measurement with the columns
 - ``frame``: the 0-based frame index in that source, a whole number from 0 to 2^53 - 1;
 - ``p1_x``, ``p1_y``, ``p2_x``, ``p2_y``: the clicked points, finite pixels of the colour image;
 - optional option columns named after :class:`measure.MeasureOptions` fields (``method``,
-  ``support_fraction``, ``window``, ``extension_px``, ``gap_detection``, ``seed``); an empty cell
-  takes the run's default;
+  ``support_fraction``, ``window``, ``extension_px``, ``gap_detection``, ``seed``, ``click_px``:
+  docs/usage.md "Measure options"); an empty cell takes the run's default;
 - any other column is carried through to the results untouched.
 
 :func:`read_tasks` reads the table (a CSV's byte-order mark, as Excel writes it, is skipped) and
