@@ -11,16 +11,13 @@ from pathlib import Path
 import cv2
 import numpy as np
 import pytest
+from rosbags.rosbag1 import Writer as Writer1
+from rosbags.rosbag2 import StoragePlugin
+from rosbags.rosbag2 import Writer as Writer2
+from rosbags.typesys import Stores, get_typestore
 
-pytest.importorskip("rosbags")
-
-from rosbags.rosbag1 import Writer as Writer1  # noqa: E402
-from rosbags.rosbag2 import StoragePlugin  # noqa: E402
-from rosbags.rosbag2 import Writer as Writer2  # noqa: E402
-from rosbags.typesys import Stores, get_typestore  # noqa: E402
-
-from device import SourceError, SourceTimeout, make_source, open_source  # noqa: E402
-from device.sources.bag import (  # noqa: E402
+from device import SourceError, SourceTimeout, make_source, open_source
+from device.sources.bag import (
     BagError,
     BagLayoutError,
     BagReader,
@@ -29,14 +26,14 @@ from device.sources.bag import (  # noqa: E402
     pair_by_time,
     summarize_bag,
 )
-from device.formats.recording import EndOfRecording, RecordingWriter  # noqa: E402
-from device.base import SourceInfo  # noqa: E402
-from factories import FakeClock  # noqa: E402
-from measure import MeasureOptions, PinholeCamera, measure_distance  # noqa: E402
-from sim.raycast import Pose, cast  # noqa: E402
-from sim.scenario import make_model, simulate_frame  # noqa: E402
-from sim.scenes import SceneParams, build_scene, get_view  # noqa: E402
-from sim.sensor import sense  # noqa: E402
+from device.formats.recording import EndOfRecording, RecordingWriter
+from device.base import SourceInfo
+from factories import FakeClock
+from measure import MeasureOptions, PinholeCamera, measure_distance
+from sim.raycast import Pose, cast
+from sim.scenario import make_model, simulate_frame
+from sim.scenes import SceneParams, build_scene, get_view
+from sim.sensor import sense
 
 W, H = 640, 360
 PARAMS = SceneParams("poster", distance_m=3.0, width=W, height=H, standoff_m=1.0)

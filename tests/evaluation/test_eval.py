@@ -175,7 +175,7 @@ def test_middlebury_results_and_targets(middlebury_run, middlebury_dir):
         assert s["sgbm_config"]["num_disparities"] % 16 == 0
     # Targets: robust median >= 95 and robust above basic by >= 8 points. basic's median
     # is high on these segments while its failures are gross, so the +8 is on the mean, and
-    # robust must win on the median too (as tests/measure/test_middlebury_accuracy.py reads the target).
+    # robust must win on the median too (as tests/studies/test_middlebury_accuracy.py reads the target).
     sgbm = r["conditions"]["sgbm"]["methods"]
     robust, basic = sgbm["robust"]["overall"], sgbm["basic"]["overall"]
     assert robust["median"] >= 95.0

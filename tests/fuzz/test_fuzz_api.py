@@ -10,10 +10,9 @@ from __future__ import annotations
 
 import httpx
 import pytest
+import schemathesis
 from fastapi.testclient import TestClient
 from hypothesis import HealthCheck, given, settings
-
-schemathesis = pytest.importorskip("schemathesis")  # the `test` extra; skip where it is not installed
 
 SPEC = "sim:poster?width=160&height=120&fps=0&seed=1"
 
