@@ -1,14 +1,15 @@
 """Where the test suite's time goes, from the logs of ``pytest --durations=0`` runs: the generated note
 ``docs/test-times.md`` (docs/testing.md explains the folders and the fast loop it measures).
 
-    python -m pytest -q --durations=0 -p no:cacheprovider > /tmp/full.txt
+    python -m pytest --durations=0 -p no:cacheprovider > /tmp/full.txt
     python tests/durations.py --run today=/tmp/full.txt [--run before=/tmp/old.txt] --out docs/test-times.md
 
 A test's time is the sum of its setup, call and teardown (a module- or session-scoped fixture is paid
 in the setup of the first test that asks for it, as pytest reports it). For each run the note gives
 the total, the share of the slowest 22 tests, the share of ``-m "not slow"`` and of the fast loop
-(both selections collected here, on the current tree) and pytest's own session time; collection is
-timed here with ``pytest --collect-only -q``. Figures are this machine's on the date written.
+(both selections collected here, on the current tree, matched by file basename and test id, so a run
+logged before a file moved between folders still counts) and pytest's own session time; collection is
+timed here with ``pytest --collect-only``. Figures are this machine's on the date written.
 """
 
 from __future__ import annotations
@@ -50,7 +51,8 @@ def parse_log(text: str) -> tuple[Counter, str, float | None]:
 
 def collect(*args: str) -> tuple[set[str], float]:
     """The node ids ``pytest --collect-only -q ARGS`` selects on this tree, and pytest's collection seconds."""
-    out = subprocess.run([sys.executable, "-m", "pytest", "--collect-only", "-q", "-p", "no:cacheprovider", *args],
+    # --verbosity=-1 whatever addopts says: one node id a line and the "collected in" line
+    out = subprocess.run([sys.executable, "-m", "pytest", "--collect-only", "--verbosity=-1", "-p", "no:cacheprovider", *args],
                          cwd=ROOT, capture_output=True, text=True, check=False).stdout
     ids = {line.strip() for line in out.splitlines() if "::" in line}
     m = COLLECTED.search(out)
@@ -96,7 +98,7 @@ def report(runs: dict[str, str]) -> str:
         per_test, summary, session = parse_log(Path(path).read_text(errors="replace"))
         total = sum(per_test.values())
         top = per_test.most_common(SLOWEST)
-        lines.append(f"| {label} | {summary} | {session if session is not None else 'n/a'} | {total:.1f} | "
+        lines.append(f"| {label} | {summary or f'{len(per_test)} tests timed'} | {session if session is not None else 'n/a'} | {total:.1f} | "
                      f"{sum(s for _, s in top) / total:.1%} | {share(per_test, not_slow):.1%} | {share(per_test, fast):.1%} |")
         slowest_tables += ["", f"## Slowest {SLOWEST}: {label}", "", "| seconds | test |", "| --- | --- |"]
         slowest_tables += [f"| {s:.1f} | `{node}` |" for node, s in top]
