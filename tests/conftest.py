@@ -1,4 +1,4 @@
-"""Shared fixtures and the `hardware` / `browser` skips."""
+"""Shared fixtures, the folder markers (docs/testing.md) and the `hardware` / `browser` skips."""
 
 from __future__ import annotations
 
@@ -8,8 +8,6 @@ from pathlib import Path
 
 import pytest
 from hypothesis import HealthCheck, settings
-
-from evaluation.middlebury_data import FETCH_COMMAND, default_data_dir
 
 # Property-based tests (tests/fuzz/): a small, reproducible budget in the default run; a nightly-style
 # exploration with `--hypothesis-profile=long` (README "Fuzzing"; DEPTHRULER_FUZZ_EXAMPLES sets its examples per test). No example database: the tree stays
@@ -25,10 +23,14 @@ settings.register_profile(
 )
 settings.load_profile("default")
 
-MIDDLEBURY = default_data_dir()
 CHROMIUM = "/usr/bin/chromium"
+TESTS = Path(__file__).resolve().parent
+# A test in one of these folders carries its marker, so `-m` selects across folders (the fast loop
+# leaves them out; docs/testing.md).
+FOLDER_MARKERS = {"integration": "integration", "studies": "study", "browser": "browser"}
 
 
+@pytest.hookimpl(tryfirst=True)  # before `-m` deselects by marker
 def pytest_collection_modifyitems(config: pytest.Config, items: list[pytest.Item]) -> None:
     hardware = os.environ.get("DEPTHRULER_HARDWARE") == "1"
     skip_hw = pytest.mark.skip(reason="needs a camera: set DEPTHRULER_HARDWARE=1 with a device attached")
@@ -37,6 +39,9 @@ def pytest_collection_modifyitems(config: pytest.Config, items: list[pytest.Item
     # The long fuzzing profile runs each property for many minutes: pytest-timeout's 600 s per test would cut it.
     long_fuzz = config.getoption("hypothesis_profile", default=None) == "long"
     for item in items:
+        folder = item.path.relative_to(TESTS).parts[0] if item.path.is_relative_to(TESTS) else ""
+        if folder in FOLDER_MARKERS:
+            item.add_marker(FOLDER_MARKERS[folder])
         if long_fuzz and "fuzz" in item.nodeid.split("/"):
             item.add_marker(pytest.mark.timeout(0))
         if "hardware" in item.keywords and not hardware:
@@ -47,7 +52,12 @@ def pytest_collection_modifyitems(config: pytest.Config, items: list[pytest.Item
 
 @pytest.fixture(scope="session")
 def middlebury_dir() -> Path:
-    if not (MIDDLEBURY / "Adirondack" / "im0.png").is_file():
-        pytest.skip(f"the Middlebury scenes are not at {MIDDLEBURY}: fetch them with `{FETCH_COMMAND}` "
+    """The Middlebury scenes' folder; the tests that need it skip, naming the fetch command, without it.
+    Imported here, not at the top: a run of the unit folders does not load ``evaluation``."""
+    from evaluation.middlebury_data import FETCH_COMMAND, default_data_dir
+
+    root = default_data_dir()
+    if not (root / "Adirondack" / "im0.png").is_file():
+        pytest.skip(f"the Middlebury scenes are not at {root}: fetch them with `{FETCH_COMMAND}` "
                     "(or set DEPTHRULER_SHARED to a folder that holds data/middlebury)")
-    return MIDDLEBURY
+    return root

@@ -262,7 +262,7 @@ class RenderedPair:
 
 def rendered_pair(scene: str, distance: float) -> RenderedPair:
     """``scene`` ("poster", "boxes", ...) at ``distance`` m rendered by the simulator's indoor model (seed 0)."""
-    sim_scenes = pytest.importorskip("sim.scenes")
+    from sim import scenes as sim_scenes
     from sim.scenario import make_model
     from sim.stereo import stereo_pair, true_disparity
 

@@ -26,6 +26,7 @@ from cli.main import app as cli
 from device.formats.recording import open_recording
 
 
+@pytest.mark.slow
 def test_same_results_in_process_pool_and_ray(archive, tmp_path, ray_session):
     tasks_csv = write_tasks(archive / "tasks.csv", archive, extra_rows=[["rec_poster", 9, 10, 10, 100, 100, "robust", "missing"]])
     tasks = read_tasks(tasks_csv)
@@ -87,6 +88,7 @@ def test_missing_frame_file_is_an_error_row(archive, tmp_path):
     close_readers()
 
 
+@pytest.mark.slow
 def test_resume_after_a_killed_run(archive, tmp_path):
     # enough tasks that the run is still going when its first part is on disk
     tasks_csv = write_tasks(tmp_path / "many.csv", archive, methods=("robust", "basic"), jitter=tuple(range(0, 24, 2)))
@@ -126,6 +128,7 @@ def test_resume_after_a_killed_run(archive, tmp_path):
     close_readers()
 
 
+@pytest.mark.slow
 def test_from_history_reproduces_stored_measurements(archive, tmp_path):
     from fastapi.testclient import TestClient
 
@@ -270,6 +273,7 @@ def test_bad_tables_are_typed_errors(archive, tmp_path):
         make_executor(0)
 
 
+@pytest.mark.slow
 def test_eval_sim_same_on_every_executor(ray_session):
     from evaluation.sim_study import plan_sim, run_sim
 
@@ -287,6 +291,7 @@ def test_eval_sim_same_on_every_executor(ray_session):
     assert answers(runs["pool"]) == ref and answers(runs["ray"]) == ref
 
 
+@pytest.mark.slow
 def test_eval_middlebury_same_on_ray(ray_session, middlebury_dir):
     from evaluation.middlebury import ClickJitter, run_middlebury
 

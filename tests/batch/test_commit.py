@@ -131,6 +131,7 @@ def test_a_full_disk_is_a_one_line_error_that_keeps_what_was_done(table, referen
     assert stable(out, DROP) == reference
 
 
+@pytest.mark.slow
 def test_an_unwritable_out_is_a_one_line_error_before_the_run(table, tmp_path):
     tasks_csv, _ = table
     blocker = tmp_path / "a-file"

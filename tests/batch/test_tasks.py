@@ -56,6 +56,7 @@ def _table(path, rec, frame_truth, bad) -> dict[str, str]:
     return want
 
 
+@pytest.mark.slow
 def test_every_bad_row_is_an_error_row_naming_its_field(archive, tmp_path):
     rec = archive / "rec_poster"
     t = truth(rec, 0)

@@ -71,6 +71,7 @@ def test_simulated_board_corners_are_found_where_they_are():
     assert len(det.ids) == board.n_corners and err.max() < 0.5
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("distance", [1.0, 2.0, 4.0])
 def test_check_matches_the_evaluation_and_names_a_wrong_baseline(distance):
     board = board_for(distance)
@@ -104,6 +105,7 @@ def test_check_matches_the_evaluation_and_names_a_wrong_baseline(distance):
     assert "baseline in the calibration" in first["cause"] and "recalibrate" in first["action"] and rep2["status"] != "ok"
 
 
+@pytest.mark.slow
 def test_history_across_distances_tells_a_disparity_offset_from_a_baseline():
     """A disparity offset of 0.3 px (Z = fx B / (d + 0.3)) reads shorter the farther the board; each check
     alone blames the baseline, the three together find the offset and its size."""
@@ -195,6 +197,7 @@ def _write_video(path, frames):
     return path
 
 
+@pytest.mark.slow
 def test_video_stereo_pair_of_the_board_gives_its_lengths_within_the_interval(tmp_path):
     """A rectified pair rendered from the board at a known pose (2 m, turned 20 degrees), FFV1 side by side,
     OpenCV YAML calibration, through `video:` (StereoProcessor: rectification + SGBM, as a live pair)."""
@@ -287,6 +290,7 @@ def test_cli_without_a_board_says_what_to_do(tmp_path):
     assert not checks_path(tmp_path / "d.db").exists()
 
 
+@pytest.mark.slow
 def test_history_compares_only_checks_made_with_the_same_calibration(tmp_path):
     """The calibration in use is identified from the frames (camera_sha256), so a device's on-board
     calibration counts too: after a recalibration the old checks are not part of the trend."""

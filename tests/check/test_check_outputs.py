@@ -35,6 +35,7 @@ def frames():
         return [src.read() for _ in range(2)]
 
 
+@pytest.mark.slow
 def test_the_check_runs_on_frames_a_caller_holds(frames):
     done = check_frames(frames, BOARD, title="from the page")
     assert done.report == report(run_check(frames, BOARD))  # the same check as the command's
@@ -63,6 +64,7 @@ def test_pairs_csv_reads_back_with_formula_cells_neutralised(frames, tmp_path):
     assert {row["error_pct"][0] for row in rows} >= {"-"}  # negative errors stay numbers
 
 
+@pytest.mark.slow
 def test_cli_writes_the_pairs_of_a_bare_recording_folder(tmp_path, monkeypatch):
     """`check --source FOLDER` reads a recording as `replay:FOLDER` does; the folder's name is the CSV's source."""
     monkeypatch.chdir(tmp_path)
@@ -117,6 +119,7 @@ def test_the_default_board_fits_neither_paper():
     assert PAPERS == tuple(PAPERS_MM)  # the command line names every paper there is
 
 
+@pytest.mark.slow
 def test_check_against_an_a4_board(tmp_path):
     preset = paper_board("a4").board
     spec = (f"sim:charuco?distance=0.8&squares={preset.squares_x}x{preset.squares_y}&square_mm={preset.square_m * 1000:g}"

@@ -154,6 +154,7 @@ def test_bad_calibration_files(tmp_path):
             calibration_from_json(data)
 
 
+@pytest.mark.slow
 def test_folder_layouts_and_cli(views, tmp_path):
     (tmp_path / "lr" / "left").mkdir(parents=True)
     (tmp_path / "lr" / "right").mkdir()

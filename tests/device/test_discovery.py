@@ -160,6 +160,7 @@ def test_devices_cli_on_this_machine_exits_zero():
         assert plain.exit_code == 0 and "no cameras found" in plain.output
 
 
+@pytest.mark.slow
 def test_devices_json_stdout_is_clean_in_a_fresh_process():
     """DepthAI prints a USB banner on import unless DEPTHAI_LEVEL is set first: stdout must stay JSON."""
     import os

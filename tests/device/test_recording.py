@@ -151,7 +151,8 @@ def test_sim_round_trip(tmp_path: Path) -> None:
 
 
 def test_middlebury_round_trip(tmp_path: Path, middlebury_dir: Path) -> None:
-    mb = pytest.importorskip("device.sources.middlebury")
+    from device.sources import middlebury as mb
+
     scene = mb.load_scene(middlebury_dir / "Adirondack")
     frame = mb.scene_frame(scene, scene.gt_disparity)
     with RecordingWriter(tmp_path / "rec", SourceInfo(kind="middlebury", name=scene.name), keep_raw=True) as w:
@@ -171,7 +172,6 @@ def test_middlebury_round_trip(tmp_path: Path, middlebury_dir: Path) -> None:
 
 
 def test_middlebury_source_recorded_and_replayed(tmp_path: Path, middlebury_dir: Path) -> None:
-    pytest.importorskip("device.sources.middlebury")
     with open_source(f"middlebury:{middlebury_dir / 'Teddy'}?disparity=gt") as src:
         want = src.read()
         with RecordingWriter(tmp_path / "rec", src.info) as w:

@@ -13,6 +13,8 @@ import textwrap
 import tomllib
 from pathlib import Path
 
+import pytest
+
 import measure.distance
 import measure.options
 
@@ -94,6 +96,7 @@ SESSION = textwrap.dedent('''
 ''')
 
 
+@pytest.mark.slow
 def test_adding_a_source_kind(tmp_path):
     steps = blocks(GUIDES / "source.md")
     assert [(lang, path) for lang, path, _ in steps] == [("python", "depthruler_wall.py"), ("toml", ""), ("pycon", "")]

@@ -80,6 +80,7 @@ def test_an_unreachable_server_names_the_manual_way(tmp_path):
     assert res.exit_code == 1 and "--from DIR" in res.output and "Traceback" not in res.output
 
 
+@pytest.mark.slow
 def test_tests_that_need_the_scenes_skip_with_the_fetch_command(tmp_path):
     env = {**os.environ, "DEPTHRULER_SHARED": str(tmp_path / "nowhere")}
     out = subprocess.run([sys.executable, "-m", "pytest", "-q", "-rs", "-p", "no:cacheprovider", "tests/device/test_middlebury_io.py"],

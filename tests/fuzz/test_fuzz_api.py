@@ -10,10 +10,9 @@ from __future__ import annotations
 
 import httpx
 import pytest
+import schemathesis
 from fastapi.testclient import TestClient
 from hypothesis import HealthCheck, given, settings
-
-schemathesis = pytest.importorskip("schemathesis")  # the `test` extra; skip where it is not installed
 
 SPEC = "sim:poster?width=160&height=120&fps=0&seed=1"
 
@@ -61,6 +60,7 @@ def _check(client: TestClient, case) -> None:
         assert response.json().get("detail"), f"{what} -> {response.status_code} without a detail message"
 
 
+@pytest.mark.slow
 def test_api_answers_every_request_without_a_server_error(app, client):
     schema = schemathesis.openapi.from_dict(app.openapi()).exclude(method="POST", path="/api/recordings")
     examples = max(5, settings.default.max_examples // 4)  # per operation: a quarter of the profile's

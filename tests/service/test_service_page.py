@@ -79,6 +79,7 @@ def test_depth_at_pixel_is_frame_depth_and_scale_matches_colors(tmp_path):
         assert s["colors"][0] == f"#{r_:02x}{g:02x}{b:02x}" and len(s["colors"]) == 16
 
 
+@pytest.mark.slow
 def test_latest_after_a_wait_with_nothing_newer_is_the_newest_frame(tmp_path):
     import threading
 

@@ -192,6 +192,7 @@ def test_huge_integers_are_422(tmp_path, method, url, body):
         assert c.get("/api/health").status_code == 200
 
 
+@pytest.mark.slow
 def test_long_polls_do_not_starve_the_workers(tmp_path):
     """60 clients long-poll a source that delivers nothing; health and reads still answer meanwhile."""
     state = {"gate": threading.Semaphore(0)}

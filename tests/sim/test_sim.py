@@ -198,6 +198,7 @@ def test_robust_method_separates_gaps_from_posters(scene, target, expected):
     assert rate == (1.0 if expected else 0.0)
 
 
+@pytest.mark.slow
 def test_clicks_land_near_the_end_points_and_sometimes_off_the_object():
     dists, off = [], 0
     for seed in range(150):

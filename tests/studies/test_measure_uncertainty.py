@@ -1,6 +1,6 @@
 """The reported uncertainty against the truth: noisy frames and clicks that miss the intended pixels
 by a Gaussian 1.5 px (the click error the uncertainty models), truth the intended segment's length.
-The real-stereo coverage (Middlebury, SGBM) is checked in tests/evaluation/test_stress.py."""
+The real-stereo coverage (Middlebury, SGBM) is checked in tests/studies/test_stress.py."""
 
 from __future__ import annotations
 

@@ -1,7 +1,7 @@
 """Slow HTTP clients against a server on this machine: connections that send their headers, or their
 body, a little at a time, while health is polled; how long the server kept each, and health's latency.
 
-``python tests/service/slow_clients.py --server KIND`` starts the service under KIND (uvicorn-h11,
+``python tests/integration/slow_clients.py --server KIND`` starts the service under KIND (uvicorn-h11,
 uvicorn-httptools, hypercorn, depthruler) on a free loopback port and measures it
 (docs/decisions/connection-limits.md has what it found). The tests import :func:`flood`.
 """

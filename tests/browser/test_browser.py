@@ -3,7 +3,7 @@ chromium clicks, hovers, drags and taps like a person, and what the page shows i
 API and the simulator's truth. One server for the module; no console errors anywhere.
 
 Screenshots for the README go to a temporary folder, or to DEPTHRULER_SCREENSHOTS when it names one
-(refresh docs/ on purpose: ``DEPTHRULER_SCREENSHOTS=docs pytest tests/service/test_browser.py``)."""
+(refresh docs/ on purpose: ``DEPTHRULER_SCREENSHOTS=docs pytest tests/browser/test_browser.py``)."""
 
 from __future__ import annotations
 
