@@ -1,84 +1,138 @@
 """`depthruler batch diff A B`: what changed between two batch results.
 
-Rows pair up by what was measured — (source, frame or saved-frame uid, clicked points), the k-th such row of A with
-the k-th of B — so two runs with other options or another version of the method compare. An answer
-*moved* when ``|d_B - d_A|`` exceeds the larger of the two uncertainties (each answer lies outside
-the other's +-u band). Verdicts compared: answered vs error, the gap flag, and every column both
-files have among :data:`VERDICT_COLUMNS` (``quality`` once the method reports it).
+Rows pair up by what was measured — (source, frame or saved-frame uid, clicked points), the k-th such
+row of A with the k-th of B — so two runs with other options or another version of the method
+compare. An answer *moved* when ``|d_B - d_A|`` exceeds the larger of the two uncertainties (each
+answer lies outside the other's +-u band). Verdicts compared: answered vs error, the gap flag, and
+every column both files have among :data:`VERDICT_COLUMNS`.
+
+Steps: read only the columns the comparison uses (a results row has ~50 columns, the diff needs
+about 12), build one key per row with its occurrence number, join A and B on it with Arrow's hash
+join and compare whole columns with numpy. Memory grows with the rows times those few columns, not
+with Python objects per row. The options each run used (the file's ``depthruler.defaults``,
+executor and version) are reported beside the counts.
 """
 
 from __future__ import annotations
 
-import math
+import json
 from collections import Counter
 from pathlib import Path
 from typing import Any
 
-from batch.results import read_table
+import numpy as np
+
+from batch.results import column_names, read_metadata, read_table
 
 MATCH = ("source", "frame", "frame_uid", "p1_x", "p1_y", "p2_x", "p2_y")
 VERDICT_COLUMNS = ("quality", "gap_detected", "fit")
+VALUES = ("task", "error", "distance_m", "uncertainty_m")
+_KEY = "__key"
 
 
-def _keyed(rows: list[dict[str, Any]]) -> dict[tuple, dict[str, Any]]:
-    seen: Counter = Counter()
-    out = {}
-    for r in rows:
-        k = tuple(r.get(c) for c in MATCH)
-        out[(*k, seen[k])] = r
-        seen[k] += 1
-    return out
+def _keyed(path: Path, columns: list[str]):
+    """The ``columns`` of results ``path`` plus a key column: the MATCH values and their occurrence."""
+    import pyarrow as pa
+    import pyarrow.compute as pc
+
+    t = read_table(path, columns=[c for c in (*MATCH, *columns)])
+    parts = [pc.fill_null(pc.cast(t.column(c), pa.string()), "\x00") if c in t.column_names else pa.nulls(t.num_rows, pa.string()).fill_null("\x00")
+             for c in MATCH]  # fmt: skip
+    key = pc.binary_join_element_wise(*parts, "\x1f") if t.num_rows else pa.array([], pa.string())
+    key_np = np.asarray(key.to_numpy(zero_copy_only=False), dtype=object)
+    _, inverse = np.unique(key_np, return_inverse=True) if len(key_np) else (None, np.zeros(0, int))
+    order = np.argsort(inverse, kind="stable")
+    first = np.r_[True, inverse[order][1:] != inverse[order][:-1]] if len(order) else np.zeros(0, bool)
+    run_start = np.maximum.accumulate(np.where(first, np.arange(len(order)), 0)) if len(order) else order
+    occurrence = np.empty(len(order), np.int64)
+    occurrence[order] = np.arange(len(order)) - run_start
+    full = pc.binary_join_element_wise(key, pa.array(occurrence.astype(str)), "\x1e") if t.num_rows else key
+    keep = [c for c in (*MATCH[:2], *columns) if c in t.column_names]
+    t = t.select(keep)
+    for i, field in enumerate(t.schema):
+        if pa.types.is_null(field.type):  # an all-null column of hand-made files: Arrow's join needs a type
+            t = t.set_column(i, field.name, t.column(i).cast(pa.string()))
+    return t.append_column(_KEY, full)
 
 
-def _num(x: Any) -> float | None:
-    return float(x) if isinstance(x, (int, float)) and math.isfinite(x) else None
+def _float(table, name: str) -> np.ndarray:
+    if name not in table.column_names:
+        return np.full(table.num_rows, np.nan)
+    return np.asarray(table.column(name).to_numpy(zero_copy_only=False), dtype=float)
+
+
+def _text(table, name: str) -> np.ndarray:
+    return np.asarray(table.column(name).to_pylist(), dtype=object)
+
+
+def _run_info(path: Path) -> dict[str, Any]:
+    meta = read_metadata(path)
+    try:
+        options = json.loads(meta.get("depthruler.defaults", "{}"))
+    except ValueError:
+        options = {}
+    return {"options": options, "version": meta.get("depthruler.version"), "executor": meta.get("depthruler.executor")}
 
 
 def diff_results(a_path: Path, b_path: Path, top: int = 10) -> dict[str, Any]:
     """The summary of B against A (see the module docstring); ``top`` largest moves are listed."""
-    a_table, b_table = read_table(a_path), read_table(b_path)
-    a, b = _keyed(a_table.to_pylist()), _keyed(b_table.to_pylist())
-    both = [k for k in a if k in b]
+    names_a, names_b = column_names(a_path), column_names(b_path)
+    columns = [c for c in VERDICT_COLUMNS if c in names_a and c in names_b]
+    a = _keyed(a_path, [*VALUES, *columns])
+    b = _keyed(b_path, [*VALUES, *columns])
+    joined = a.join(b.select([_KEY, *[c for c in (*VALUES, *columns) if c in b.column_names]]), _KEY, join_type="inner",
+                    left_suffix="_a", right_suffix="_b", use_threads=False)  # fmt: skip
+    n = joined.num_rows
+
+    def side(name: str, s: str) -> str:
+        return f"{name}_{s}" if f"{name}_{s}" in joined.column_names else name
+
+    err_a = np.array([bool(e) for e in joined.column(side("error", "a")).to_pylist()] if "error" in names_a else [False] * n, bool)
+    err_b = np.array([bool(e) for e in joined.column(side("error", "b")).to_pylist()] if "error" in names_b else [False] * n, bool)
     status = Counter()
-    moved: list[dict[str, Any]] = []
-    deltas: list[float] = []
-    verdicts: dict[str, Counter] = {}
-    columns = [c for c in VERDICT_COLUMNS if c in a_table.column_names and c in b_table.column_names]
-    for k in both:
-        ra, rb = a[k], b[k]
-        ok_a, ok_b = not ra.get("error"), not rb.get("error")
-        status[("answered" if ok_a else "error") + " -> " + ("answered" if ok_b else "error")] += 1
-        for c in columns:
-            if ok_a and ok_b and ra.get(c) != rb.get(c):
-                verdicts.setdefault(c, Counter())[f"{ra.get(c)} -> {rb.get(c)}"] += 1
-        da, db = _num(ra.get("distance_m")), _num(rb.get("distance_m"))
-        if da is None or db is None:
-            continue
-        delta = db - da
-        deltas.append(delta)
-        ua, ub = _num(ra.get("uncertainty_m")) or 0.0, _num(rb.get("uncertainty_m")) or 0.0
-        if abs(delta) > max(ua, ub):
-            moved.append(
-                {"task_a": ra.get("task"), "task_b": rb.get("task"), "source": k[0], "frame": k[1],
-                 "distance_a_m": da, "distance_b_m": db, "delta_m": delta, "uncertainty_a_m": ua, "uncertainty_b_m": ub}
-            )  # fmt: skip
-    moved.sort(key=lambda m: abs(m["delta_m"]), reverse=True)
-    abs_d = sorted(abs(d) for d in deltas)
+    for ea, eb in ((False, False), (False, True), (True, False), (True, True)):
+        count = int(np.sum((err_a == ea) & (err_b == eb)))
+        if count:
+            status[("error" if ea else "answered") + " -> " + ("error" if eb else "answered")] = count
+    both_ok = ~err_a & ~err_b
+    verdicts: dict[str, dict[str, int]] = {}
+    for c in columns:
+        va, vb = _text(joined, side(c, "a")), _text(joined, side(c, "b"))
+        changed = both_ok & (va != vb)
+        if changed.any():
+            verdicts[c] = dict(Counter(f"{x} -> {y}" for x, y in zip(va[changed], vb[changed])))
+    da, db = _float(joined, side("distance_m", "a")), _float(joined, side("distance_m", "b"))
+    ua = np.nan_to_num(_float(joined, side("uncertainty_m", "a")), nan=0.0, posinf=0.0)
+    ub = np.nan_to_num(_float(joined, side("uncertainty_m", "b")), nan=0.0, posinf=0.0)
+    finite = np.isfinite(da) & np.isfinite(db)
+    delta = np.where(finite, db - da, np.nan)
+    moved = finite & (np.abs(np.nan_to_num(delta)) > np.maximum(ua, ub))
+    idx = np.flatnonzero(moved)
+    idx = idx[np.argsort(-np.abs(delta[idx]), kind="stable")][:top]
+    ta, tb = joined.column(side("task", "a")).take(idx).to_pylist(), joined.column(side("task", "b")).take(idx).to_pylist()
+    src, frame = joined.column("source").take(idx).to_pylist(), joined.column("frame").take(idx).to_pylist()
+    largest = [
+        {"task_a": ta[j], "task_b": tb[j], "source": src[j], "frame": frame[j], "distance_a_m": float(da[i]),
+         "distance_b_m": float(db[i]), "delta_m": float(delta[i]), "uncertainty_a_m": float(ua[i]), "uncertainty_b_m": float(ub[i])}
+        for j, i in enumerate(idx)
+    ]  # fmt: skip
+    abs_d = np.sort(np.abs(delta[finite]))
     return {
         "a": str(a_path),
         "b": str(b_path),
-        "rows_a": len(a),
-        "rows_b": len(b),
-        "matched": len(both),
-        "only_in_a": len(a) - len(both),
-        "only_in_b": len(b) - len(both),
+        "runs": {"a": _run_info(a_path), "b": _run_info(b_path)},
+        "rows_a": a.num_rows,
+        "rows_b": b.num_rows,
+        "matched": n,
+        "only_in_a": a.num_rows - n,
+        "only_in_b": b.num_rows - n,
         "status": dict(status),
-        "compared_distances": len(deltas),
-        "moved_beyond_uncertainty": len(moved),
-        "unchanged_exactly": sum(d == 0 for d in deltas),
-        "median_abs_change_m": abs_d[len(abs_d) // 2] if abs_d else None,
-        "max_abs_change_m": abs_d[-1] if abs_d else None,
-        "verdict_changes": {c: dict(v) for c, v in verdicts.items()},
+        "compared_distances": int(finite.sum()),
+        "moved_beyond_uncertainty": int(moved.sum()),
+        "unchanged_exactly": int(np.sum(delta[finite] == 0)),
+        "median_abs_change_m": float(abs_d[len(abs_d) // 2]) if len(abs_d) else None,
+        "max_abs_change_m": float(abs_d[-1]) if len(abs_d) else None,
+        "verdict_changes": verdicts,
         "verdict_columns": columns,
-        "largest_moves": moved[:top],
+        "largest_moves": largest,
     }

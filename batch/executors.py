@@ -7,19 +7,29 @@ one simulated view's jobs), so a worker opens a recording or renders a view once
 disk and a crash keeps what was done. ``fn`` must be a module-level function (it is pickled by name)
 and should turn its own failures into results: an exception that escapes it ends the run.
 
+Executors with workers keep at most :func:`window` groups in flight (submitted, not yet yielded)
+and take the next item only when one finishes, so the driver's memory and the cost of each wait
+stay the same whatever the number of groups, and ``items`` may be a lazy iterable.
+
 Ray is optional (``pip install 'depthruler[ray]'``) and imported only when a Ray executor is made.
 """
 
 from __future__ import annotations
 
+import itertools
 import os
-from collections.abc import Callable, Iterator, Sequence
+from collections.abc import Callable, Iterable, Iterator
 from typing import Any, Protocol, TypeVar
 
 from batch.errors import BatchError
 
 T = TypeVar("T")
 R = TypeVar("R")
+
+
+def window(workers: int) -> int:
+    """Groups in flight for ``workers`` workers: two each, so a worker never waits for the driver."""
+    return 2 * max(1, workers)
 
 
 class ExecutorError(BatchError):
@@ -30,7 +40,7 @@ class Executor(Protocol):
     name: str
     workers: int
 
-    def imap(self, fn: Callable[[T], R], items: Sequence[T]) -> Iterator[tuple[int, R]]: ...
+    def imap(self, fn: Callable[[T], R], items: Iterable[T]) -> Iterator[tuple[int, R]]: ...
 
     def close(self) -> None: ...
 
@@ -43,7 +53,7 @@ class InProcessExecutor:
     name = "in-process"
     workers = 1
 
-    def imap(self, fn: Callable[[T], R], items: Sequence[T]) -> Iterator[tuple[int, R]]:
+    def imap(self, fn: Callable[[T], R], items: Iterable[T]) -> Iterator[tuple[int, R]]:
         for i, item in enumerate(items):
             yield i, fn(item)
 
@@ -72,16 +82,24 @@ class PoolExecutor:
         self.workers = workers
         self._pool = None
 
-    def imap(self, fn: Callable[[T], R], items: Sequence[T]) -> Iterator[tuple[int, R]]:
+    def imap(self, fn: Callable[[T], R], items: Iterable[T]) -> Iterator[tuple[int, R]]:
         import multiprocessing as mp
-        from concurrent.futures import ProcessPoolExecutor, as_completed
+        from concurrent.futures import ProcessPoolExecutor
 
         if self._pool is None:
             self._pool = ProcessPoolExecutor(max_workers=self.workers, mp_context=mp.get_context("spawn"))
-        futures = {self._pool.submit(fn, item): i for i, item in enumerate(items)}
+        from concurrent.futures import FIRST_COMPLETED, wait
+
+        todo = enumerate(items)
+        futures = {self._pool.submit(fn, item): i for i, item in itertools.islice(todo, window(self.workers))}
         try:
-            for fut in as_completed(futures):
-                yield futures[fut], fut.result()
+            while futures:
+                done, _ = wait(futures, return_when=FIRST_COMPLETED)
+                for fut in done:
+                    i = futures.pop(fut)
+                    for j, item in itertools.islice(todo, 1):
+                        futures[self._pool.submit(fn, item)] = j
+                    yield i, fut.result()
         finally:
             for fut in futures:
                 fut.cancel()
@@ -104,7 +122,7 @@ class PoolExecutor:
 class RayExecutor:
     """Groups as Ray tasks on a Ray cluster, each reserving ``task_cpus`` CPUs (default 1).
 
-    ``address``: ``"local"`` starts a Ray instance on this machine (``num_cpus`` CPUs, default all);
+    ``address``: ``"local"`` starts a private Ray instance on this machine, never one already running (``num_cpus`` CPUs, default all);
     ``"auto"`` joins the cluster already running here or named by ``RAY_ADDRESS``; anything else is
     a cluster address (``HOST:6379`` or ``ray://HOST:10001``). When Ray is already initialised in
     this process (a test's ``ray.init(num_cpus=2)``, a notebook) that connection is used as it is.
@@ -122,10 +140,10 @@ class RayExecutor:
         self._started = False
         if not ray.is_initialized():
             kwargs: dict[str, Any] = {"include_dashboard": False, "log_to_driver": False}
+            # "local" must not join a Ray another program started here: address="local" always starts a private one.
+            kwargs["address"] = address
             if address == "local":
                 kwargs["num_cpus"] = num_cpus
-            else:
-                kwargs["address"] = address
             try:
                 ray.init(**kwargs)
             except (ConnectionError, RuntimeError, ValueError) as exc:
@@ -138,21 +156,24 @@ class RayExecutor:
         self.workers = max(1, int(ray.cluster_resources().get("CPU", 1)) // task_cpus)
         self._remote: dict[Callable, Any] = {}
 
-    def imap(self, fn: Callable[[T], R], items: Sequence[T]) -> Iterator[tuple[int, R]]:
+    def imap(self, fn: Callable[[T], R], items: Iterable[T]) -> Iterator[tuple[int, R]]:
         ray = self._ray
         remote = self._remote.get(fn)
         if remote is None:
             # Ray retries a group whose worker or node died (its rows reach the caller only once it finished).
             remote = self._remote[fn] = ray.remote(num_cpus=self.task_cpus)(fn)
-        refs = {remote.remote(item): i for i, item in enumerate(items)}
-        pending = list(refs)
+        todo = enumerate(items)
+        refs = {remote.remote(item): i for i, item in itertools.islice(todo, window(self.workers))}
         try:
-            while pending:
-                ready, pending = ray.wait(pending, num_returns=1)
+            while refs:
+                ready, _ = ray.wait(list(refs), num_returns=1)
                 for ref in ready:
-                    yield refs[ref], ray.get(ref)
+                    i = refs.pop(ref)
+                    for j, item in itertools.islice(todo, 1):
+                        refs[remote.remote(item)] = j
+                    yield i, ray.get(ref)
         finally:
-            for ref in pending:
+            for ref in refs:
                 ray.cancel(ref)
 
     def close(self) -> None:

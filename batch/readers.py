@@ -29,9 +29,10 @@ class RecordingFrames:
     """A recording folder, read by index (a frame costs only its own files)."""
 
     def __init__(self, path: str) -> None:
+        from batch.remote import is_url, local_recording
         from device.formats.recording import open_recording
 
-        self.rec = open_recording(path)
+        self.rec = open_recording(local_recording(path) if is_url(path) else path)
 
     def frame(self, key: int | str) -> Frame:
         i = int(key)
@@ -90,6 +91,11 @@ def open_reader(source: str) -> FrameReader:
         spec = SourceSpec.parse(source)
         if not spec.params:  # replay options (start, loop) change what index i means: read in order then
             return RecordingFrames(spec.target)
+        from batch.remote import is_url, local_recording
+
+        if is_url(spec.target):
+            query = source.partition("?")[2]
+            return SequentialFrames(f"replay:{local_recording(spec.target)}?{query}")
     return SequentialFrames(source)
 
 

@@ -39,20 +39,50 @@ def _pa():
     return pa, pq
 
 
-def read_table(path: Path):
-    """A results file, or the parts of an unfinished one, as one pyarrow Table."""
+def read_table(path: Path, columns: list[str] | None = None):
+    """A results file, or the parts of an unfinished one, as one pyarrow Table; ``columns`` (those
+    the file has among them) reads only those."""
     pa, pq = _pa()
     if path.is_dir():
         files = sorted(path.glob("part-*.parquet"))
         if not files:
             return pa.table({})
-        return pa.concat_tables([pq.read_table(f) for f in files], promote_options="permissive")
+        tables = [pq.read_table(f, columns=_present(pq.read_schema(f).names, columns)) for f in files]
+        return pa.concat_tables(tables, promote_options="permissive")
     if not path.is_file():
         raise ResultsError(f"{path} does not exist; give a results file written by `depthruler batch --out`")
     try:
-        return pq.read_table(path)
+        return pq.read_table(path, columns=_present(pq.read_schema(path).names, columns))
     except Exception as exc:  # noqa: BLE001 — pyarrow raises several types for a damaged file
         raise ResultsError(f"{path} is not a readable Parquet file ({exc})") from exc
+
+
+def _present(names: list[str], columns: list[str] | None) -> list[str] | None:
+    return None if columns is None else [c for c in columns if c in names] or names[:0]
+
+
+def column_names(path: Path) -> set[str]:
+    """The column names of a results file or of any part of an unfinished one."""
+    _, pq = _pa()
+    if not path.exists():
+        raise ResultsError(f"{path} does not exist; give a results file written by `depthruler batch --out`")
+    files = sorted(path.glob("part-*.parquet")) if path.is_dir() else [path]
+    try:
+        return {name for f in files for name in pq.read_schema(f).names}
+    except Exception as exc:  # noqa: BLE001
+        raise ResultsError(f"{path} is not a readable Parquet file ({exc})") from exc
+
+
+def read_metadata(path: Path) -> dict[str, str]:
+    """The key/value metadata of a committed results file (empty for a parts folder)."""
+    _, pq = _pa()
+    if path.is_dir():
+        return {}
+    try:
+        meta = pq.read_schema(path).metadata or {}
+    except Exception as exc:  # noqa: BLE001
+        raise ResultsError(f"{path} is not a readable Parquet file ({exc})") from exc
+    return {k.decode(): v.decode() for k, v in meta.items() if not k.startswith(b"ARROW:")}
 
 
 def paths(out: Path) -> tuple[Path, Path, Path]:

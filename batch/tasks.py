@@ -84,19 +84,32 @@ class BadLine:
 
 
 def source_kind(source: str) -> str:
-    """The spec kind of ``source`` (``replay`` for a bare recording folder)."""
+    """The spec kind of ``source`` (``replay`` for a bare recording folder or a recording URL)."""
+    from batch.remote import is_url
+
     head = source.partition("?")[0]
+    if is_url(head):
+        return "replay"
     kind, sep, _ = head.partition(":")
     return kind.lower() if sep and kind.lower() != "file" and len(kind) > 1 else "replay"
 
 
-def normalise_source(source: str, base: Path) -> str:
-    """``source`` as a spec with an absolute path: a bare folder becomes ``replay:/abs/folder``."""
+def normalise_source(source: str, base: Path | str) -> str:
+    """``source`` as a spec with an absolute path or URL: a bare folder becomes ``replay:/abs/folder``;
+    ``base`` is the table's folder (a local path, or a URL for a table on object storage)."""
+    from batch.remote import is_url, join
+
     text = source.strip()
     if not text:
         raise TaskError("source is empty; give a recording folder or a spec such as replay:DIR")
     head, q, query = text.partition("?")
     kind, sep, target = head.partition(":")
+    if is_url(head) or (kind.lower() == "replay" and is_url(target)):
+        return "replay:" + (head if is_url(head) else target) + (q + query if query else "")
+    if isinstance(base, str):  # a table on object storage: its relative folders are beside it there
+        if sep and len(kind) > 1:
+            raise TaskError(f"source {shown(text)}: a table on object storage names recordings by URL or by a folder relative to it")
+        return "replay:" + join(base, head) + (q + query if query else "")
     live = kind.lower() in LIVE_KINDS and (sep or not (base / head).exists())
     if not sep or len(kind) == 1:  # a bare path (a one-letter "kind" is a Windows drive)
         kind, target = "replay", head
@@ -223,20 +236,31 @@ def read_rows(path: Path) -> list[dict[str, Any] | BadLine]:
     raise TaskError(f"{path}: unknown table type {suffix!r}; use .csv, .jsonl or .parquet")
 
 
-def read_tasks(path: Path) -> list[Task]:
-    """The tasks of a table, one per row, invalid ones included (see the module docstring)."""
-    rows = read_rows(path)
+def read_tasks(path: Path | str) -> list[Task]:
+    """The tasks of a table, one per row, invalid ones included (see the module docstring); ``path``
+    may be a URL (:mod:`batch.remote`), whose relative sources are then read beside it."""
+    from batch.remote import fetch_table, is_url, parent
+
+    if isinstance(path, str) and is_url(path):
+        import tempfile
+
+        with tempfile.TemporaryDirectory() as folder:
+            rows = read_rows(fetch_table(path, Path(folder)))
+        base: Path | str = parent(path)
+    else:
+        path = Path(path)
+        rows = read_rows(path)
+        base = path.resolve().parent
     if not rows:
         raise TaskError(f"{path} holds no task rows")
     columns = {k for r in rows if isinstance(r, dict) for k in r}
     missing = [c for c in REQUIRED if c not in columns]
     if missing:
         raise TaskError(f"{path} lacks the column(s) {', '.join(missing)}; a task table needs {', '.join(REQUIRED)}")
-    base = path.resolve().parent
     return [parse_row(i, row, base) for i, row in enumerate(rows)]
 
 
-def parse_row(index: int, row: dict[str, Any] | BadLine, base: Path) -> Task:
+def parse_row(index: int, row: dict[str, Any] | BadLine, base: Path | str) -> Task:
     """The task of one table row; a bad cell makes it invalid (``error`` names every bad field)."""
     if isinstance(row, BadLine):
         return Task(index, "", None, (None, None), (None, None), error=row.message, error_field="row")

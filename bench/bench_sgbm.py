@@ -26,7 +26,7 @@ sys.path.insert(0, str(ROOT))
 from device.calibration.stereo import StereoCalibration  # noqa: E402
 from device.sources.sgbm import SGBMConfig, compute_disparity  # noqa: E402
 from bench.results_file import cpu_name, replace_section  # noqa: E402
-from device.sources.stereo_pair import StereoProcessor  # noqa: E402
+from device.sources.stereo_processing import StereoProcessor  # noqa: E402
 from evaluation.middlebury_data import default_data_dir  # noqa: E402
 
 SCENE = default_data_dir() / "Motorcycle"

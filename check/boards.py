@@ -13,7 +13,7 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 
-from device.calibration.stereo import BoardSpec
+from device.calibration.board import BoardSpec
 
 from check.errors import CheckError
 

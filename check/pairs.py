@@ -16,7 +16,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from device.calibration.stereo import BoardSpec, Detection
+from device.calibration.board import BoardSpec, Detection
 from measure import Frame, MeasureError, MeasureOptions, measure_distance
 from measure.metrics import accuracy, signed_error_pct
 

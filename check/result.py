@@ -5,7 +5,7 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass, field
 
-from device.calibration.stereo import BoardSpec, Detection
+from device.calibration.board import BoardSpec, Detection
 
 from check.pairs import PairResult
 from check.target import BoardView

@@ -15,7 +15,7 @@ from dataclasses import asdict, dataclass
 
 import cv2
 
-from device.calibration.stereo import BoardSpec, Detection, detect_board
+from device.calibration.board import BoardSpec, Detection, detect_board
 from measure import Frame, MeasureOptions
 
 from check.errors import CheckError

@@ -17,7 +17,7 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 
-from device.calibration.stereo import BoardSpec, Detection
+from device.calibration.board import BoardSpec, Detection
 from measure import Frame
 
 from check.errors import CheckError

@@ -47,7 +47,7 @@ def _progress():
 
 @app.command("run")
 def run_command(
-    tasks_file: Path = typer.Argument(None, metavar="TASKS", help="CSV, JSONL or Parquet table of tasks: source, frame, p1_x, p1_y, p2_x, p2_y [, method, ...]."),
+    tasks_file: str = typer.Argument(None, metavar="TASKS", help="CSV, JSONL or Parquet table of tasks (a path or a URL such as s3://bucket/tasks.csv): source, frame, p1_x, p1_y, p2_x, p2_y [, method, ...]."),
     out: Path = typer.Option(..., "--out", "-o", help="Results file (Parquet)."),
     from_history: Path = typer.Option(None, "--from-history", help="Re-measure every measurement in this service history database instead of TASKS."),
     workers: int = typer.Option(os.cpu_count() or 1, "--workers", "-j", min=1, help="Worker processes (1 = in this process; the default is one per CPU). With --ray local: the CPUs Ray may use."),
@@ -152,6 +152,10 @@ def diff_command(
 
     con = Console()
     con.print(f"A {a}: {d['rows_a']} rows; B {b}: {d['rows_b']} rows; matched {d['matched']} (only in A {d['only_in_a']}, only in B {d['only_in_b']})")
+    for side in ("a", "b"):
+        run = d["runs"][side]
+        opts = ", ".join(f"{k}={v}" for k, v in sorted(run["options"].items())) or "defaults"
+        con.print(f"{side.upper()} options: {opts}" + (f" (depthruler {run['version']})" if run["version"] else ""))
     con.print("status: " + ", ".join(f"{k} {v}" for k, v in sorted(d["status"].items())))
     med, mx = d["median_abs_change_m"], d["max_abs_change_m"]
     con.print(

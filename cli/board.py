@@ -45,7 +45,7 @@ def board_from_options(ctx: typer.Context, squares: str, square_mm: float, marke
     ``--square-mm`` or ``--marker-mm`` as well is an error; without, both sizes must be positive."""
     from check.boards import paper_board
     from check.errors import CheckError
-    from device.calibration.stereo import BoardSpec
+    from device.calibration.board import BoardSpec
 
     sx, sy = parse_squares(squares)
     if paper is not None:

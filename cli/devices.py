@@ -58,7 +58,8 @@ def calibrate(
     save_views: Path | None = typer.Option(None, "--save-views", help="Live capture: also save the pairs here."),
 ) -> None:
     """Calibrate a stereo pair from ChArUco board views and write the calibration (or print the board)."""
-    from device.calibration.stereo import calibrate_stereo, load_image_pairs, write_board_png
+    from device.calibration.board import write_board_png
+    from device.calibration.solve import calibrate_stereo, load_image_pairs
     from device.calibration.files import FORMATS, write
     from device.errors import SourceError
 
@@ -81,7 +82,7 @@ def calibrate(
             pairs = load_image_pairs(images, side_by_side=side_by_side)
             typer.echo(f"{len(pairs)} view pairs from {images}")
         elif live is not None:
-            from device.calibration.stereo import capture_views
+            from device.calibration.capture import capture_views
 
             pairs = capture_views(_grabber(live), board, views, save_to=save_views, progress=typer.echo)
         calib = calibrate_stereo(pairs, board, progress=typer.echo)

@@ -38,7 +38,8 @@ for name, command in {
     "check": check_cmd.check,
     "bench": bench_cmd.bench,
 }.items():
-    app.command(name, context_settings=getattr(command, "context_settings", None))(command)
+    help_class = {"cls": serve_cmd.DefaultsInHelp} if command in (serve_cmd.serve, serve_cmd.measure) else {}
+    app.command(name, context_settings=getattr(command, "context_settings", None), **help_class)(command)
 app.add_typer(eval_cmd.app, name="eval")
 app.add_typer(batch_cmd.app, name="batch")
 app.add_typer(data_cmd.app, name="data")

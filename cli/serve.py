@@ -13,6 +13,7 @@ from pathlib import Path
 from typing import Any, Optional
 
 import typer
+from typer.core import TyperCommand
 
 LOOPBACK = ("127.0.0.1", "localhost", "::1")
 
@@ -53,22 +54,39 @@ def auto_source() -> str:
     return "sim"
 
 
+class DefaultsInHelp(TyperCommand):
+    """Fills the ``{name}`` fields of the options' help when the help is shown: the service's with
+    ServerConfig's defaults, ``measure``'s with the method names and the frame limit. Imported only
+    then, so ``depthruler --help`` does not load pydantic or the measuring core."""
+
+    def format_help(self, ctx: Any, formatter: Any) -> None:
+        from measure import MAX_FRAMES, METHODS, MeasureOptions
+        from service.config import ServerConfig
+
+        values = {k: f.default for k, f in ServerConfig.model_fields.items()}
+        values |= {"methods": ", ".join(METHODS), "method": MeasureOptions().method, "max_frames": MAX_FRAMES}
+        for param in self.params:
+            if getattr(param, "help", None) and "{" in param.help:
+                param.help = param.help.format(**values)
+        super().format_help(ctx, formatter)
+
+
 def serve(
-    source: Optional[str] = typer.Option(None, "--source", "-s", help="Source spec, e.g. sim:poster?distance=3, oak, replay:DIR. Default: the config's source, else an attached OAK, else the simulator."),
+    source: Optional[str] = typer.Option(None, "--source", "-s", help="Source spec, e.g. sim:poster?distance=3, oak, replay:DIR. Left out: the config's source, else an attached OAK, else the simulator."),
     config: Optional[Path] = typer.Option(None, "--config", "-c", help="TOML config (see configs/*.toml); flags override it."),
-    host: Optional[str] = typer.Option(None, help="Address to bind (default 127.0.0.1). 0.0.0.0 exposes the service: set a token."),
-    port: Optional[int] = typer.Option(None, help="TCP port (default 8000)."),
+    host: Optional[str] = typer.Option(None, help="Address to bind; left out, the config's or {host}. 0.0.0.0 exposes the service: set a token."),
+    port: Optional[int] = typer.Option(None, help="TCP port; left out, the config's or {port}."),
     token: Optional[str] = typer.Option(None, envvar="DEPTHRULER_TOKEN", help="Require this token on /api (Bearer header or ?token=)."),
-    db: Optional[Path] = typer.Option(None, help="SQLite history file (default depthruler.db); frames go to <db>-frames/."),
-    recordings: Optional[Path] = typer.Option(None, help="The only folder recordings started from the API go into (default: recordings/ next to the --db file)."),
-    history_max_gb: Optional[float] = typer.Option(None, "--history-max-gb", help="Keep the saved frames under this many GB: the oldest unpinned frames are deleted first (their measurements stay). Default: no cap."),
+    db: Optional[Path] = typer.Option(None, help="SQLite history file; left out, the config's or {db}. Frames go to <db>-frames/."),
+    recordings: Optional[Path] = typer.Option(None, help="The only folder recordings started from the API go into; left out, recordings/ next to the --db file."),
+    history_max_gb: Optional[float] = typer.Option(None, "--history-max-gb", help="Keep the saved frames under this many GB: the oldest unpinned frames are deleted first (their measurements stay). Left out: no cap."),
     insecure_no_token: bool = typer.Option(False, "--insecure-no-token", help="Serve on a non-loopback --host without a token: anyone who reaches the port can use the API."),
     allowed_host: Optional[list[str]] = typer.Option(None, "--allowed-host", help="Another Host name to answer (a DNS name of this machine); repeatable."),
-    ring_size: Optional[int] = typer.Option(None, help="Frames kept in the ring buffer (default 32)."),
-    header_timeout: Optional[float] = typer.Option(None, "--header-timeout", help="Seconds a connection has to send a request's headers, from its opening or the previous answer (default 10); then 408 and close."),
-    body_timeout: Optional[float] = typer.Option(None, "--body-timeout", help="Seconds a request has to send its body after its headers (default 10); then 408 and close."),
-    keep_alive: Optional[float] = typer.Option(None, "--keep-alive", help="Seconds an idle keep-alive connection stays open (default 5)."),
-    max_connections: Optional[int] = typer.Option(None, "--max-connections", help="Connections at once (default 4096, fewer when the open-files limit is lower); beyond it 503."),
+    ring_size: Optional[int] = typer.Option(None, help="Frames kept in the ring buffer; left out, the config's or {ring_size}."),
+    header_timeout: Optional[float] = typer.Option(None, "--header-timeout", help="Seconds a connection has to send a request's headers, from its opening or the previous answer; left out, the config's or {header_timeout_s}. Then 408 and close."),
+    body_timeout: Optional[float] = typer.Option(None, "--body-timeout", help="Seconds a request has to send its body after its headers; left out, the config's or {body_timeout_s}. Then 408 and close."),
+    keep_alive: Optional[float] = typer.Option(None, "--keep-alive", help="Seconds an idle keep-alive connection stays open; left out, the config's or {keep_alive_s}."),
+    max_connections: Optional[int] = typer.Option(None, "--max-connections", help="Connections at once; left out, the config's or {max_connections} (fewer when the open-files limit is lower). Beyond it 503."),
 ) -> None:
     """Serve the measuring web page and HTTP API on a live source."""
     from service.app import create_app
@@ -134,23 +152,24 @@ def measure(
     p1: str = typer.Option(..., "--p1", help="First point X,Y (pixels of the colour image)."),
     p2: str = typer.Option(..., "--p2", help="Second point X,Y."),
     frame: int = typer.Option(0, "--frame", "-n", min=0, help="Measure on this frame index (0 = first)."),
-    method: str = typer.Option("robust", "--method", "-m", help="robust | paper | basic"),
+    method: str = typer.Option(None, "--method", "-m", help="One of {methods}; left out, {method}."),
     as_json: bool = typer.Option(False, "--json", help="Print the measurement as JSON."),
     timeout: float = typer.Option(5.0, min=0.01, help="Seconds to wait for each frame."),
-    frames: int = typer.Option(1, "--frames", min=1, max=30, help="Measure over this many frames of a still scene: the frame measured and the ones before it (robust method; with --frame K below N-1 the frame measured is N-1)."),
+    frames: int = typer.Option(1, "--frames", min=1, help="Measure over this many frames of a still scene (at most {max_frames}): the frame measured and the ones before it (robust method; with --frame K below N-1 the frame measured is N-1)."),
 ) -> None:
     """Measure between two points on one frame of a source, headless; prints distance, uncertainty and method."""
     from device import SourceError, open_source
     from device.base import FrameAccess
-    from measure import MeasureError, MeasureOptions, measure_distance
-    from measure.sequence import measure_sequence
+    from measure import MAX_FRAMES, MeasureError, MeasureOptions, measure_distance, measure_sequence
     from cli.specs import source_spec
 
     a, b = _point(p1, "--p1"), _point(p2, "--p2")
     try:
-        options = MeasureOptions(method=method)  # type: ignore[arg-type]
+        options = MeasureOptions() if method is None else MeasureOptions(method=method)
     except MeasureError as exc:
         raise typer.BadParameter(str(exc), param_hint="--method") from None
+    if frames > MAX_FRAMES:
+        raise typer.BadParameter(f"{frames} is more than the {MAX_FRAMES} frames one measurement pools", param_hint="--frames")
     frame = max(frame, frames - 1)
     read: list[Any] = []
     try:

@@ -10,7 +10,8 @@ from __future__ import annotations
 import importlib
 from collections.abc import Mapping
 
-from device.base import BACKENDS, Backend, Source, SourceBase, SourceInfo, SourceSpec, backend, spec_from_table
+from device.base import BACKENDS, Backend, Source, SourceBase, SourceInfo, SourceSpec, backend
+from device.configs import from_table, spec_from_table
 from device.errors import (
     CalibrationError,
     RecordingError,
@@ -28,21 +29,22 @@ def _module(kind: str, shown: str = ""):
 
 def source_config(spec: str | SourceSpec | Mapping[str, object]) -> object:
     """The config dataclass of a source: from a spec string (``"v4l2:/dev/video0?ndisp=64"``), a parsed
-    SourceSpec or a TOML ``[source]`` table (``{"kind": "v4l2", "device": "/dev/video0", "ndisp": 64}``).
-    Both spellings go through the kind's one parser, so they give equal configs with equal defaults;
-    an unknown key or a bad value raises SourceError naming the kind and what is allowed."""
+    SourceSpec or a TOML ``[source]`` table / API body (``{"kind": "v4l2", "device": "/dev/video0", "ndisp": 64}``).
+    All go through the one parser (device.configs) and the kind's config dataclass, so they give equal
+    configs with equal defaults; an unknown key or a bad value raises SourceError naming what is allowed."""
     if isinstance(spec, Mapping):
-        parsed = spec_from_table(spec)
-    else:
-        parsed = spec if isinstance(spec, SourceSpec) else SourceSpec.parse(spec)
+        return from_table(spec)
+    parsed = spec if isinstance(spec, SourceSpec) else SourceSpec.parse(spec)
     return _module(parsed.kind, str(parsed)).config_from_spec(parsed)
 
 
 def kind_of(config: object) -> str:
-    """The registered kind whose config dataclass ``config`` is (SourceError if none is)."""
+    """The registered kind whose config dataclass ``config`` is (SourceError if none is). A kind's module
+    may be a package that defines the dataclass in one of its modules (``device.sources.bag.config``)."""
     cls = type(config)
     for kind, entry in BACKENDS.items():
-        if entry.module == cls.__module__ and entry.config == cls.__qualname__:
+        inside = cls.__module__ == entry.module or cls.__module__.startswith(entry.module + ".")
+        if inside and entry.config == cls.__qualname__:
             return kind
     raise SourceError(f"{cls.__qualname__} is not the config of a registered source kind ({', '.join(BACKENDS)})")
 

@@ -235,29 +235,3 @@ def backend(kind: str, shown: str = "") -> Backend:
         where = f" in {shown!r}" if shown else ""
         raise SourceNotFound(f"unknown source kind {kind!r}{where}; use one of: {', '.join(sorted(BACKENDS))}")
     return found
-
-
-def _spec_value(kind: str, key: str, value: object) -> str:
-    if isinstance(value, bool):
-        return "1" if value else "0"
-    if isinstance(value, float) and value.is_integer():
-        return str(int(value))  # 6.0 from TOML is the integer option 6 too
-    if isinstance(value, (int, float, str)):
-        return str(value)
-    if isinstance(value, list) and all(isinstance(v, (str, int, float)) and not isinstance(v, bool) for v in value):
-        return ",".join(str(v) for v in value)  # two device nodes, two files, ROS left,right calibration
-    raise SourceError(f"{kind} option {key} = {value!r} must be a number, a string, a true/false "
-                      "or a list of strings (write the options of a kind flat in its [source] table)")
-
-
-def spec_from_table(table: Mapping[str, object]) -> SourceSpec:
-    """The spec a TOML ``[source]`` table means: ``kind`` picks the kind, the kind's target key
-    (:attr:`Backend.target`: scene, mxid, device or path) is the spec target, every other key is
-    the spec option of the same name. ``{kind = "sim", scene = "boxes", distance = 6}`` is ``sim:boxes?distance=6``."""
-    kind = table.get("kind")
-    if not isinstance(kind, str) or not kind:
-        raise SourceError(f"the source table needs kind = one of {', '.join(repr(k) for k in BACKENDS)}")
-    entry = backend(kind.lower())
-    target = table.get(entry.target, "")
-    params = {k: _spec_value(kind, k, v) for k, v in table.items() if k not in ("kind", entry.target)}
-    return SourceSpec(kind.lower(), _spec_value(kind, entry.target, target), params)

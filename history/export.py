@@ -1,21 +1,31 @@
-"""The history as CSV: one row per measurement, oldest first, safe to open in a spreadsheet.
+"""The history exported: CSV (one row per measurement, safe to open in a spreadsheet) and JSON.
 
-Columns :data:`CSV_COLUMNS`; lengths and 3D coordinates in the chosen unit (:data:`UNITS`),
-rounded to what each measurement's uncertainty supports (:func:`supported_decimals`), pixels to
-0.1 px; ``frame_url`` opens the saved colour image. Text cells go through
-:mod:`history.csv_safe`, so a name or note typed as a formula is written as text.
+Both take the database rows in batches, oldest first (:meth:`history.store.Store.batches`), and
+give the file as a sequence of chunks, one per batch, so a response streams it without holding
+all records (docs/decisions/streamed-exports.md).
+
+CSV (:func:`csv_chunks`): columns :data:`CSV_COLUMNS`; lengths and 3D coordinates in the chosen
+unit (:data:`UNITS`), rounded to what each measurement's uncertainty supports
+(:func:`supported_decimals`), pixels to 0.1 px; ``frame_url`` opens the saved colour image. Text
+cells go through :mod:`history.csv_safe`, so a name or note typed as a formula is written as text.
+The CSV never writes the per-sample arrays, so its rows are read without them.
+
+JSON (:func:`json_chunks`): ``{"measurements": [...]}``, every record with its per-sample arrays
+copied as the JSON text the database holds, never decoded and encoded again.
 """
 
 from __future__ import annotations
 
 import io
+import json
 import math
 import time
-from collections.abc import Iterable
+from collections.abc import Iterable, Iterator, Mapping
 from decimal import Decimal
 from typing import Any
 
 from history import csv_safe
+from history.records import record
 
 UNITS = {"m": 1.0, "cm": 100.0, "mm": 1000.0, "in": 1 / 0.0254}
 
@@ -57,14 +67,44 @@ def _row(r: dict[str, Any], units: str, base_url: str) -> list[Any]:
     ]  # fmt: skip
 
 
-def measurements_csv(records: Iterable[dict[str, Any]], units: str = "m", base_url: str = "") -> str:
-    """``records`` (oldest first) as CSV text with a header row; ``units`` one of :data:`UNITS`;
-    ``frame_url`` is ``base_url`` + the route of the measurement's frame."""
+def csv_chunks(batches: Iterable[Iterable[Mapping[str, Any]]], units: str = "m", base_url: str = "") -> Iterator[str]:
+    """The CSV of ``batches`` (rows of the measurements table without the per-sample arrays, oldest
+    first) as text chunks: the header, then one chunk per batch. ``units`` one of :data:`UNITS`
+    (checked here, before the first chunk: a ValueError); ``frame_url`` is ``base_url`` + the route
+    of the measurement's frame."""
     if units not in UNITS:
         raise ValueError(f"units must be one of {', '.join(UNITS)} (got {units!r})")
+    return _csv_chunks(batches, units, base_url)
+
+
+def _csv_chunks(batches: Iterable[Iterable[Mapping[str, Any]]], units: str, base_url: str) -> Iterator[str]:
     buf = io.StringIO()
     writer = csv_safe.writer(buf, lineterminator="\r\n")  # RFC 4180; a \r or \n inside a cell is then quoted
     writer.writerow(CSV_COLUMNS)
-    for r in records:
-        writer.writerow(_row(r, units, base_url))
-    return buf.getvalue()
+    for rows in batches:
+        for r in rows:
+            writer.writerow(_row(record(r), units, base_url))
+        yield buf.getvalue()
+        buf.seek(0)
+        buf.truncate()
+    if buf.tell():
+        yield buf.getvalue()  # the header of an empty history
+
+
+def json_chunks(batches: Iterable[Iterable[Mapping[str, Any]]]) -> Iterator[bytes]:
+    """``{"measurements": [...]}`` of ``batches`` (rows of the measurements table, oldest first, with
+    the per-sample arrays' stored JSON text as ``samples_json`` and ``support_json``) as UTF-8
+    chunks, one per batch: each record as :func:`history.records.record` gives it, its arrays
+    appended as stored."""
+    yield b'{"measurements":['
+    sep = b""
+    for rows in batches:
+        parts = []
+        for r in rows:
+            head = json.dumps(record(r), ensure_ascii=False, allow_nan=False, separators=(",", ":")).encode()
+            # numbers and booleans only: dropping the stored separators' spaces leaves the same values
+            arrays = f',"samples_px":{r["samples_json"].replace(", ", ",")},"support":{r["support_json"].replace(", ", ",")}}}'.encode()
+            parts.append(sep + head[:-1] + arrays)
+            sep = b","
+        yield b"".join(parts)
+    yield b"]}"

@@ -14,7 +14,7 @@ unreferenced file, deleted at the next start with any stale temporary file. A fu
 
 Other parts: :mod:`history.checkpoint` (the WAL checkpoint thread), :mod:`history.eviction` (the
 size cap ``max_bytes``), :mod:`history.cache` (encoded list records and thumbnails),
-:mod:`history.export` (CSV).
+:mod:`history.export` (CSV and JSON, streamed from :meth:`Store.batches`).
 """
 
 from __future__ import annotations
@@ -24,7 +24,7 @@ import logging
 import sqlite3
 import threading
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, TypeVar
@@ -36,7 +36,7 @@ from history.cache import RecordCache
 from history.checkpoint import Checkpointer
 from history.errors import FrameDropped, FrameNotSaved, MeasurementUnknown, StoreError, StoreFull
 from history.eviction import drop_over_cap
-from history.export import measurements_csv
+from history.export import csv_chunks
 from history.frame_file import SUFFIX, encode_frame
 from history.records import record, record_of_values, row_values
 from history.saved_frames import SavedFrames, load_frame
@@ -48,6 +48,7 @@ T = TypeVar("T")
 _FRAME_INSERT = schema.insert_sql("frames", schema.FRAME_INSERT, "INSERT OR IGNORE")
 _MEASUREMENT_INSERT = schema.insert_sql("measurements", schema.MEASUREMENT_INSERT)
 _SLIM = ", ".join(schema.SLIM_COLUMNS)
+_WITH_ARRAYS = _SLIM + ", samples_px AS samples_json, support AS support_json"  # the arrays as stored, not decoded by record()
 
 __all__ = ["Store", "StoreError", "StoreFull", "FrameDropped", "FrameNotSaved", "MeasurementUnknown", "load_frame"]
 
@@ -398,6 +399,22 @@ class Store:
                 (self.frames_dir / file).unlink(missing_ok=True)
         self.space.lay_reserve()
 
+    def batches(self, size: int = 500, *, arrays: bool = False) -> Iterator[list[sqlite3.Row]]:
+        """Every measurement's row, oldest first, ``size`` rows a batch: the slim columns (what
+        :func:`history.records.record` reads), with ``arrays`` also ``samples_json`` and
+        ``support_json`` (the per-sample arrays' stored JSON text). Each batch is one query on the
+        reading connection of the thread that asks for it, so a streamed response may pull batches
+        from any worker thread; measurements stored after the first batch are not included."""
+        columns = _WITH_ARRAYS if arrays else _SLIM
+        newest = self._one("SELECT MAX(id) AS id FROM measurements")
+        last, top = 0, (newest["id"] if newest else None) or 0
+        while last < top:
+            rows = self._all(f"SELECT {columns} FROM measurements WHERE id > ? AND id <= ? ORDER BY id LIMIT ?", (last, top, size))
+            if not rows:
+                return
+            last = rows[-1]["id"]
+            yield rows
+
     def csv(self, units: str = "m", base_url: str = "") -> str:
-        """All measurements as CSV (oldest first): :func:`history.export.measurements_csv`."""
-        return measurements_csv(reversed(self.list(limit=1_000_000)), units, base_url)
+        """All measurements as CSV (oldest first): :func:`history.export.csv_chunks` as one text."""
+        return "".join(csv_chunks(self.batches(), units, base_url))

@@ -5,25 +5,34 @@ public API (docs/api/measure.md); the submodules are internal and may change wit
 """
 
 from measure.distance import measure_distance
+from measure.fields import Opt, OptionField, check as check_options, describe as describe_options, option, options_of
 from measure.metrics import accuracy, signed_error_pct
 from measure.robust import robust_with_terms
 from measure.sampling import ray
 from measure.sequence import MAX_FRAMES, measure_sequence
+from measure.options import METHODS
 from measure.types import MAX_CLICK_PX, Frame, MeasureError, MeasureOptions, Measurement, PinholeCamera
 from measure.zonly import measure_z_only
 
 __all__ = [
     "MAX_CLICK_PX",
     "MAX_FRAMES",
+    "METHODS",
+    "Opt",
+    "OptionField",
     "Frame",
     "MeasureError",
     "MeasureOptions",
     "Measurement",
     "PinholeCamera",
     "accuracy",
+    "check_options",
+    "describe_options",
     "measure_distance",
     "measure_sequence",
     "measure_z_only",
+    "option",
+    "options_of",
     "ray",
     "robust_with_terms",
     "signed_error_pct",

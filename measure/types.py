@@ -9,35 +9,12 @@ from __future__ import annotations
 import math
 from collections.abc import Mapping
 from dataclasses import dataclass, field
-from typing import Any, Literal
+from typing import Any
 
 import numpy as np
 
-Method = Literal["robust", "paper", "basic"]
-METHODS: tuple[str, ...] = ("robust", "paper", "basic")
-
-
-class MeasureError(ValueError):
-    """Bad input to the measurement core; the message says what to change.
-
-    A subclass of :class:`ValueError`, raised by the constructors of :class:`PinholeCamera`,
-    :class:`Frame` and :class:`MeasureOptions` and by :func:`measure.measure_distance`.
-
-    Args:
-        message: what is wrong with the input and what to change (str).
-
-    Returns:
-        The exception; it is raised, not returned.
-
-    Examples:
-        >>> from measure import MeasureError, MeasureOptions
-        >>> try:
-        ...     MeasureOptions(window=4)
-        ... except MeasureError as err:
-        ...     print(err)
-        window=4 must be a positive odd whole number of pixels
-    """
-
+from measure.errors import MeasureError
+from measure.options import MAX_CLICK_PX, METHODS, Method, MeasureOptions
 
 # Physical ranges of the numbers a calibration gives (outside them the numbers are a unit or
 # parsing mistake, and the arithmetic overflows long before it measures anything).
@@ -52,10 +29,6 @@ BASELINE_RANGE_M = (1e-4, 1e3)
 
 def _is_number(value: object) -> bool:
     return isinstance(value, (int, float, np.floating, np.integer)) and not isinstance(value, (bool, np.bool_))
-
-
-def _is_whole(value: object) -> bool:
-    return isinstance(value, (int, np.integer)) and not isinstance(value, (bool, np.bool_))
 
 
 def validate_camera(cam: PinholeCamera) -> None:
@@ -275,65 +248,6 @@ def validate_frame(frame: Frame) -> None:
             f"frame.baseline_m={frame.baseline_m:g} is outside the physical range [{lo:g}, {hi:g}] m; "
             "check the calibration's units (metres, not millimetres)"
         )
-
-
-MAX_CLICK_PX = 50.0  # a click's one-sigma error beyond this is no click on the object at all
-
-
-@dataclass(frozen=True)
-class MeasureOptions:
-    """How to measure. See docs/method.md for the meaning of each parameter.
-
-    Args:
-        method: ``"robust"`` (robust disparity line along the segment, the default), ``"paper"``
-            (the paper's robust 3D line, docs/method.md Eq. 3-7) or ``"basic"`` (window medians at the
-            clicks and Eq. 2 only).
-        support_fraction: fraction h/n of the samples FAST-MCD keeps (float in [0.5, 1.0]).
-        window: side of the square window around each click (odd int, px).
-        extension_px: length of the extensions beyond the clicks that gap detection reads (int >= 3, px).
-        gap_detection: whether to look for an end clicked on a depth gap (bool).
-        seed: seed of FAST-MCD's random starts (int >= 0); the same seed gives the same answer.
-        click_px: one-sigma error of each click along the segment (float, px of the frame's image, from 0
-            to ``MAX_CLICK_PX``): the uncertainty's click term (``measure.uncertainty.click_sigma``). The
-            caller knows it: 0 for exact pixel coordinates (a program, detected corners, a replayed
-            annotation), about 1.5 for a mouse (the default), more for a finger on a touch screen (its
-            tap's error at the displayed scale, converted to image pixels). The calibration was set
-            with the default, so values below 1 claim more than is measured
-            (docs/decisions/uncertainty-calibration.md).
-
-    Returns:
-        Frozen, validated options; raises :class:`MeasureError` naming a value out of range.
-
-    Examples:
-        >>> from measure import MeasureOptions
-        >>> opts = MeasureOptions(method="basic", window=7)
-        >>> print(opts.method, opts.window, opts.support_fraction)
-        basic 7 0.5
-    """
-
-    method: Method = "robust"
-    support_fraction: float = 0.5
-    window: int = 5
-    extension_px: int = 25
-    gap_detection: bool = True
-    seed: int = 0
-    click_px: float = 1.5
-
-    def __post_init__(self) -> None:
-        if not isinstance(self.method, str) or self.method not in METHODS:
-            raise MeasureError(f"method {self.method!r} is unknown; use one of {', '.join(METHODS)}")
-        if not _is_number(self.support_fraction) or not (0.5 <= self.support_fraction <= 1.0):
-            raise MeasureError(f"support_fraction={self.support_fraction!r} must be a number in [0.5, 1.0]")
-        if not _is_whole(self.window) or self.window < 1 or self.window % 2 == 0:
-            raise MeasureError(f"window={self.window!r} must be a positive odd whole number of pixels")
-        if not _is_whole(self.extension_px) or self.extension_px < 3:
-            raise MeasureError(f"extension_px={self.extension_px!r} must be a whole number of at least 3 pixels")
-        if not isinstance(self.gap_detection, (bool, np.bool_)):
-            raise MeasureError(f"gap_detection={self.gap_detection!r} must be True or False")
-        if not _is_whole(self.seed) or self.seed < 0:
-            raise MeasureError(f"seed={self.seed!r} must be a non-negative whole number")
-        if not _is_number(self.click_px) or not (math.isfinite(self.click_px) and 0 <= self.click_px <= MAX_CLICK_PX):
-            raise MeasureError(f"click_px={self.click_px!r} must be a number of pixels from 0 (exact clicks) to {MAX_CLICK_PX:g}")
 
 
 @dataclass(frozen=True)

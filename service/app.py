@@ -6,7 +6,7 @@ The routes live in ``service.routers`` (one module per resource) and share one
 :class:`service.state.ServiceState` through :mod:`service.deps`. The web page in ``static/`` uses
 only the API. Errors carry a ``detail`` message saying what to change; :mod:`service.errors` gives
 each domain error its status (410 for a frame evicted from the ring, 404 for an unknown id, 422
-for bad input, 507 for a full disk), the token middleware 401, :mod:`service.guard` 400/403/413/415.
+for bad input, 429 while every measurement worker is busy, 507 for a full disk), the token middleware 401, :mod:`service.guard` 400/403/413/415.
 """
 
 from __future__ import annotations
@@ -32,8 +32,9 @@ from service.config import ServerConfig
 from service.frames import Capture, FrameRing
 from service.guard import RequestGuard, allowed_hosts_for
 from service.recorder import Recorder
-from service.routers import checks, frames, health, measurements, recordings
+from service.routers import checks, frames, health, measurements, options, recordings
 from service.state import ServiceState
+from service.workers import MeasurePool
 
 STATIC_DIR = Path(__file__).resolve().parent / "static"
 
@@ -72,14 +73,17 @@ def create_app(source: str | Callable[[], Source], settings: ServerConfig | None
         settings = ServerConfig.model_validate({**settings.model_dump(), **overrides})
     spec = source if isinstance(source, str) else getattr(source, "__name__", "custom")
     factory: Callable[[], Source] = (lambda: make_source(source)) if isinstance(source, str) else source  # type: ignore[arg-type]
-    ring = FrameRing(settings.ring_size, settings.max_frozen, settings.keep_viewed, settings.max_waiters)
+    ring = FrameRing(
+        settings.ring_size, settings.max_frozen, settings.keep_viewed, settings.max_waiters, freeze_ttl_s=settings.freeze_ttl_s
+    )
     capture = Capture(
         factory, ring, spec=spec, fps=settings.capture_fps,
         backoff_initial_s=settings.reconnect_initial_s, backoff_max_s=settings.reconnect_max_s,
     )  # fmt: skip
     store = Store(settings.db, max_bytes=settings.history_max_bytes)
     recorder = Recorder(capture, settings.recordings_dir)
-    state = ServiceState(ring=ring, capture=capture, store=store, recorder=recorder)
+    measures = MeasurePool(settings.measure_workers, settings.measure_queue)
+    state = ServiceState(ring=ring, capture=capture, store=store, recorder=recorder, measures=measures)
 
     @asynccontextmanager
     async def lifespan(_: FastAPI) -> AsyncIterator[None]:
@@ -95,6 +99,7 @@ def create_app(source: str | Callable[[], Source], settings: ServerConfig | None
             if recorder.status()["active"]:
                 recorder.stop()
             capture.stop()
+            measures.close()
             store.close()
             gc.unfreeze()  # a process that builds apps one after another (the tests) can free them again
 
@@ -104,7 +109,7 @@ def create_app(source: str | Callable[[], Source], settings: ServerConfig | None
 
     errors.install(app)
 
-    for module in (health, frames, measurements, recordings, checks):
+    for module in (health, frames, measurements, recordings, checks, options):
         app.include_router(module.router)
     app.mount("/", StaticFiles(directory=STATIC_DIR, html=True), name="static")
     hosts = allowed_hosts_for(settings.host, settings.allowed_hosts)

@@ -43,7 +43,10 @@ class ServerConfig(_Model):
     insecure_no_token: bool = False  # serve on a non-loopback host without a token (anyone there can use it)
     allowed_hosts: tuple[str, ...] = ()  # extra Host names to answer (a DNS name of this machine)
     ring_size: int = Field(32, ge=2, le=4096)  # frames in memory: width x height x 7 bytes each
-    max_frozen: int = Field(16, ge=1, le=1024)
+    max_frozen: int = Field(64, ge=1, le=1024)  # frames frozen at once (memory); beyond, the least recently used is released
+    freeze_ttl_s: float = Field(60.0, gt=0, le=86_400)  # a frozen frame nobody used for this long is released
+    measure_workers: int = Field(0, ge=0, le=256)  # measurements at once; 0: the CPU count
+    measure_queue: int = Field(8, ge=0, le=100_000)  # measurements waiting for a worker; 429 beyond
     capture_fps: float = Field(15.0, gt=0, le=1000)
     reconnect_initial_s: float = Field(0.5, gt=0, le=60)
     reconnect_max_s: float = Field(10.0, gt=0, le=600)
@@ -73,8 +76,8 @@ class ServerConfig(_Model):
 
 class ServeConfig(_Model):
     server: ServerConfig = ServerConfig()
-    # The [source] table as the spec string it means (device.spec_from_table), checked by the kind's
-    # own parser: the table and a --source string are two spellings of the kind's one config dataclass.
+    # The [source] table as the spec string it means (device.spec_from_table), parsed by the one parser
+    # (device.configs): the table and a --source string are two spellings of the kind's config dataclass.
     source: str | None = None
 
 
@@ -90,13 +93,12 @@ def _describe(error: Any) -> str:
 def source_table_spec(table: object, origin: str = "<config>") -> str:
     """The spec string of a ``[source]`` table, after the kind's parser accepted it (ConfigError names
     ``origin``, the kind and what is allowed)."""
-    from device import SourceError, SourceSpec, source_config, spec_from_table
+    from device import SourceError, spec_from_table
 
     if not isinstance(table, dict):
         raise ConfigError(f"{origin}: source must be a table ([source] with kind = ...), not {table!r}")
     try:
-        text = str(spec_from_table(table))
-        source_config(SourceSpec.parse(text))  # what the service will parse, checked now
+        text = str(spec_from_table(table))  # parsed into the kind's config, written back as its spec
     except (SourceError, ValueError) as exc:  # ValueError: a config dataclass's own check
         raise ConfigError(f"{origin}: source: {exc}") from None
     return text

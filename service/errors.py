@@ -16,11 +16,13 @@ from measure import MeasureError
 
 from service import recorder
 from service.frames import FrameGone, FrameUnknown, NotAReplay, SeekOutOfRange, TooManyWaiters
+from service.workers import Busy
 
 STATUS: dict[type[Exception], int] = {
     FrameUnknown: 404,
     FrameGone: 410,
     TooManyWaiters: 429,
+    Busy: 429,
     NotAReplay: 409,
     SeekOutOfRange: 422,
     MeasureError: 422,
@@ -35,7 +37,7 @@ STATUS: dict[type[Exception], int] = {
     recorder.BadRecordingName: 422,
     recorder.CannotRecord: 400,
 }
-HEADERS: dict[type[Exception], dict[str, str]] = {TooManyWaiters: {"Retry-After": "1"}}
+HEADERS: dict[type[Exception], dict[str, str]] = {TooManyWaiters: {"Retry-After": "1"}, Busy: {"Retry-After": "1"}}
 
 
 def _answer(exc: Exception) -> JSONResponse:

@@ -1,7 +1,8 @@
 """Frames of the live stream: a bounded ring buffer with ids, and the capture thread that fills it.
 
 A measurement names the id of the frame it was clicked on, so the live stream moving on never
-changes the frame under a click; frozen frames are kept out of eviction (up to a bound).
+changes the frame under a click; a frozen frame is kept out of eviction while any client holds it
+(each freeze is a hold, each unfreeze drops one) and has used it within ``freeze_ttl_s``.
 The capture thread survives any source error: it reports the state and message, closes the
 source and reopens it with exponential backoff.
 """
@@ -54,9 +55,14 @@ class RingFrame:
     frame: Frame
     uid: str = field(default_factory=lambda: uuid.uuid4().hex)
     received: float = field(default_factory=time.time)
-    frozen: bool = False
+    holds: int = 0  # clients that froze it and did not unfreeze it yet
+    touched: float = 0.0  # the ring's clock when a client last froze or asked for it
     cache: dict[str, bytes] = field(default_factory=dict)
     lock: threading.Lock = field(default_factory=threading.Lock)
+
+    @property
+    def frozen(self) -> bool:
+        return self.holds > 0
 
     def encoded(self, key: str, encode: Callable[[Frame], bytes]) -> bytes:
         """``encode(frame)`` computed once per frame (the page polls the same frame repeatedly)."""
@@ -69,8 +75,11 @@ class RingFrame:
 class FrameRing:
     """Bounded, thread-safe buffer of frames keyed by increasing ids.
 
-    At most ``capacity`` unfrozen frames are kept (oldest evicted first); at most ``max_frozen``
-    frames are frozen, freezing one more releases the oldest frozen one back to the live pool.
+    At most ``capacity`` unfrozen frames are kept (oldest evicted first). A frozen frame is held by
+    reference: every freeze adds a hold and every unfreeze drops one, so one client releasing a frame
+    never takes it from another that froze it too; a frame whose holders have not frozen or asked for
+    it for ``freeze_ttl_s`` (a page closed without unfreezing) is released. At most ``max_frozen``
+    frames are frozen (a memory bound): freezing one more releases the least recently used.
     Eviction passes over the last ``keep_viewed`` frames handed out as "latest": a page shows such a
     frame and may freeze it a moment later, when a fast source with a small ring would have evicted
     it already (30 fps into 4 frames leaves 0.13 s, less than a click). At most ``capacity +
@@ -81,8 +90,9 @@ class FrameRing:
     """
 
     def __init__(
-        self, capacity: int = 32, max_frozen: int = 16, keep_viewed: int = 8, max_waiters: int = 64, hold_before: int = 29
-    ) -> None:
+        self, capacity: int = 32, max_frozen: int = 64, keep_viewed: int = 8, max_waiters: int = 64, hold_before: int = 29,
+        freeze_ttl_s: float = 60.0, clock: Callable[[], float] = time.monotonic,
+    ) -> None:  # fmt: skip
         if capacity < 1 or max_frozen < 1 or max_waiters < 1:
             raise ValueError(
                 f"ring capacity ({capacity}), max_frozen ({max_frozen}) and max_waiters ({max_waiters}) must be at least 1"
@@ -90,6 +100,8 @@ class FrameRing:
         self.capacity = capacity
         self.max_frozen = max_frozen
         self.max_waiters = max_waiters
+        self.freeze_ttl_s = freeze_ttl_s
+        self._clock = clock
         self._wakers: set[Callable[[], None]] = set()
         self._frames: OrderedDict[int, RingFrame] = OrderedDict()
         self._ids = itertools.count(1)
@@ -103,12 +115,13 @@ class FrameRing:
         with self._cond:
             fid = next(self._ids)
             self._next = fid + 1
-            entry = RingFrame(id=fid, frame=frame, frozen=frozen)
+            entry = RingFrame(id=fid, frame=frame, holds=int(frozen), touched=self._clock())
             if uid:
                 entry.uid = uid
             self._frames[fid] = entry
             if frozen:
                 self._limit_frozen(keep=fid)
+            self._expire()
             self._evict()
             self._cond.notify_all()
             for wake in list(self._wakers):
@@ -123,14 +136,23 @@ class FrameRing:
             del self._frames[fid]
 
     def _limit_frozen(self, keep: int) -> None:
-        frozen = [fid for fid, e in self._frames.items() if e.frozen and fid != keep]
-        for fid in frozen[: max(0, len(frozen) + 1 - self.max_frozen)]:
-            self._frames[fid].frozen = False
+        frozen = sorted((e.touched, fid) for fid, e in self._frames.items() if e.frozen and fid != keep)
+        for _, fid in frozen[: max(0, len(frozen) + 1 - self.max_frozen)]:
+            self._frames[fid].holds = 0
+
+    def _expire(self) -> None:
+        """Release the frozen frames nobody froze or asked for within ``freeze_ttl_s``."""
+        stale = self._clock() - self.freeze_ttl_s
+        for e in self._frames.values():
+            if e.frozen and e.touched < stale:
+                e.holds = 0
 
     def get(self, fid: int) -> RingFrame:
+        """Frame ``fid``; asking for a frozen frame keeps it for another ``freeze_ttl_s``."""
         with self._cond:
             entry = self._frames.get(fid)
             if entry is not None:
+                entry.touched = self._clock()
                 return entry
             if 1 <= fid < self._next:
                 raise FrameGone(
@@ -211,11 +233,11 @@ class FrameRing:
     def freeze(self, fid: int, frozen: bool = True) -> RingFrame:
         with self._cond:
             entry = self.get(fid)
-            entry.frozen = frozen
+            entry.holds = entry.holds + 1 if frozen else max(0, entry.holds - 1)
             if frozen:
                 self._held = (fid, self._before(fid, self.hold_before))
                 self._limit_frozen(keep=fid)
-            else:
+            elif not entry.frozen:
                 if self._held[0] == fid:
                     self._held = (0, [])
                 self._evict()
@@ -279,9 +301,9 @@ class Capture:
         ring: FrameRing,
         *,
         spec: str = "",
-        fps: float = 15.0,
-        backoff_initial_s: float = 0.5,
-        backoff_max_s: float = 10.0,
+        fps: float,
+        backoff_initial_s: float,
+        backoff_max_s: float,
         read_timeout_s: float = 2.0,
     ) -> None:
         self.factory = factory

@@ -2,13 +2,12 @@
 
 from __future__ import annotations
 
+import re
 from typing import Annotated, Any, Literal
 
-import re
+from pydantic import AfterValidator, BaseModel, ConfigDict, Field, Strict, create_model, field_validator, model_validator
 
-from pydantic import BaseModel, ConfigDict, Field, Strict, field_validator
-
-from measure.types import MAX_CLICK_PX
+from measure import MAX_FRAMES, METHODS, MeasureOptions, OptionField, describe_options, options_of
 
 FiniteNumber = Annotated[float, Strict(), Field(allow_inf_nan=False)]
 MAX_ID = 2**53 - 1  # the largest integer a JavaScript number holds exactly; far below SQLite's 2^63
@@ -22,18 +21,49 @@ def is_plain_name(text: str) -> bool:
     return PLAIN_NAME.fullmatch(text) is not None and text.strip(".") != ""
 
 
-class OptionsIn(BaseModel):
-    """Measurement options (MeasureOptions); every field optional."""
+def _option_type(field: OptionField) -> Any:
+    """The pydantic type of one MeasureOptions field, from its metadata (measure.Opt)."""
+    opt, allowed = field.opt, field.choices()
+    if allowed is not None:
+        return Literal[tuple(allowed)]  # type: ignore[valid-type]
+    bounds = {("gt" if opt.min_open else "ge"): opt.min} if opt.min is not None else {}
+    if opt.max is not None:
+        bounds["lt" if opt.max_open else "le"] = opt.max
+    name = field.kind
+    if name == "bool":
+        return Annotated[bool, Strict()]
+    if name == "int":
+        odd = [AfterValidator(_odd)] if opt.odd else []
+        return Annotated[int, Strict(), Field(**bounds), *odd]
+    return Annotated[float, Field(allow_inf_nan=False, **bounds)]
 
+
+def _odd(value: int) -> int:
+    if value % 2 == 0:
+        raise ValueError("must be odd")
+    return value
+
+
+class _Options(BaseModel):
     model_config = ConfigDict(extra="forbid")
-    method: Literal["robust", "paper", "basic"] = "robust"
-    support_fraction: Annotated[float, Field(ge=0.5, le=1.0, allow_inf_nan=False)] = 0.5
-    window: Annotated[int, Strict(), Field(ge=1, le=51)] = 5
-    extension_px: Annotated[int, Strict(), Field(ge=3, le=500)] = 25
-    gap_detection: Annotated[bool, Strict()] = True
-    seed: Annotated[int, Strict(), Field(ge=0, le=2**32 - 1)] = 0
-    # One-sigma click error along the segment (px of the frame's image): 0 exact, a mouse 1.5, a finger more.
-    click_px: Annotated[float, Field(ge=0.0, le=MAX_CLICK_PX, allow_inf_nan=False)] = 1.5
+
+    @model_validator(mode="after")
+    def _core_accepts(self) -> _Options:
+        self.to_options()  # MeasureError is a ValueError: a 422 naming the option
+        return self
+
+    def to_options(self) -> MeasureOptions:
+        """These options as the core's :class:`measure.MeasureOptions`."""
+        return MeasureOptions(**self.model_dump())
+
+
+# Built from MeasureOptions' field metadata: the bounds, defaults and method names are the core's.
+OptionsIn = create_model(
+    "OptionsIn",
+    __base__=_Options,
+    __doc__="Measurement options (measure.MeasureOptions); every field optional, bounds as the core's.",
+    **{f.name: (_option_type(f), f.default) for f in options_of(MeasureOptions)},  # type: ignore[call-overload]
+)
 
 
 class MeasureIn(BaseModel):
@@ -46,7 +76,7 @@ class MeasureIn(BaseModel):
     options: OptionsIn = OptionsIn()
     # Measure over this many frames of a still scene: the frame and the ones received just before it
     # (measure.sequence; robust method only).
-    frames: Annotated[int, Strict(), Field(ge=1, le=30)] = 1
+    frames: Annotated[int, Strict(), Field(ge=1, le=MAX_FRAMES)] = 1
 
 
 class RecordingIn(BaseModel):
@@ -90,6 +120,44 @@ class AnnotationIn(BaseModel):
 
 class _Out(BaseModel):
     model_config = ConfigDict(extra="forbid")
+
+
+class OptionFieldOut(_Out):
+    """One option as measure.fields.describe gives it: spelling, type, default, bounds, unit, help."""
+
+    name: str
+    key: str
+    aliases: list[str]
+    type: str
+    default: Any
+    required: bool
+    default_text: str
+    min: float | None
+    max: float | None
+    min_open: bool
+    max_open: bool
+    odd: bool
+    multiple_of: int | None
+    choices: list[str] | None
+    unit: str
+    help: str
+    target: bool
+    joined: list[Any] | None
+    example: Any
+
+
+class OptionsOut(_Out):
+    """``GET /api/options``: the method names, every measure option (default, bounds, unit, help) and
+    the most frames one measurement pools, from the core's one description."""
+
+    methods: list[str]
+    fields: list[OptionFieldOut]
+    frames: dict[str, int]
+
+
+def options_description() -> dict[str, Any]:
+    """The body of ``GET /api/options``."""
+    return {"methods": list(METHODS), "fields": describe_options(MeasureOptions), "frames": {"min": 1, "max": MAX_FRAMES}}
 
 
 class TruthOut(_Out):

@@ -1,4 +1,5 @@
-"""What the routers share: the frame ring, the capture thread, the history store and the recorder.
+"""What the routers share: the frame ring, the capture thread, the history store, the recorder and
+the measurement workers.
 
 One :class:`ServiceState` per app, built by ``create_app`` and handed to each router through the
 dependencies of :mod:`service.deps`, so a route names what it uses instead of reaching into globals.
@@ -13,6 +14,7 @@ from history.store import Store
 
 from service.frames import Capture, FrameRing
 from service.recorder import Recorder
+from service.workers import MeasurePool
 
 
 @dataclass
@@ -21,4 +23,5 @@ class ServiceState:
     capture: Capture
     store: Store
     recorder: Recorder
+    measures: MeasurePool = field(default_factory=MeasurePool)
     started: float = field(default_factory=time.time)

@@ -29,7 +29,7 @@ TEXELS_PER_SQUARE = 96
 @lru_cache(maxsize=4)
 def board_texture(board: tuple[int, int, float, float, str]) -> tuple[np.ndarray, float]:
     """The sheet as a float32 grey image in [0, 1] and its texels per metre."""
-    from device.calibration.stereo import BoardSpec
+    from device.calibration.board import BoardSpec
 
     sx, sy, square, marker, dictionary = board
     spec = BoardSpec(sx, sy, square, marker, dictionary)

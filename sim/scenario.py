@@ -11,7 +11,7 @@ import numpy as np
 
 from measure import Frame
 
-from sim.scenes import BOARD_M, STANDOFFS_M, SceneParams, get_view, resolve_target
+from sim.scenes import BOARD_M, STANDOFFS_M, SceneParams, View, get_view, resolve_target
 from sim.sensor import SensorError, SensorModel, get_profile, sense
 from sim.textures import LIGHTING
 from sim.truth import ClickModel, Truth
@@ -59,9 +59,16 @@ def simulate_frame(
     """One frame of the rig looking at the scene, with the truth of ``target`` in ``meta["truth"]``."""
     view = get_view(params)
     truth = view.truth(target)
+    meta = {"source": "sim", "scene": params.scene, "lighting": model.lighting, "truth": truth, **(meta or {})}
+    return frame_from_view(view, model, rng, timestamp=timestamp, meta=meta), truth
+
+
+def frame_from_view(view: View, model: SensorModel, rng: np.random.Generator, *, timestamp: float | None = None,
+                    meta: dict[str, Any] | None = None) -> Frame:
+    """One frame of the rig looking at ``view``: sensed disparity, confidence and a noisy colour image."""
     out = sense(view, model, rng)
     image = noisy_image(view.renders[model.lighting], LIGHTING[model.lighting].image_noise, rng)
-    frame = Frame(
+    return Frame(
         image=image,
         disparity=out.disparity,
         camera=view.camera,
@@ -69,9 +76,8 @@ def simulate_frame(
         doffs=0.0,
         confidence=out.confidence,
         timestamp=time.time() if timestamp is None else timestamp,
-        meta={"source": "sim", "scene": params.scene, "lighting": model.lighting, "truth": truth, **(meta or {})},
+        meta=dict(meta or {"source": "sim"}),
     )
-    return frame, truth
 
 
 def scenario(

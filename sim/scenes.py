@@ -444,6 +444,11 @@ def get_view(params: SceneParams, shift_m: float = 0.0) -> View:
     pose = Pose.looking((0.0, -CAMERA_HEIGHT_M, 0.0), pitch)
     if shift_m:
         pose = pose.shifted(shift_m)
+    return make_view(params, spec, camera, pose)
+
+
+def make_view(params: SceneParams, spec: SceneSpec, camera: PinholeCamera, pose: Pose) -> View:
+    """Ray-cast ``spec``'s primitives from ``pose`` and render every lighting preset (not cached)."""
     hits = cast(spec.prims, camera, pose)
     depth = np.where(np.isfinite(hits.depth), hits.depth, np.nan)
     objects = tuple(dict.fromkeys(p.obj for p in spec.prims))

@@ -1,15 +1,11 @@
 """The simulated rig as a Source: ``open_source("sim:poster?distance=6&lighting=outdoor&seed=3")``.
 
-Spec keys: profile ("stress" | "paper", sim.sensor.PROFILES: sensor fields and the poster's mount),
-distance (m), lighting, contention, quantization (both default to the profile's), seed, fps (0 = as
-fast as read), width, height, target, yaw (deg), roll (deg), mount ("stand" | "wall": the poster board
-on its legs or glued on the wall; default: the profile's), standoff (m, the board in front of the
-wall; fixed per source), board_w and board_l (m, the poster's size), squares ("7x5"), square_mm,
-marker_mm and dictionary (the "charuco" scene's printed ChArUco board, as `depthruler calibrate` and
-`check` take them), mode ("model": the sensor model; "stereo": rendered left/right images
-through OpenCV SGBM), baseline_error (the frames report a baseline off by this share, e.g. 0.02: a camera
-whose calibration is wrong, for `depthruler check` to find), and any SensorModel field by name (e.g. noise_px=0.3).
-The scene names the spec target: "sim" alone is a poster at 4 m under indoor light.
+The spec's target is the scene ("sim" alone is a poster at 4 m under indoor light); the options are
+:class:`SimConfig`'s fields, each spelled, bounded and explained once in its metadata and parsed by
+``device.configs`` (the table in docs/usage.md is generated from it). Besides them, any SensorModel
+field may be set by name (e.g. ``noise_px=0.3``). ``mode=stereo`` renders a left/right pair and runs
+it through OpenCV SGBM instead of the sensor model; ``baseline_error=0.02`` makes the frames report a
+baseline 2 % long (a wrong calibration for `depthruler check` to find).
 """
 
 from __future__ import annotations
@@ -20,56 +16,68 @@ from typing import Any
 
 import numpy as np
 
-from device.base import Backend, SourceBase, SourceInfo, SourceSpec, parse_flag
+from device import configs
+from device.base import Backend, SourceBase, SourceInfo, SourceSpec
 from device.errors import SourceError, SourceNotFound, SourceTimeout
-from measure import Frame
+from measure import Frame, check_options, option
 
 from sim.scenario import make_model, simulate_frame
-from sim.scenes import BOARD_M, CHARUCO_BOARD, SCENES, SceneError, SceneParams, get_view, resolve_target
-from sim.sensor import SensorError, SensorModel, get_profile
+from sim.scenes import BOARD_M, CHARUCO_BOARD, MOUNTS, SCENES, SceneError, SceneParams, get_view, resolve_target
+from sim.sensor import PROFILES, SensorError, SensorModel, get_profile
 from sim.textures import LIGHTING
 
 MODES = ("model", "stereo")
 
 
+def _sensor_keys() -> dict[str, type]:
+    """SensorModel fields a spec may set by name (lighting, contention and quantization have their own keys)."""
+    kinds = {"bool": bool, "int": int, "str": str}
+    return {f.name: kinds.get(str(f.type), float) for f in fields(SensorModel)
+            if f.name not in ("lighting", "contention", "quantization")}
+
+
 @dataclass(frozen=True)
 class SimConfig:
-    """What the simulated source shows and how fast (see the module docstring for the spec keys)."""
+    """What the simulated source shows and how fast: each field's spelling, bounds and help are in
+    its metadata (docs/usage.md "Source options" lists them)."""
 
-    scene: str = "poster"
-    target: str | None = None
-    distance_m: float = 4.0
-    lighting: str = "indoor"
-    profile: str = "stress"
-    contention: float | None = None  # None = the profile's
-    quantization: float | None = None
-    seed: int = 0
-    fps: float = 10.0
-    width: int = 1280
-    height: int = 720
-    yaw_deg: float = 0.0
-    roll_deg: float = 0.0
-    mount: str | None = None  # None = the profile's
-    standoff_m: float = 1.0
-    board_w_m: float = BOARD_M[0]
-    board_l_m: float = BOARD_M[1]
-    mode: str = "model"
-    baseline_error: float = 0.0  # the reported baseline is (1 + this) x the true one: a wrong calibration
-    squares: str = f"{CHARUCO_BOARD[0]}x{CHARUCO_BOARD[1]}"
-    square_mm: float = CHARUCO_BOARD[2] * 1000
-    marker_mm: float = CHARUCO_BOARD[3] * 1000
-    dictionary: str = CHARUCO_BOARD[4]
-    sensor: tuple[tuple[str, object], ...] = field(default_factory=tuple)  # extra SensorModel overrides
+    scene: str = option("poster", target=True, key="scene", choices=tuple(SCENES), help="the scene shown")
+    target: str | None = option(None, example="poster-width", help="which object of the scene the truth and the clicks are on (default: the scene's)")
+    distance_m: float = option(4.0, key="distance", min=0.0, min_open=True, unit="m", help="distance of the scene from the camera")
+    lighting: str = option("indoor", choices=tuple(LIGHTING), help="lighting: sets the sensor noise and the holes")
+    profile: str = option("stress", choices=tuple(PROFILES), help="sensor profile (sim.sensor.PROFILES): stress, or paper (the paper's tablet)")
+    contention: float | None = option(None, min=0.0, max=0.5, default_text="the profile's", help="share of wrong-pair matches in contended regions")
+    quantization: float | None = option(None, min=0.0, min_open=True, unit="px", default_text="the profile's", help="disparity step (1 = integer)")
+    seed: int = option(0, min=0, help="seed of the sensor noise")
+    fps: float = option(10.0, min=0.0, unit="frames/s", help="frame rate (0 = as fast as frames are read)")
+    width: int = option(1280, min=16, unit="px", help="image width")
+    height: int = option(720, min=16, unit="px", help="image height")
+    yaw_deg: float = option(0.0, key="yaw", unit="deg", help="turn of the scene about the vertical axis")
+    roll_deg: float = option(0.0, key="roll", unit="deg", help="roll of the scene about the viewing axis")
+    mount: str | None = option(None, choices=MOUNTS, default_text="the profile's", help="the poster on its stand, or glued on the wall: stand | wall")
+    standoff_m: float = option(1.0, key="standoff", min=0.0, unit="m", help="the board in front of the wall")
+    board_w_m: float = option(BOARD_M[0], key="board_w", min=0.0, min_open=True, unit="m", help="the poster's width")
+    board_l_m: float = option(BOARD_M[1], key="board_l", min=0.0, min_open=True, unit="m", help="the poster's length")
+    mode: str = option("model", choices=MODES, help="model: the sensor model; stereo: rendered pair through SGBM")
+    baseline_error: float = option(0.0, min=-0.5, max=0.5, min_open=True, max_open=True,
+                                   help="the frames report a baseline off by this share: a wrong calibration for the check to find")
+    squares: str = option(f"{CHARUCO_BOARD[0]}x{CHARUCO_BOARD[1]}", example="9x6", help="the charuco scene's board: COLSxROWS squares")
+    square_mm: float = option(CHARUCO_BOARD[2] * 1000, min=0.0, min_open=True, unit="mm", help="the charuco board's square side")
+    marker_mm: float = option(CHARUCO_BOARD[3] * 1000, min=0.0, min_open=True, unit="mm", help="the charuco board's marker side")
+    dictionary: str = option(CHARUCO_BOARD[4], example="DICT_4X4_50", help="the charuco board's ArUco dictionary")
+    sensor: tuple[tuple[str, object], ...] = option(factory=tuple, extras=_sensor_keys, example=(("noise_px", 0.3),),
+                                                    help="any other SensorModel field by name, e.g. noise_px=0.3")
 
     def __post_init__(self) -> None:
-        if self.scene not in SCENES:
+        if self.scene not in SCENES:  # a missing thing, not a bad number: SourceNotFound
             raise SourceNotFound(f"unknown sim scene {self.scene!r}; use one of {', '.join(SCENES)} (e.g. 'sim:person')")
-        if self.mode not in MODES:
-            raise SourceError(f"sim mode={self.mode!r} is unknown; use one of {', '.join(MODES)}")
-        if self.fps < 0:
-            raise SourceError(f"sim fps={self.fps} must be >= 0 (0 = as fast as frames are read)")
-        if not (-0.5 < self.baseline_error < 0.5):
-            raise SourceError(f"sim baseline_error={self.baseline_error} must lie in (-0.5, 0.5), e.g. 0.02 for 2 % long")
+        check_options(self, SourceError, "sim option ")
+        try:  # fail when the config is made, not at the first read
+            self.scene_params()
+            resolve_target(self.scene, self.target)
+            self.sensor_model()
+        except (SceneError, SensorError) as exc:
+            raise SourceError(f"sim source: {exc}") from exc
 
     def scene_params(self) -> SceneParams:
         mount = get_profile(self.profile).mount if self.mount is None else self.mount
@@ -95,73 +103,9 @@ class SimConfig:
                           **dict(self.sensor))
 
 
-_KEYS = {  # spec key -> (SimConfig field, parser)
-    "distance": ("distance_m", float),
-    "lighting": ("lighting", str),
-    "profile": ("profile", str),
-    "contention": ("contention", float),
-    "quantization": ("quantization", float),
-    "seed": ("seed", int),
-    "fps": ("fps", float),
-    "width": ("width", int),
-    "height": ("height", int),
-    "target": ("target", str),
-    "yaw": ("yaw_deg", float),
-    "roll": ("roll_deg", float),
-    "mount": ("mount", str),
-    "standoff": ("standoff_m", float),
-    "board_w": ("board_w_m", float),
-    "board_l": ("board_l_m", float),
-    "mode": ("mode", str),
-    "baseline_error": ("baseline_error", float),
-    "squares": ("squares", str),
-    "square_mm": ("square_mm", float),
-    "marker_mm": ("marker_mm", float),
-    "dictionary": ("dictionary", str),
-}
-
-
-def _sensor_parsers() -> dict[str, object]:
-    out: dict[str, object] = {}
-    for f in fields(SensorModel):
-        kind = str(f.type)
-        out[f.name] = parse_flag if kind == "bool" else int if kind == "int" else str if kind == "str" else float
-    return out
-
-
 def config_from_spec(spec: SourceSpec) -> SimConfig:
-    """Parse ``sim[:scene][?key=value...]``; bad keys or values raise SourceError naming the allowed ones."""
-    sensor_parsers = _sensor_parsers()
-    kwargs: dict[str, object] = {"scene": spec.target or "poster"}
-    sensor: dict[str, object] = {}
-    for key, text in spec.params.items():
-        if key in _KEYS:
-            name, parse = _KEYS[key]
-            store, parse_fn = kwargs, parse
-        elif key in sensor_parsers and key not in ("lighting", "contention", "quantization"):
-            name, store, parse_fn = key, sensor, sensor_parsers[key]
-        else:
-            allowed = sorted(set(_KEYS) | (set(sensor_parsers) - {"lighting", "contention", "quantization"}))
-            raise SourceError(f"unknown sim option {key!r} in {str(spec)!r}; use any of: {', '.join(allowed)}")
-        try:
-            store[name] = parse_fn(text)  # type: ignore[operator]
-        except ValueError as exc:
-            raise SourceError(f"sim option {key}={text!r} is not valid: {exc}") from exc
-    lighting = kwargs.get("lighting", "indoor")
-    if lighting not in LIGHTING:
-        raise SourceError(f"sim lighting={lighting!r} is unknown; use one of {', '.join(LIGHTING)}")
-    try:
-        get_profile(str(kwargs.get("profile", "stress")))
-    except SensorError as exc:
-        raise SourceError(f"sim source {str(spec)!r}: {exc}") from exc
-    config = SimConfig(**kwargs, sensor=tuple(sorted(sensor.items())))  # type: ignore[arg-type]
-    try:  # fail at parse time, not at the first read
-        config.scene_params()
-        resolve_target(config.scene, config.target)
-        config.sensor_model()
-    except (SceneError, SensorError) as exc:
-        raise SourceError(f"sim source {str(spec)!r}: {exc}") from exc
-    return config
+    """Parse ``sim[:scene][?key=value...]`` (device.configs); bad keys or values raise SourceError naming the allowed ones."""
+    return configs.from_spec(SimConfig, spec)
 
 
 class SimSource(SourceBase):

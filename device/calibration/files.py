@@ -30,7 +30,9 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from device.calibration.stereo import StereoCalibration, calibration_from_json, load_calibration
+from measure import check_options, option
+
+from device.calibration.stereo import DISTORTION_MODELS, StereoCalibration, calibration_from_json, load_calibration
 from device.errors import CalibrationError
 
 UNITS = {"m": 1.0, "mm": 1e-3}
@@ -50,13 +52,13 @@ _ALIASES = {
 class CalibrationRef:
     """The calibration a source spec names: file(s), the unit of T in them, the distortion model."""
 
-    path: str
-    units: str = "m"
-    distortion_model: str | None = None
+    path: str = option("", key="calib", example="rig.json", help="calibration: the project's JSON, OpenCV YAML/XML, or a ROS pair left.yaml,right.yaml")
+    units: str = option("m", key="calib_units", choices=tuple(UNITS), help="unit of T in an OpenCV or ROS file")
+    distortion_model: str | None = option(None, key="distortion", choices=DISTORTION_MODELS,
+                                          default_text="the file's", help="lens model of an OpenCV file without one")
 
     def __post_init__(self) -> None:
-        if self.units not in UNITS:
-            raise CalibrationError(f"calib_units={self.units!r} is unknown; use m or mm (the unit of T in the file)")
+        check_options(self, CalibrationError)
 
     def load(self) -> StereoCalibration:
         if not self.path:

@@ -29,8 +29,9 @@ from typing import Any
 
 import numpy as np
 
-from measure import Frame, MeasureError, PinholeCamera
+from measure import Frame, MeasureError, PinholeCamera, check_options, option
 
+from device import configs
 from device.base import SourceBase, SourceInfo, SourceSpec
 from device.errors import CalibrationError, RecordingError, SourceError, SourceNotFound
 from device.formats.recording import EndOfRecording
@@ -44,13 +45,18 @@ _IMAGE_EXT = {".png", ".jpg", ".jpeg"}
 
 @dataclass(frozen=True)
 class DepthFolderConfig:
-    """``baseline_m``/``depth_scale``/``fps`` override the JSON; ``loop`` restarts at the end."""
+    """A folder of depth PNGs; the options override the intrinsics JSON (metadata: spelling, bounds, help)."""
 
-    path: Path
-    baseline_m: float | None = None
-    depth_scale: float | None = None
-    fps: float | None = None
-    loop: bool = False
+    path: Path = option(target=True, key="path", example="captures/desk", help="the folder of depth PNGs and the intrinsics JSON")
+    baseline_m: float | None = option(None, key="baseline", min=0.0, min_open=True, unit="m",
+                                      default_text="the JSON's, else 0.075", help="baseline the disparity is expressed with")
+    depth_scale: float | None = option(None, min=0.0, min_open=True, unit="PNG units per m",
+                                       default_text="the JSON's, else 1000 (mm)", help="depth PNG units per metre")
+    fps: float | None = option(None, min=0.0, min_open=True, unit="frames/s", default_text="the JSON's", help="frame rate")
+    loop: bool = option(False, help="start again at the end")
+
+    def __post_init__(self) -> None:
+        check_options(self, SourceError, "depthpng option ")
 
 
 @dataclass(frozen=True)
@@ -265,22 +271,9 @@ class DepthFolderSource(SourceBase):
         super().close()
 
 
-_PARAMS = ("baseline", "depth_scale", "fps", "loop")
-
-
 def config_from_spec(spec: SourceSpec) -> DepthFolderConfig:
-    """DepthFolderConfig from ``depthpng:DIR?baseline=0.075&depth_scale=1000&fps=30&loop=1``."""
-    if not spec.target:
-        raise SourceNotFound("depthpng needs a folder: depthpng:path/to/folder")
-    spec.check_keys(_PARAMS)
-
-    return DepthFolderConfig(
-        path=Path(spec.target),
-        baseline_m=spec.number("baseline"),
-        depth_scale=spec.number("depth_scale"),
-        fps=spec.number("fps"),
-        loop=spec.flag("loop", False),
-    )
+    """DepthFolderConfig from ``depthpng:DIR?baseline=0.075&depth_scale=1000&fps=30&loop=1`` (device.configs)."""
+    return configs.from_spec(DepthFolderConfig, spec, SourceNotFound("depthpng needs a folder: depthpng:path/to/folder"))
 
 
 __all__ = ["DEFAULT_BASELINE_M", "DepthFolderConfig", "DepthFolderSource", "config_from_spec", "depth_to_disparity", "read_intrinsics"]

@@ -14,8 +14,9 @@ from pathlib import Path
 
 import numpy as np
 
-from measure import Frame, PinholeCamera
+from measure import Frame, PinholeCamera, check_options, option
 
+from device import configs
 from device.base import SourceBase, SourceInfo, SourceSpec
 from device.errors import CalibrationError, SourceError, SourceNotFound
 from device.sources.sgbm import SGBMConfig, compute_disparity, round_up_disparities
@@ -134,15 +135,14 @@ DISPARITY_KINDS = ("sgbm", "gt", "gt-int")
 
 @dataclass(frozen=True)
 class MiddleburyConfig:
-    """``path``: a scene folder (im0.png, im1.png, calib.txt, disp0.pfm); ``disparity``: "sgbm"
-    (computed from the pair), "gt" (the ground truth) or "gt-int" (the ground truth rounded)."""
+    """One Middlebury scene: each field's spelling, choices and help are in its metadata."""
 
-    path: Path
-    disparity: str = "sgbm"
+    path: Path = option(target=True, key="path", example="data/middlebury/Teddy", help="a scene folder (im0.png, im1.png, calib.txt, disp0.pfm)")
+    disparity: str = option("sgbm", choices=DISPARITY_KINDS,
+                            help="sgbm: computed from the pair; gt: the ground truth; gt-int: the ground truth rounded")
 
     def __post_init__(self) -> None:
-        if self.disparity not in DISPARITY_KINDS:
-            raise SourceError(f"middlebury disparity={self.disparity!r} is unknown; use one of {', '.join(DISPARITY_KINDS)}")
+        check_options(self, SourceError, "middlebury option ")
 
 
 class MiddleburySource(SourceBase):
@@ -174,8 +174,5 @@ class MiddleburySource(SourceBase):
 
 
 def config_from_spec(spec: SourceSpec) -> MiddleburyConfig:
-    """MiddleburyConfig from ``middlebury:path/to/Teddy?disparity=gt``."""
-    if not spec.target:
-        raise SourceNotFound("middlebury needs a scene folder: middlebury:path/to/Adirondack")
-    spec.check_keys(("disparity",))
-    return MiddleburyConfig(Path(spec.target), spec.params.get("disparity", "sgbm"))
+    """MiddleburyConfig from ``middlebury:path/to/Teddy?disparity=gt`` (device.configs)."""
+    return configs.from_spec(MiddleburyConfig, spec, SourceNotFound("middlebury needs a scene folder: middlebury:path/to/Adirondack"))

@@ -24,39 +24,38 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from measure import check_options, option
+
 MODES = ("sgbm", "sgbm_3way", "hh", "hh4")
 
 
 @dataclass(frozen=True)
 class SGBMConfig:
-    """Parameters of cv2.StereoSGBM (pixels). P1/P2 default to the usual 8·cn·bs² and 32·cn·bs²
-    (OpenCV's own defaults are 0, which disables smoothness)."""
+    """Parameters of cv2.StereoSGBM (pixels); spec spellings, bounds and help in each field's metadata.
+    P1/P2 default to the usual 8·cn·bs² and 32·cn·bs² (OpenCV's own defaults are 0, which disables
+    smoothness)."""
 
-    num_disparities: int = 64
-    block_size: int = 5
-    mode: str = "sgbm_3way"
-    p1: int | None = None
-    p2: int | None = None
-    uniqueness: int = 10
-    speckle_window: int = 100
-    speckle_range: int = 2
+    num_disparities: int = option(64, key="ndisp", min=16, multiple_of=16, unit="px",
+                                  help="disparity search range: covers depths down to fx * baseline / ndisp")
+    block_size: int = option(5, key="block", min=1, odd=True, unit="px", help="matched block side")
+    mode: str = option("sgbm_3way", choices=MODES, help="OpenCV's SGBM variant")
+    p1: int | None = option(None, min=1, default_text="8·3·block²", help="smoothness penalty for a 1 px disparity change")
+    p2: int | None = option(None, min=1, default_text="32·3·block²", help="smoothness penalty for larger changes (> p1)")
+    uniqueness: int = option(10, min=0, unit="%", help="margin by which the best match must win")
+    speckle_window: int = option(100, min=0, unit="px", help="largest speckle removed (0 = off)")
+    speckle_range: int = option(2, min=0, unit="px", help="disparity variation within a speckle")
     disp12_max_diff: int = 1
     min_disparity: int = 0
     pre_filter_cap: int = 63
-    wls: bool = False
-    wls_lambda: float = 500.0
-    wls_sigma: float = 0.8
-    lr_confidence: bool = False
-    fill_left_band: bool = True  # module docstring: disparity in SGBM's blind left band
-    texture_confidence: bool = True  # confidence includes the left image's horizontal texture (texture_confidence)
+    wls: bool = option(False, help="WLS filter on the disparity (needs the right matcher; slower)")
+    wls_lambda: float = option(500.0, min=0.0, help="WLS smoothness")
+    wls_sigma: float = option(0.8, min=0.0, help="WLS edge sensitivity")
+    lr_confidence: bool = option(False, help="left-right consistency as the confidence map (slower)")
+    fill_left_band: bool = option(True, help="disparity in SGBM's blind left band too (module docstring)")
+    texture_confidence: bool = option(True, help="texture term in the confidence map (0 on plain surfaces; cheap)")
 
     def __post_init__(self) -> None:
-        if self.num_disparities <= 0 or self.num_disparities % 16:
-            raise ValueError(f"num_disparities={self.num_disparities} must be a positive multiple of 16")
-        if self.block_size < 1 or self.block_size % 2 == 0:
-            raise ValueError(f"block_size={self.block_size} must be a positive odd number")
-        if self.mode not in MODES:
-            raise ValueError(f"mode={self.mode!r} is unknown; use one of {', '.join(MODES)}")
+        check_options(self, ValueError, "SGBM option ")
         if self.p1 is not None and self.p2 is not None and not (0 < self.p1 < self.p2):
             raise ValueError(f"need 0 < p1 < p2, got p1={self.p1}, p2={self.p2}")
 

@@ -1,12 +1,9 @@
-"""A V4L2 stereo pair (one side-by-side UVC camera or two nodes) with OpenCV SGBM, as Frames.
+"""A V4L2 stereo pair (one side-by-side UVC camera or two nodes) with OpenCV SGBM, as Frames: capture.
 
-Capture and processing are separate so tests drive the real processing with recorded or
-rendered pairs: a :class:`FrameGrabber` yields (left, right, timestamp) — :class:`V4L2Grabber`
-from cameras (any ``cv2.VideoCapture``-like object can be injected), :class:`ImagePairGrabber`
-from memory, ``device.sources.video.VideoGrabber`` from files — and :class:`StereoProcessor` turns a pair
-into a :class:`measure.Frame`: rectification from the calibration (device/calibration/stereo.py,
-device/calibration/files.py), SGBM (device/sources/sgbm.py), output registered to the *rectified left*
-colour image. :class:`ProcessedPairSource` is grabber + calibration + processor for every such source.
+Capture and processing are separate so tests drive the real processing with recorded or rendered pairs:
+:class:`V4L2Grabber` grabs (left, right, timestamp in s) from cameras (any ``cv2.VideoCapture``-like
+object can be injected), :class:`ImagePairGrabber` from memory; ``device.sources.stereo_processing``
+rectifies them and runs SGBM, registered to the *rectified left* colour image.
 
 Spec: ``v4l2:/dev/video0?layout=side-by-side&calib=FILE[&calib_units=mm&distortion=opencv|equidistant
 &size=1280x480&fps=30&fourcc=MJPG&mode=sgbm_3way&ndisp=64&block=5&wls=0&lr_confidence=1&fill_left_band=1
@@ -17,25 +14,30 @@ side-by-side camera). ``calib`` is the project's JSON, an OpenCV YAML/XML or a R
 from __future__ import annotations
 
 import logging
-import math
 import os
 import time
 from collections.abc import Callable, Sequence
 from concurrent.futures import Future, ThreadPoolExecutor
 from concurrent.futures import TimeoutError as FutureTimeout
-from dataclasses import dataclass, field, fields, replace
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Protocol
 
 import numpy as np
 
-from measure import Frame, MeasureError, PinholeCamera
-
-from device.base import SourceBase, SourceInfo, SourceSpec, parse_flag
-from device.calibration.stereo import StereoCalibration
+from device.base import SourceInfo, SourceSpec
 from device.calibration.files import CalibrationRef
-from device.errors import CalibrationError, SourceDisconnected, SourceEnded, SourceError, SourceNotFound, SourceTimeout
-from device.sources.sgbm import MODES, SGBMConfig, compute_disparity
+from device.calibration.stereo import StereoCalibration
+from device.errors import SourceDisconnected, SourceEnded, SourceError, SourceNotFound, SourceTimeout
+from device.sources.sgbm import SGBMConfig
+from device.sources.stereo_processing import (
+    SGBM_KEYS,
+    CALIB_KEYS,
+    FrameGrabber,
+    ProcessedPairSource,
+    calibration_from_params,
+    sgbm_from_params,
+)
 
 log = logging.getLogger(__name__)
 LAYOUTS = ("side-by-side", "two-nodes")
@@ -43,16 +45,6 @@ NO_CAMERA_HINT = (
     "plug in the stereo camera and check `depthruler devices` (or `v4l2-ctl --list-devices`); "
     "in a container pass --device /dev/videoN; or use the simulator: `depthruler serve --source sim`"
 )
-
-
-class FrameGrabber(Protocol):
-    """Where stereo pairs come from: cameras, files or memory. ``grab`` returns BGR left, right, seconds."""
-
-    def open(self) -> None: ...
-
-    def grab(self, timeout_s: float = 1.0) -> tuple[np.ndarray, np.ndarray, float]: ...
-
-    def close(self) -> None: ...
 
 
 @dataclass(frozen=True)
@@ -333,184 +325,6 @@ class ImagePairGrabber:
         pass
 
 
-@dataclass(frozen=True)
-class Rectification:
-    """Rectification maps of a calibrated pair at one image size, and the rectified left camera.
-
-    ``baseline_m`` and ``doffs`` give ``Z = fx * B / (d + doffs)`` for disparities measured
-    between the rectified images (doffs is the principal point gap cx_right - cx_left).
-    """
-
-    size: tuple[int, int]
-    camera: PinholeCamera
-    baseline_m: float
-    doffs: float
-    maps: tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray] | None  # None: already rectified
-
-
-def rectification(calib: StereoCalibration, size: tuple[int, int]) -> Rectification:
-    """Rectification for images of ``size`` (w, h): ``cv2.stereoRectify`` + ``initUndistortRectifyMap``.
-
-    Intrinsics are scaled when the images have another size than at calibration (same aspect only).
-    ``calib.extra["rectified"]`` marks a pair that is already rectified (a dataset, or a camera that
-    rectifies on board): the images are used as they are, with K1's intrinsics and ``|T|``.
-    """
-    import cv2
-
-    cw, ch = calib.image_size
-    w, h = size
-    if abs(w / cw - h / ch) > 1e-3 * max(w / cw, h / ch):
-        raise CalibrationError(
-            f"images are {w}x{h} but the calibration was made at {cw}x{ch} (another aspect ratio); "
-            "capture at the calibrated size or recalibrate"
-        )
-    s = w / cw
-    scale = np.array([[s, 0, (s - 1) * 0.5], [0, s, (s - 1) * 0.5], [0, 0, 1]])  # pixel-centre convention
-    K1, K2 = scale @ calib.K1, scale @ calib.K2
-    if calib.extra.get("rectified"):
-        cam = _camera(K1, w, h)
-        return Rectification(size, cam, calib.baseline_m, float(K2[0, 2] - K1[0, 2]), None)
-    T = np.asarray(calib.T, np.float64).reshape(3, 1)  # OpenCV 5 asserts on any other shape
-    if abs(T[0, 0]) < np.abs(T[1:, 0]).max():
-        raise CalibrationError(f"T = {T.ravel().tolist()} m is not a side-by-side pair (x must dominate); "
-                               "mount the cameras horizontally and recalibrate")
-    if T[0, 0] > 0:
-        raise CalibrationError("the calibration puts the right camera to the left of the left one (T_x > 0); "
-                               "swap the left and right images (or devices) and recalibrate")
-    undistort: Callable[..., tuple[np.ndarray, np.ndarray]]
-    if calib.distortion_model == "equidistant":
-        # OpenCV's fisheye model (Kalibr's "equidistant"); balance 0 crops to valid pixels like alpha 0.
-        R1, R2, P1, P2, _Q = cv2.fisheye.stereoRectify(
-            K1, calib.D1, K2, calib.D2, (w, h), calib.R, T, cv2.CALIB_ZERO_DISPARITY, balance=0.0
-        )
-        undistort = cv2.fisheye.initUndistortRectifyMap
-    else:
-        R1, R2, P1, P2, _Q, _roi1, _roi2 = cv2.stereoRectify(
-            K1, calib.D1, K2, calib.D2, (w, h), calib.R, T, flags=cv2.CALIB_ZERO_DISPARITY, alpha=0
-        )
-        undistort = cv2.initUndistortRectifyMap
-    maps = (
-        *undistort(K1, calib.D1, R1, P1, (w, h), cv2.CV_32FC1),
-        *undistort(K2, calib.D2, R2, P2, (w, h), cv2.CV_32FC1),
-    )
-    cam = _camera(P1, w, h)
-    baseline = float(-P2[0, 3] / P2[0, 0])
-    if not (math.isfinite(baseline) and baseline > 0 and np.isfinite(P2[:, :3]).all()):
-        raise CalibrationError(f"rectifying this calibration gives no usable right camera (baseline {baseline:g} m); "
-                               "its D2, R or T are implausible: recalibrate")
-    return Rectification(size, cam, baseline, float(P2[0, 2] - P1[0, 2]), maps)
-
-
-def _camera(K: np.ndarray, w: int, h: int) -> PinholeCamera:
-    """The rectified left camera, or CalibrationError when the calibration's numbers give none in range."""
-    try:
-        return PinholeCamera(fx=float(K[0, 0]), fy=float(K[1, 1]), cx=float(K[0, 2]), cy=float(K[1, 2]), width=w, height=h)
-    except MeasureError as exc:
-        raise CalibrationError(f"rectifying this calibration gives no usable camera ({exc}); "
-                               "its distortion coefficients or R are implausible: recalibrate") from None
-
-
-class StereoProcessor:
-    """Rectify a pair, run SGBM, and return the Frame registered to the rectified left image."""
-
-    def __init__(self, calibration: StereoCalibration, sgbm: SGBMConfig = SGBMConfig(), scale: float = 1.0) -> None:
-        self.calibration = calibration
-        self.sgbm = sgbm
-        self.scale = scale
-        self._rect: Rectification | None = None
-
-    def rectify(self, left: np.ndarray, right: np.ndarray) -> tuple[np.ndarray, np.ndarray, Rectification]:
-        import cv2
-
-        if left.shape != right.shape:
-            raise SourceError(f"left image is {left.shape} but right is {right.shape}; both cameras must use one size")
-        if self.scale != 1.0:
-            size = (round(left.shape[1] * self.scale), round(left.shape[0] * self.scale))
-            left = cv2.resize(left, size, interpolation=cv2.INTER_AREA)
-            right = cv2.resize(right, size, interpolation=cv2.INTER_AREA)
-        size = (left.shape[1], left.shape[0])
-        if self._rect is None or self._rect.size != size:
-            self._rect = rectification(self.calibration, size)
-        rect = self._rect
-        if rect.maps is None:
-            return left, right, rect
-        m1x, m1y, m2x, m2y = rect.maps
-        return (
-            cv2.remap(left, m1x, m1y, cv2.INTER_LINEAR),
-            cv2.remap(right, m2x, m2y, cv2.INTER_LINEAR),
-            rect,
-        )
-
-    def process(self, left: np.ndarray, right: np.ndarray, timestamp: float = 0.0, meta: dict | None = None) -> Frame:
-        """Frame from one raw (unrectified) pair of BGR uint8 images."""
-        import cv2
-
-        if left.ndim == 2:
-            left, right = cv2.cvtColor(left, cv2.COLOR_GRAY2BGR), cv2.cvtColor(right, cv2.COLOR_GRAY2BGR)
-        left_r, right_r, rect = self.rectify(left, right)
-        disparity, confidence = compute_disparity(left_r, right_r, self.sgbm)
-        info = {"source": "v4l2", "rectified": rect.maps is not None, "sgbm_mode": self.sgbm.mode}
-        info.update(meta or {})
-        return Frame(
-            image=np.ascontiguousarray(left_r),
-            disparity=disparity.astype(np.float32, copy=False),
-            camera=rect.camera,
-            baseline_m=rect.baseline_m,
-            doffs=rect.doffs,
-            confidence=confidence.astype(np.float32, copy=False),
-            timestamp=timestamp,
-            meta=info,
-        )
-
-
-class ProcessedPairSource(SourceBase):
-    """Pairs from a grabber (cameras, video files, memory) through calibration + :class:`StereoProcessor`.
-
-    Every stereo source without on-board depth is this class with another grabber, so a video file
-    and a live pair are rectified and matched by the very same code.
-    """
-
-    def __init__(
-        self,
-        grabber: FrameGrabber,
-        calib: CalibrationRef | StereoCalibration,
-        sgbm: SGBMConfig,
-        scale: float,
-        info: SourceInfo,
-        meta: dict | None = None,
-    ) -> None:
-        self.grabber = grabber
-        self._calib = calib
-        self.sgbm = sgbm
-        self.scale = scale
-        self.info = info
-        self._meta = dict(meta or {})
-        self._processor: StereoProcessor | None = None
-
-    def open(self) -> None:
-        if self.is_open:
-            return
-        # The camera (or file) first: if it is not there, that is the first thing to fix.
-        self.grabber.open()
-        try:
-            calib = self._calib if isinstance(self._calib, StereoCalibration) else self._calib.load()
-            self._processor = StereoProcessor(calib, self.sgbm, self.scale)
-        except Exception:
-            self.grabber.close()
-            raise
-        super().open()
-
-    def read(self, timeout_s: float = 1.0) -> Frame:
-        if not self.is_open or self._processor is None:
-            raise SourceError(f"the {self.info.kind} source is not open; call open() or use `with open_source(spec) as src:`")
-        left, right, stamp = self.grabber.grab(timeout_s)
-        return self._processor.process(left, right, stamp, self._meta)
-
-    def close(self) -> None:
-        self.grabber.close()
-        super().close()
-
-
 class StereoPairSource(ProcessedPairSource):
     """A live stereo pair as a Source: V4L2 grabber (unless another is given) + calibration + SGBM."""
 
@@ -542,42 +356,6 @@ class StereoPairSource(ProcessedPairSource):
             self.info = replace(self.info, fps=grabber.actual_fps, extra=extra, state="streaming")
 
 
-_SGBM_KEYS = {"mode": "mode", "ndisp": "num_disparities", "block": "block_size", "p1": "p1", "p2": "p2",
-              "uniqueness": "uniqueness", "wls": "wls", "wls_lambda": "wls_lambda", "wls_sigma": "wls_sigma",
-              "lr_confidence": "lr_confidence", "speckle_window": "speckle_window", "speckle_range": "speckle_range",
-              "fill_left_band": "fill_left_band"}
-CALIB_KEYS = ("calib", "calib_units", "distortion")
-SGBM_OPTIONS = tuple(_SGBM_KEYS)
-
-
-def sgbm_from_params(params: dict[str, str], spec: SourceSpec) -> SGBMConfig:
-    """The SGBMConfig of a spec's SGBM options (``ndisp``, ``block``, ``mode``, ...); others are ignored."""
-    sgbm: dict = {}
-    sgbm_types = {f.name: str(f.type) for f in fields(SGBMConfig)}
-    for key, value in params.items():
-        if key not in _SGBM_KEYS:
-            continue
-        name = _SGBM_KEYS[key]
-        kind = sgbm_types[name]
-        try:
-            sgbm[name] = (parse_flag(value) if "bool" in kind else value if name == "mode"
-                          else float(value) if "float" in kind else int(value))
-        except ValueError as exc:
-            raise SourceError(f"{spec.kind} option {key}={value!r} in {str(spec)!r} is not valid") from exc
-    if "mode" in sgbm and sgbm["mode"] not in MODES:
-        raise SourceError(f"SGBM mode {sgbm['mode']!r} is unknown; use one of {', '.join(MODES)}")
-    try:
-        return SGBMConfig(**sgbm)
-    except ValueError as exc:
-        raise SourceError(f"SGBM options in {str(spec)!r}: {exc}") from exc
-
-
-def calibration_from_params(params: dict[str, str]) -> CalibrationRef:
-    """The calibration a spec names: ``calib=FILE`` (or ``calib=LEFT.yaml,RIGHT.yaml`` for ROS),
-    ``calib_units=m|mm`` (unit of T in OpenCV/ROS files) and ``distortion=opencv|equidistant``."""
-    return CalibrationRef(params.get("calib", ""), params.get("calib_units", "m"), params.get("distortion") or None)
-
-
 def config_from_spec(spec: SourceSpec) -> StereoPairConfig:
     """StereoPairConfig from a ``v4l2:`` spec (see the module docstring for the options)."""
     devices = tuple(d.strip() for d in spec.target.split(",") if d.strip()) or ("/dev/video0",)
@@ -591,10 +369,10 @@ def config_from_spec(spec: SourceSpec) -> StereoPairConfig:
                 kwargs[key] = value if key == "layout" else value.upper()
             elif key in ("fps", "scale", "max_skew_s"):
                 kwargs[key] = float(value)
-            elif key not in _SGBM_KEYS and key not in CALIB_KEYS:
+            elif key not in SGBM_KEYS and key not in CALIB_KEYS:
                 raise SourceError(
                     f"unknown v4l2 option {key!r} in {str(spec)!r}; use: size, layout, fourcc, fps, scale, "
-                    f"max_skew_s, {', '.join(CALIB_KEYS)}, {', '.join(_SGBM_KEYS)}"
+                    f"max_skew_s, {', '.join(CALIB_KEYS)}, {', '.join(SGBM_KEYS)}"
                 )
         except (ValueError, KeyError) as exc:
             raise SourceError(f"v4l2 option {key}={value!r} in {str(spec)!r} is not valid") from exc

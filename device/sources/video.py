@@ -5,11 +5,14 @@ Spec: ``video:PATH?layout=side-by-side|top-bottom&calib=FILE[&calib_units=mm&dis
 top half is the left camera), or ``video:LEFT,RIGHT?calib=FILE`` for one file per camera. ``calib`` takes
 the project's JSON, OpenCV YAML/XML or a ROS camera_info pair (device/calibration/files.py).
 
-Frames are decoded with OpenCV's FFmpeg backend and handed to :class:`device.sources.stereo_pair.StereoProcessor`.
+Frames are decoded with OpenCV's FFmpeg backend and handed to :class:`device.sources.stereo_processing.StereoProcessor`.
 What a file can do that a camera cannot, and how it is handled:
 
 - **end of file** raises :class:`SourceEnded` (the live view keeps the last frame), or with ``loop=1``
   starts over with timestamps that keep increasing (one file duration per lap);
+- **undecodable frames** (FFmpeg fails the read and goes on with the next frame) are skipped and counted
+  per lap (``warnings``; the end's message names the count); so are frames the container lists but a
+  truncated file lacks. A file of which no frame decodes ends at once, with ``loop=1`` too;
 - **timestamps** are the container's presentation times (``CAP_PROP_POS_MSEC``; 0 on the first frame is
   a time, not "missing"); a file whose times do not increase falls back to ``index / fps``;
 - ``realtime=1`` paces reads to those times (a video played at its speed); ``realtime=0`` (default)
@@ -39,9 +42,11 @@ from device.base import SourceInfo, SourceSpec
 from device.calibration.files import CalibrationRef
 from device.errors import SourceEnded, SourceError, SourceNotFound
 from device.sources.sgbm import SGBMConfig
-from device.sources.stereo_pair import CALIB_KEYS, SGBM_OPTIONS, ProcessedPairSource, calibration_from_params, sgbm_from_params
+from device.sources.stereo_processing import CALIB_KEYS, SGBM_OPTIONS, ProcessedPairSource, calibration_from_params, sgbm_from_params
 
 LAYOUTS = ("side-by-side", "top-bottom", "two-files")
+MAX_UNLISTED_MISSES = 8  # failed reads in a row that end a file whose container lists no frame count
+MAX_WARNINGS = 50
 
 
 @dataclass(frozen=True)
@@ -103,6 +108,11 @@ class VideoGrabber:
         self._last_s = -np.inf
         self._fps = 30.0
         self._t0: tuple[float, float] | None = None  # (wall, video) times of the first delivered frame
+        self._listed = 0  # frames the container says it holds (0: it does not say)
+        self._lap_read = 0  # frames read (delivered or skipped) in the current lap
+        self.skipped_in_lap = 0  # undecodable frames skipped in the current lap
+        self.skipped_total = 0
+        self.warnings: list[str] = []  # the newest skip messages, updated in place (a caller may hold it)
 
     def open(self) -> None:
         self.close()
@@ -119,20 +129,53 @@ class VideoGrabber:
             self._caps.append(cap)
         fps = self._caps[0].get(cv2.CAP_PROP_FPS)
         self._fps = fps if np.isfinite(fps) and fps > 0 else 30.0
+        counts = [cap.get(cv2.CAP_PROP_FRAME_COUNT) for cap in self._caps]
+        self._listed = int(min(counts)) if all(np.isfinite(c) and c > 0 for c in counts) else 0
         self._index, self._lap_s, self._last_s, self._t0 = 0, 0.0, -np.inf, None
+        self._lap_read, self.skipped_in_lap, self.skipped_total = 0, 0, 0
+        self.warnings.clear()
 
     @property
     def fps(self) -> float:
         return self._fps
 
     def _read_all(self) -> list[np.ndarray] | None:
-        images = []
-        for cap in self._caps:
-            ok, img = cap.read()
-            if not ok or img is None:
+        # Every capture reads, even after one failed: a failed read still moves past its frame, so the
+        # eyes of two files stay in step.
+        images = [cap.read() for cap in self._caps]
+        return [img for _, img in images] if all(ok and img is not None for ok, img in images) else None
+
+    def _next_images(self) -> list[np.ndarray] | None:
+        """The next decodable frame of this lap, None at its end. FFmpeg fails one read for an undecodable
+        frame and goes on with the next, so failed reads are retried: while the container lists more
+        frames (at most ``MAX_UNLISTED_MISSES`` in a row when it lists none). Failed reads followed by a
+        frame, or listed frames that never came (a truncated file), are counted as skipped."""
+        misses = 0
+        while True:
+            images = self._read_all()
+            if images is not None:
+                self._skip(misses, "could not be decoded")
+                self._lap_read += 1
+                return images
+            misses += 1
+            budget = self._listed - self._lap_read if self._listed else MAX_UNLISTED_MISSES
+            if misses >= budget:
+                if self._listed:
+                    self._skip(max(budget, 0), "are listed by the container but could not be read (truncated or damaged)")
                 return None
-            images.append(img)
-        return images
+
+    def _skip(self, n: int, why: str) -> None:
+        if n <= 0:
+            return
+        self._lap_read += n
+        self.skipped_in_lap += n
+        self.skipped_total += n
+        names = " and ".join(self.config.paths)
+        self.warnings.append(f"{names}: {n} frame(s) after frame {self._index} {why}; skipped")
+        del self.warnings[:-MAX_WARNINGS]
+
+    def _lap_note(self) -> str:
+        return f" ({self.skipped_in_lap} undecodable frame(s) skipped)" if self.skipped_in_lap else ""
 
     def _rewind(self) -> None:
         for cap in self._caps:
@@ -141,16 +184,20 @@ class VideoGrabber:
     def grab(self, timeout_s: float = 1.0) -> tuple[np.ndarray, np.ndarray, float]:
         if not self._caps:
             raise SourceError("the video grabber is not open")
-        images = self._read_all()
+        images = self._next_images()
         if images is None:
-            if not self.config.loop or self._index == 0:
-                names = " and ".join(self.config.paths)
-                raise SourceEnded(f"{names} ended after {self._index} frame(s); add loop=1 to the video: spec to "
-                                  "play it again")
+            names = " and ".join(self.config.paths)
+            if self._index == 0:
+                raise SourceEnded(f"no frame of {names} can be decoded{self._lap_note()}; convert it, e.g. "
+                                  "`ffmpeg -i IN -c:v ffv1 OUT.mkv`")
+            if not self.config.loop:
+                raise SourceEnded(f"{names} ended after {self._index} frame(s){self._lap_note()}; add loop=1 to the "
+                                  "video: spec to play it again")
             # Times keep increasing across laps: one frame period after the last frame.
             self._lap_s = self._last_s + 1.0 / self._fps
             self._rewind()
-            images = self._read_all()
+            self._lap_read, self.skipped_in_lap = 0, 0
+            images = self._next_images()
             if images is None:
                 raise SourceEnded(f"{self.config.paths[0]} cannot be rewound for loop=1; remux it "
                                   "(`ffmpeg -i IN -c copy OUT.mkv`)")
@@ -198,6 +245,7 @@ class VideoSource(ProcessedPairSource):
     def __init__(self, config: VideoConfig) -> None:
         self.config = config
         self._grabber = VideoGrabber(config)
+        self.warnings = self._grabber.warnings  # undecodable frames skipped (the service shows them)
         super().__init__(
             self._grabber, config.calibration, config.sgbm, config.scale,
             SourceInfo(kind="video", name=",".join(Path(p).name for p in config.paths),

@@ -6,10 +6,11 @@ import json
 from typing import Annotated, Any, Literal
 
 from fastapi import APIRouter, Query, Request
-from fastapi.responses import JSONResponse, PlainTextResponse, Response
+from fastapi.responses import Response, StreamingResponse
 
-from measure import MeasureOptions, measure_distance
-from measure.sequence import measure_sequence
+from measure import measure_distance, measure_sequence
+
+from history.export import csv_chunks, json_chunks
 
 from service.deps import MeasurementDep, MeasurementId, State
 from service.render import encode_png, frame_json, make_thumb, png_from_jpeg, quarter
@@ -36,18 +37,24 @@ def _json(obj: Any) -> Response:
 
 
 @router.post("/measure", **json_doc(MeasurementOut))
-def measure(state: State, body: MeasureIn) -> Response:
+async def measure(state: State, body: MeasureIn) -> Response:
     """Measure between ``p1`` and ``p2`` (px) on frame ``frame_id`` and store it: a 200 means the
-    measurement and its frame are on disk; an error status means nothing was stored."""
+    measurement and its frame are on disk; an error status means nothing was stored. Runs on the
+    measurement workers (as many as the CPU has cores, a short queue): 429 with ``Retry-After``
+    when they are all busy, so that the live view and health never wait behind measurements."""
+    return await state.measures.run(_measure, state, body)
+
+
+def _measure(state: ServiceState, body: MeasureIn) -> Response:
     entry = state.ring.get(body.frame_id)
     frame = entry.frame
-    options = body.options.model_dump()
+    options, core = body.options.model_dump(), body.options.to_options()
     used = [entry]
     if body.frames > 1:
         used = list(reversed(state.ring.before(entry.id, body.frames - 1))) + [entry]
-        result = measure_sequence([e.frame for e in used], body.p1, body.p2, MeasureOptions(**options))
+        result = measure_sequence([e.frame for e in used], body.p1, body.p2, core)
     else:
-        result = measure_distance(frame, body.p1, body.p2, MeasureOptions(**options))
+        result = measure_distance(frame, body.p1, body.p2, core)
     context = {"frame_index": replay["index"]} if isinstance(replay := frame.meta.get("replay"), dict) else {}
     if body.frames > 1:
         # The ids of the frames pooled, oldest first (the motion check may keep fewer than offered).
@@ -69,29 +76,30 @@ def measure(state: State, body: MeasureIn) -> Response:
 Units = Literal["m", "cm", "mm", "in"]
 
 
-def _csv(state: ServiceState, units: str, request: Request) -> PlainTextResponse:
-    return PlainTextResponse(
-        state.store.csv(units, str(request.base_url)),
-        media_type="text/csv",
-        headers={"Content-Disposition": 'attachment; filename="depthruler-measurements.csv"'},
-    )
+def _attachment(name: str) -> dict[str, str]:
+    return {"Content-Disposition": f'attachment; filename="{name}"'}
+
+
+def _csv(state: ServiceState, units: str, request: Request) -> StreamingResponse:
+    """Streamed, a batch of rows at a time, each pulled on a worker thread (a sync iterator), so
+    neither the event loop nor the memory holds the whole history."""
+    chunks = csv_chunks(state.store.batches(), units, str(request.base_url))
+    return StreamingResponse(chunks, media_type="text/csv", headers=_attachment("depthruler-measurements.csv"))
 
 
 @router.get("/measurements.csv", **media_doc("text/csv", text=True))
-def measurements_csv(state: State, request: Request, units: Units = "m") -> PlainTextResponse:
+def measurements_csv(state: State, request: Request, units: Units = "m") -> StreamingResponse:
     """All measurements as CSV: lengths in ``units``, rounded to what each measurement supports."""
     return _csv(state, units, request)
 
 
 @router.get("/measurements.json", **json_doc(MeasurementsOut))
-def measurements_json(state: State) -> JSONResponse:
+def measurements_json(state: State) -> StreamingResponse:
     """All measurements, oldest first, as ``{"measurements": [...]}``: every stored field, including the
     per-sample arrays and, for a replay, ``frame_index``. ``depthruler export REC --mcap OUT
-    --measurements FILE`` takes this file as it is."""
-    return JSONResponse(
-        {"measurements": list(reversed(state.store.list(limit=1_000_000)))},
-        headers={"Content-Disposition": 'attachment; filename="depthruler-measurements.json"'},
-    )
+    --measurements FILE`` takes this file as it is. Streamed like the CSV."""
+    chunks = json_chunks(state.store.batches(arrays=True))
+    return StreamingResponse(chunks, media_type="application/json", headers=_attachment("depthruler-measurements.json"))
 
 
 @router.get("/measurements", **json_doc(list[MeasurementOut], csv=True))

@@ -8,12 +8,12 @@
 "use strict";
 
 const UNITS = { m: [1, 3], cm: [100, 1], mm: [1000, 0], in: [1 / 0.0254, 2] }; // factor, decimals
-const METHODS = ["robust", "paper", "basic"];
+// The method names, their default and the limits come from GET /api/options (measure/options.py).
+const OPTIONS = { methods: [], clickMax: 0, framesMax: 1 };
 const GRAB_PX = { mouse: 16, pen: 20, touch: 30 }; // screen pixels within which a press grabs an end point
 // One-sigma error (screen pixels) of a point placed with each pointer, sent as MeasureOptions.click_px in
 // image pixels: the uncertainty's click term follows the hand, not one fixed guess.
 const CLICK_SIGMA_PX = { mouse: 1.5, pen: 1.5, touch: 3 };
-const MAX_CLICK_PX = 50; // the API's bound (measure.types.MAX_CLICK_PX)
 const LONG_POLL_S = 5;
 const LOUPE_ZOOM = 4; // loupe pixels per screen pixel of the view
 const UNDO_MS = 6000;
@@ -39,7 +39,7 @@ const state = {
   press: null,        // {pointerId, index, offset, type, moved} while a point is placed or dragged
   pointerTypes: [],   // the pointer type that last placed or moved each end point
   units: localStorage.getItem("depthruler-units") || "m",
-  method: localStorage.getItem("depthruler-method") || "robust",
+  method: localStorage.getItem("depthruler-method") || "", // "" until the API says the default
   recording: false,
   source: null,       // the last /api/source answer
   scale: null,        // the depth scale of the frame on screen (disparity view colour bar)
@@ -365,7 +365,7 @@ function fitCanvas() {
 function clickPx() {
   // the less precise of the two ends' pointers, in image pixels at the displayed scale
   const sigma = Math.max(...[0, 1].map((i) => CLICK_SIGMA_PX[state.pointerTypes[i]] || CLICK_SIGMA_PX.mouse));
-  return Math.min(MAX_CLICK_PX, Math.round(sigma * screenScale() * 100) / 100);
+  return Math.min(OPTIONS.clickMax, Math.round(sigma * screenScale() * 100) / 100);
 }
 
 function screenScale() {
@@ -588,6 +588,7 @@ canvas.addEventListener("pointerenter", () => $("readout").classList.remove("sta
 // ---- measuring ----------------------------------------------------------------------------------
 async function measure(adjusting) {
   if (state.points.length !== 2 || !state.frame) return;
+  await optionsReady;
   if (state.mode !== "frozen" && !(await freeze())) return;
   const gen = state.gen;
   const seq = ++state.seq;
@@ -1101,7 +1102,7 @@ document.addEventListener("keydown", (e) => {
     case "f": state.mode === "live" ? freeze() : goLive(); break;
     case "d": setView(state.view === "color" ? "disparity" : "color"); break;
     case "u": setUnits(keys[(keys.indexOf(state.units) + 1) % keys.length]); break;
-    case "m": setMethod(METHODS[(METHODS.indexOf(state.method) + 1) % METHODS.length]); break;
+    case "m": if (OPTIONS.methods.length) setMethod(OPTIONS.methods[(OPTIONS.methods.indexOf(state.method) + 1) % OPTIONS.methods.length]); break;
     case "r": toggleRecording(); break;
     case ".": replayStep(1); break;
     case ",": replayStep(-1); break;
@@ -1116,7 +1117,28 @@ document.addEventListener("keydown", (e) => {
 window.addEventListener("resize", () => { fitCanvas(); draw(); });
 
 $("units").value = state.units in UNITS ? state.units : (state.units = "m");
-$("method").value = METHODS.includes(state.method) ? state.method : (state.method = "robust");
+
+// The methods, the default method and the limits, as the core describes them (retried until the API answers).
+async function loadOptions() {
+  for (;;) {
+    try {
+      const o = await api("api/options");
+      const field = (name) => o.fields.find((f) => f.name === name);
+      OPTIONS.methods = o.methods;
+      OPTIONS.clickMax = field("click_px").max;
+      OPTIONS.framesMax = o.frames.max;
+      $("method").replaceChildren(...o.methods.map((m) => new Option(m, m)));
+      $("method").value = o.methods.includes(state.method) ? state.method : (state.method = field("method").default);
+      for (const opt of [...$("frames").options]) if (Number(opt.value) > OPTIONS.framesMax) opt.remove();
+      if (state.frames > OPTIONS.framesMax) state.frames = 1;
+      $("frames").value = String(state.frames);
+      return;
+    } catch (err) {
+      await new Promise((resolve) => setTimeout(resolve, 1000));
+    }
+  }
+}
+const optionsReady = loadOptions();
 fitCanvas();
 pollSource();
 liveLoop();

@@ -241,10 +241,12 @@ def test_diff_counts_moves_beyond_uncertainty(archive, tmp_path):
     d = diff_results(a, b)
     assert d["matched"] == len(ra) == 16 and d["moved_beyond_uncertainty"] == want > 0
     assert d["status"] == {"answered -> answered": 16}
+    assert d["runs"]["a"]["options"] == {} and d["runs"]["b"]["options"] == {"method": "basic"}
     same = diff_results(a, a)
     assert same["moved_beyond_uncertainty"] == 0 and same["unchanged_exactly"] == 16
     res = invoke(["batch", "diff", str(a), str(b), "--json"])
     assert json.loads(res)["moved_beyond_uncertainty"] == want
+    assert "B options: method=basic" in invoke(["batch", "diff", str(a), str(b)])
     close_readers()
 
 
@@ -365,3 +367,28 @@ def test_a_group_that_starts_with_an_error_row_keeps_its_valid_rows(archive, tmp
     assert by_label["outside"]["error_type"] == "MeasureError" and by_label["outside"]["distance_m"] is None
     for label, d in want.items():
         assert by_label[label]["error"] is None and by_label[label]["distance_m"] == d, label
+
+
+class _CountingItems:
+    """An iterable that counts how many items the executor has taken from it."""
+
+    def __init__(self, n: int) -> None:
+        self.n, self.taken = n, 0
+
+    def __iter__(self):
+        for i in range(self.n):
+            self.taken += 1
+            yield i
+
+
+def test_executors_keep_a_bounded_window_of_groups_in_flight(ray_session):
+    from batch.executors import PoolExecutor, RayExecutor, window
+
+    for make in (lambda: PoolExecutor(2), lambda: RayExecutor()):
+        items = _CountingItems(40)
+        with make() as ex:
+            stream = ex.imap(json.dumps, items)
+            next(stream)
+            assert items.taken <= window(ex.workers) + 1 < 40
+            rest = sorted(i for i, _ in stream)
+        assert items.taken == 40 and len(rest) == 39

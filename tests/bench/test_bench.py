@@ -91,3 +91,10 @@ def test_missing_bench_dependency_says_how_to_install(monkeypatch):
     monkeypatch.delitem(sys.modules, "bench.bench_service_load", raising=False)  # imported by an earlier test
     result = CliRunner().invoke(app, ["bench", "service_load", "--no-record"])
     assert result.exit_code == 2 and "depthruler[bench]" in result.output and "httpx" in result.output
+
+
+def test_export_bench_compares_the_same_files(tmp_path):
+    # run() raises SystemExit when the streamed and whole exports differ; both read every row
+    rows = _load("export").run(n=40, repeats=1)
+    assert set(rows) == {"CSV", "JSON"}
+    assert rows["JSON"]["total"] > rows["CSV"]["total"] > 40 * 200  # 40 rows of ~250 bytes; the JSON has the arrays

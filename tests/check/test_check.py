@@ -14,7 +14,7 @@ import pytest
 from typer.testing import CliRunner
 
 from device import open_source
-from device.calibration.stereo import BoardSpec
+from device.calibration.board import BoardSpec
 from history.checks import append_check, checks_path, read_checks
 from check.errors import CheckError
 from check.pairs import board_pairs
@@ -62,7 +62,7 @@ def test_simulated_board_corners_are_found_where_they_are():
         params = src.config.scene_params()
     import cv2
 
-    from device.calibration.stereo import detect_board
+    from device.calibration.board import detect_board
 
     det = detect_board(cv2.aruco.CharucoDetector(board.board()), frame.image)
     truth = board_truth(params)

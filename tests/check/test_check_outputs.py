@@ -20,7 +20,7 @@ from check.run import check_frames, report, run_check
 from cli.board import PAPERS
 from cli.main import app
 from device import open_source
-from device.calibration.stereo import BoardSpec
+from device.calibration.board import BoardSpec
 
 runner = CliRunner()
 W, H = 960, 540

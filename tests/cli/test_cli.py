@@ -223,9 +223,23 @@ def test_help_defaults_come_from_the_option_definitions():
 
     seen = 0
     for path, cmd in commands(typer.main.get_command(app)):
-        if path == ("serve",):  # the service's command keeps its own options
-            continue
         for param in cmd.params:
             seen += 1
             assert not re.search(r"\(default\b|\bdefault:|\bdefault \$?[\d/.]", param.help or "", re.I), (path, param.name, param.help)
     assert seen > 80
+
+
+def test_serve_and_measure_help_show_the_settings_defaults_and_the_core_s_choices():
+    from typer.testing import CliRunner
+
+    from measure import MAX_FRAMES, METHODS
+    from service.config import ServerConfig
+
+    server = ServerConfig()
+    text = " ".join(CliRunner().invoke(app, ["serve", "--help"], env={"COLUMNS": "400"}).output.split())
+    for value in (server.host, server.port, server.db, server.ring_size, server.header_timeout_s, server.body_timeout_s,
+                  server.keep_alive_s, server.max_connections):
+        assert f"config's or {value}" in text, value
+    text = " ".join(CliRunner().invoke(app, ["measure", "--help"], env={"COLUMNS": "400"}).output.split())
+    assert f"One of {', '.join(METHODS)}; left out, robust." in text and f"(at most {MAX_FRAMES})" in text
+    assert "{method" not in text and "{max_frames}" not in text

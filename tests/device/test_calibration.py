@@ -9,16 +9,10 @@ import numpy as np
 import pytest
 from typer.testing import CliRunner
 
-from device.calibration.stereo import (
-    FORMAT,
-    BoardSpec,
-    calibrate_stereo,
-    calibration_from_json,
-    capture_views,
-    load_calibration,
-    load_image_pairs,
-    render_board_view,
-)
+from device.calibration.board import BoardSpec, render_board_view
+from device.calibration.capture import capture_views
+from device.calibration.solve import calibrate_stereo, load_image_pairs
+from device.calibration.stereo import FORMAT, calibration_from_json, load_calibration
 from device.errors import CalibrationError
 from device.sources.stereo_pair import ImagePairGrabber
 from cli.main import app
@@ -223,7 +217,7 @@ def test_calibration_rectifies_and_measures_the_board(views):
     Rows must align (epipolar lines horizontal) and the 3D distance between far-apart corners,
     from disparity alone, must match the printed board.
     """
-    from device.sources.stereo_pair import StereoProcessor
+    from device.sources.stereo_processing import StereoProcessor
 
     calib = calibrate_stereo(views, BOARD)
     proc = StereoProcessor(calib)

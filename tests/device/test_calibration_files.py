@@ -14,10 +14,11 @@ import pytest
 from scipy.spatial import cKDTree
 from typer.testing import CliRunner
 
-from device.calibration.stereo import BoardSpec, StereoCalibration, write_board_png
+from device.calibration.board import BoardSpec, write_board_png
+from device.calibration.stereo import StereoCalibration
 from device.calibration.files import CalibrationRef, load_any, write
 from device.errors import CalibrationError
-from device.sources.stereo_pair import rectification
+from device.sources.stereo_processing import rectification
 
 SIZE = (640, 480)
 K1 = np.array([[520.25, 0, 321.75], [0, 519.5, 242.125], [0, 0, 1]])
@@ -181,10 +182,10 @@ def test_board_png_prints_at_its_size_and_is_detectable(tmp_path):
 
 
 def test_calibration_does_not_import_the_capture_code():
-    """The dependency runs one way: capture (stereo_pair, video) -> calibration, never back."""
+    """The dependency runs one way: capture (stereo_pair, stereo_processing, video) -> calibration, never back."""
     root = Path(__file__).resolve().parents[2] / "device" / "calibration"
     for module in sorted(p.name for p in root.glob("*.py")):
         tree = ast.parse((root / module).read_text())
         imported = {n.module for n in ast.walk(tree) if isinstance(n, ast.ImportFrom) and n.module}
         imported |= {a.name for n in ast.walk(tree) if isinstance(n, ast.Import) for a in n.names}
-        assert not {m for m in imported if m.split(".")[-1] in ("stereo_pair", "video", "oak")}, (module, imported)
+        assert not {m for m in imported if m.split(".")[-1] in ("stereo_pair", "stereo_processing", "video", "oak")}, (module, imported)

@@ -13,7 +13,8 @@ import pytest
 
 from device import CalibrationError, SourceDisconnected, SourceError, SourceNotFound, SourceSpec, SourceTimeout
 from device import open_source
-from device.calibration.stereo import StereoCalibration, render_board_view
+from device.calibration.board import render_board_view
+from device.calibration.stereo import StereoCalibration
 from device.calibration.files import CalibrationRef
 from device.sources.middlebury import load_scene, read_calib
 from device.sources.sgbm import SGBMConfig, round_up_disparities
@@ -23,8 +24,8 @@ from device.sources.stereo_pair import (
     StereoPairSource,
     V4L2Grabber,
     config_from_spec,
-    rectification,
 )
+from device.sources.stereo_processing import rectification
 from factories import rendered_pair
 
 # Share of non-occluded ground-truth pixels whose SGBM disparity (default SGBMConfig:

@@ -16,7 +16,7 @@ from device import SourceEnded, SourceError, SourceNotFound, open_source
 from device.calibration.files import load_any
 from device.sources.middlebury import load_scene
 from device.sources.sgbm import SGBMConfig, round_up_disparities
-from device.sources.stereo_pair import StereoProcessor
+from device.sources.stereo_processing import StereoProcessor
 from device.sources.video import config_from_spec, restore_odd_size, split_eyes
 from factories import FakeClock, rendered_pair
 from device.base import SourceSpec

@@ -14,7 +14,7 @@ import tomllib
 from pathlib import Path
 
 import measure.distance
-import measure.types
+import measure.options
 
 ROOT = Path(__file__).resolve().parents[2]
 GUIDES = ROOT / "docs" / "guides"
@@ -40,7 +40,7 @@ def run_pycon(code: str, globs: dict) -> doctest.TestResults:
 def test_adding_a_measurement(tmp_path, monkeypatch):
     steps = blocks(GUIDES / "measurement.md")
     assert [(lang, path) for lang, path, _ in steps] == [
-        ("python", "measure/flat.py"), ("python", "measure/types.py"), ("python", "measure/distance.py"),
+        ("python", "measure/flat.py"), ("python", "measure/options.py"), ("python", "measure/distance.py"),
         ("pycon", ""), ("python", "tests/measure/test_flat.py")]
     (_, _, module), (_, _, names), (_, _, registry), (_, _, session), (_, _, test) = steps
 
@@ -54,8 +54,8 @@ def test_adding_a_measurement(tmp_path, monkeypatch):
     # 2. Its name: today's METHODS plus the new one.
     ns: dict = {}
     exec(names, ns)
-    assert ns["METHODS"][:-1] == measure.types.METHODS and ns["METHODS"][-1] == "flat"
-    monkeypatch.setattr(measure.types, "METHODS", ns["METHODS"])
+    assert ns["METHODS"][:-1] == measure.options.METHODS and ns["METHODS"][-1] == "flat"
+    monkeypatch.setattr(measure.options, "METHODS", ns["METHODS"])
 
     # 3. The registry as the guide writes it: today's entries, in order, plus one line.
     ns = dict(vars(measure.distance))

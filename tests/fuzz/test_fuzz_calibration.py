@@ -18,7 +18,7 @@ from hypothesis import strategies as st
 
 from device.calibration.stereo import StereoCalibration, load_calibration
 from device.errors import CalibrationError
-from device.sources.stereo_pair import rectification
+from device.sources.stereo_processing import rectification
 from fuzzing import EDGE_FLOATS, ODD_TEXT, finite, typed_or_answer
 
 K_LEFT = np.array([[1000.0, 0, 640.5], [0, 1002.0, 359.5], [0, 0, 1]])

@@ -56,7 +56,7 @@ def test_options_validate():
     with pytest.raises(MeasureError, match="odd"):
         MeasureOptions(window=4)
     for bad in (-0.1, math.nan, math.inf, 50.5, True, "1.5", None):
-        with pytest.raises(MeasureError, match=r"click_px=.*0 \(exact clicks\) to 50"):
+        with pytest.raises(MeasureError, match=r"click_px=.* from 0 to 50 \(px\)"):
             MeasureOptions(click_px=bad)
     assert MeasureOptions(click_px=0).click_px == 0 and MeasureOptions(click_px=np.float32(50.0)).click_px == 50.0
 

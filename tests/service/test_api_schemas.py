@@ -89,6 +89,7 @@ def test_real_answers_validate_against_the_documented_models(client):
     call("GET", "/api/source", "/api/source")
     call("GET", "/api/recordings", "/api/recordings")
     call("GET", "/api/checks", "/api/checks")
+    call("GET", "/api/options", "/api/options")
     call("DELETE", "/api/measurements/{mid}", f"/api/measurements/{mid}")
     json_routes = {(m, p) for m, p, op in _operations(spec) if "application/json" in op["responses"]["200"]["content"]}
     # POST /api/recordings writes a recording and /api/source/replay needs a replay: their models are

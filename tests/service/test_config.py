@@ -47,7 +47,7 @@ def test_sim_config_opens_the_simulator():
 def test_oak_table_uses_backend_option_names():
     cfg = parse_config({"source": {"kind": "oak", "mxid": "1844301", "preset": "high_detail", "size": "640x400"}})
     spec = SourceSpec.parse(cfg.source)
-    assert spec.target == "1844301" and spec.params == {"preset": "high_detail", "size": "640x400"}
+    assert spec.target == "1844301" and spec.params == {"preset": "HIGH_DETAIL", "size": "640x400"}
 
 
 @pytest.mark.parametrize(
@@ -59,7 +59,7 @@ def test_oak_table_uses_backend_option_names():
         ('[server]\nport = 70000\n', ["server.port", "70000"]),
         ('[source]\nkind = "kinect"\n', ["'kinect'", "oak", "sim"]),
         ('[source]\nscene = "poster"\n', ["source", "kind"]),
-        ('[source]\nkind = "v4l2"\nndisp = 100\n', ["source:", "num_disparities=100", "16"]),
+        ('[source]\nkind = "v4l2"\nndisp = 100\n', ["source:", "ndisp=100", "16"]),
         ('[source]\nkind = "v4l2"\n[source.sgbm]\nndisp = 64\n', ["source:", "sgbm", "flat"]),
         ('[source]\nkind = "replay"\n', ["source:", "replay:path"]),
         ("[source\n", ["not valid TOML"]),

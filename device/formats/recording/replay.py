@@ -3,18 +3,19 @@
 from __future__ import annotations
 
 import dataclasses
-import math
 from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 
-from measure import Frame
+from measure import Frame, check_options, option
 
+from device import configs
 from device.base import SourceBase, SourceInfo, SourceSpec
 from device.errors import RecordingError, SourceError
 from device.pacing import Pacer
-from device.formats.recording.format import FRAMES, EndOfRecording, RecordingNotFound
+from device.formats.recording.format import FRAMES, RecordingNotFound
+from device.formats.recording.playback import Playback
 from device.formats.recording.reader import Recording, open_recording
 
 # ---------------------------------------------------------------------------------------------
@@ -23,20 +24,16 @@ from device.formats.recording.reader import Recording, open_recording
 
 @dataclass(frozen=True)
 class ReplayConfig:
-    """``path``: the recording; ``loop``: start again at the end; ``realtime``: pace frames by their
-    recorded timestamps (divided by ``speed``) instead of as fast as possible; ``start``: first frame."""
+    """A recording played back: each field's spelling, bounds and help are in its metadata."""
 
-    path: Path
-    loop: bool = False
-    realtime: bool = False
-    speed: float = 1.0
-    start: int = 0
+    path: Path = option(target=True, key="path", example="recordings/example", help="the recording folder")
+    loop: bool = option(False, help="start again at the end")
+    realtime: bool = option(False, help="pace frames by their recorded timestamps instead of as fast as read")
+    speed: float = option(1.0, min=0.0, min_open=True, help="playback speed with realtime (1 = as recorded)")
+    start: int = option(0, min=0, help="index of the first frame")
 
     def __post_init__(self) -> None:
-        if not (self.speed > 0 and math.isfinite(self.speed)):
-            raise SourceError(f"speed={self.speed} must be a positive number (1 = as recorded)")
-        if self.start < 0:
-            raise SourceError(f"start={self.start} must be a frame index >= 0")
+        check_options(self, SourceError, "replay option ")
 
 
 class ReplaySource(SourceBase):
@@ -46,9 +43,8 @@ class ReplaySource(SourceBase):
         self.config = config if isinstance(config, ReplayConfig) else ReplayConfig(path=Path(config))
         self.info = SourceInfo(kind="replay", name=Path(self.config.path).name)
         self.recording: Recording | None = None
-        self._pos = 0
-        self._pacer = Pacer()
-        self.warnings: list[str] = []  # frames skipped because they could not be read
+        self.playback: Playback | None = None
+        self.warnings: list[str] = []  # frames skipped because they could not be read (newest, updated in place)
 
     def open(self) -> None:
         rec = open_recording(self.config.path)
@@ -63,9 +59,12 @@ class ReplaySource(SourceBase):
             offsets = np.arange(len(rec)) / rec.source.fps
         else:
             offsets = np.zeros(len(rec))  # no timing recorded: realtime has nothing to follow
-        self._pacer = Pacer(offsets, self.config.speed)
+        self.playback = Playback(
+            len(rec), what=f"the replay of {rec.path}", loop=self.config.loop, realtime=self.config.realtime,
+            start=self.config.start, pacer=Pacer(offsets, self.config.speed), loop_hint="use replay:DIR?loop=1 to repeat it",
+        )
+        self.playback.warnings = self.warnings
         self.recording = rec
-        self._pos = self.config.start
         cam = rec.camera
         self.info = SourceInfo(
             kind="replay",
@@ -79,26 +78,17 @@ class ReplaySource(SourceBase):
         super().open()
 
     def read(self, timeout_s: float = 1.0) -> Frame:
-        rec = self.recording
-        if rec is None or not self.is_open:
+        """The next frame in order; a damaged frame is skipped (``warnings``, ``playback.skipped``), the end
+        ends or loops as configured (device/formats/recording/playback.py)."""
+        if self.recording is None or self.playback is None or not self.is_open:
             raise SourceError("the replay source is not open; call open() or use it in a with block")
-        if self._pos >= len(rec):
-            if not self.config.loop:
-                raise EndOfRecording(f"the replay of {rec.path} reached its end after {len(rec)} frames; use replay:DIR?loop=1 to repeat it")
-            self._pos = 0
-            self._pacer.restart()
-        i = self._pos
-        if self.config.realtime:
-            self._pacer.wait_for(i, timeout_s, f"the replay of {rec.path}")
-        self._pos += 1
-        try:
-            return self.frame(i)
-        except RecordingError as exc:
-            # one damaged frame must not end (or, reopened, restart) the replay: skip it, say so
-            self.warnings.append(f"{exc}; frame {i} skipped")
-            if len(self.warnings) >= len(rec) and self.config.loop:
-                raise RecordingError(f"no frame of {rec.path} can be read ({exc})") from exc
-            return self.read(timeout_s)
+        return self.playback.next(self.frame, timeout_s)
+
+    def seek(self, i: int) -> None:
+        """Make frame ``i`` the next one ``read`` returns."""
+        if self.playback is None:
+            raise SourceError("the replay source is not open; call open() or use it in a with block")
+        self.playback.seek(i)
 
     def __len__(self) -> int:
         return len(self.recording) if self.recording is not None else 0
@@ -115,26 +105,10 @@ class ReplaySource(SourceBase):
 
     def close(self) -> None:
         self.recording = None
+        self.playback = None
         super().close()
 
 
-_REPLAY_PARAMS = ("loop", "realtime", "speed", "start")
-
-
 def config_from_spec(spec: SourceSpec) -> ReplayConfig:
-    """ReplayConfig from ``replay:DIR?loop=1&realtime=1&speed=2&start=10``."""
-    if not spec.target:
-        raise RecordingNotFound("replay needs a recording directory: replay:path/to/recording")
-    spec.check_keys(_REPLAY_PARAMS)
-    try:
-        speed = float(spec.params.get("speed", "1"))
-        start = int(spec.params.get("start", "0"))
-    except ValueError as exc:
-        raise SourceError(f"replay options speed/start must be numbers: {exc}") from exc
-    return ReplayConfig(
-        path=Path(spec.target),
-        loop=spec.flag("loop", False),
-        realtime=spec.flag("realtime", False),
-        speed=speed,
-        start=start,
-    )
+    """ReplayConfig from ``replay:DIR?loop=1&realtime=1&speed=2&start=10`` (device.configs)."""
+    return configs.from_spec(ReplayConfig, spec, RecordingNotFound("replay needs a recording directory: replay:path/to/recording"))

@@ -1,0 +1,110 @@
+"""Height of a clicked point above a plane: the floor or a table, clicked as a region or found under the point.
+
+Steps (metres, px): the point is where the click's viewing ray meets the robust plane of the window
+around it (``measure.planes.fit_plane``, Eq. 9-10); the base is the robust plane of a clicked polygon,
+or the plane the clicked surface stands on (``measure.support.support_plane``); the height is the
+signed distance n . P + o of the point from the base (Eq. 12). Its one-sigma adds in quadrature the
+two planes' covariances (propagated with their sigma points) and the click's ``click_px`` along x and
+y, times ``HEIGHT_SIGMA_SCALE`` (docs/decisions/shape-uncertainty.md).
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from collections.abc import Sequence
+
+import numpy as np
+
+from measure.planes import SEED_HALF_PX, Plane, fit_plane, grow_plane, sigma_of
+from measure.sampling import check_point
+from measure.shape_types import ShapeMeasurement
+from measure.support import check_options, check_points, polygon_mask, support_plane, verdict
+from measure.types import Frame, MeasureError, MeasureOptions
+
+HEIGHT_SIGMA_SCALE = 1.0
+EDGE_SHARE = 0.6  # a click window with fewer of its pixels on its plane straddles an edge
+
+
+def window_plane(frame: Frame, x: float, y: float, seed: int) -> Plane:
+    """The robust plane of the (2 SEED_HALF_PX + 1)² window around pixel (x, y)."""
+    h, w = frame.shape
+    cx, cy, r = int(round(x)), int(round(y)), SEED_HALF_PX
+    yy, xx = np.mgrid[max(0, cy - r):min(h, cy + r + 1), max(0, cx - r):min(w, cx + r + 1)]
+    try:
+        return fit_plane(frame, xx, yy, seed)
+    except MeasureError as err:
+        raise MeasureError(f"the click ({x:g}, {y:g}) is not on a surface with depth: {err}") from None
+
+
+def region_plane(frame: Frame, vertices: np.ndarray, seed: int, erode_px: int = 0) -> Plane:
+    """The robust plane of the pixels inside a clicked polygon (shrunk by ``erode_px`` when that leaves enough)."""
+    import cv2
+
+    mask = polygon_mask(frame.shape, vertices)
+    if erode_px:
+        shrunk = cv2.erode(mask.astype(np.uint8), np.ones((2 * erode_px + 1,) * 2, np.uint8)).astype(bool)
+        if shrunk.sum() >= 100:
+            mask = shrunk
+    ys, xs = np.nonzero(mask)
+    return fit_plane(frame, xs, ys, seed)
+
+
+def height_above(top: Plane, base: Plane, x: float, y: float, click_px: float) -> tuple[float, float, np.ndarray, np.ndarray]:
+    """Eq. 12: height (m) of pixel (x, y) on ``top`` above ``base``, its model one-sigma, the point and its foot."""
+    n, o = base.metric()
+    p = top.points_at(x, y)
+    h = float(n @ p + o)
+    tops = top.points_at(x, y, top.coefficient_samples())
+    s_top = float(sigma_of(tops @ n + o))
+    s_base = float(sigma_of(np.array([(lambda m: m[0] @ p + m[1])(base.metric(c)) for c in base.coefficient_samples()])))
+    c = click_px
+    moved = top.points_at(np.array([x + c, x - c, x, x]), np.array([y, y, y + c, y - c])) @ n + o
+    s_click = math.hypot((moved[0] - moved[1]) / 2, (moved[2] - moved[3]) / 2)
+    return h, math.sqrt(s_top**2 + s_base**2 + s_click**2), p, p - h * n
+
+
+def measure_height(frame: Frame, point: tuple[float, float], base: Sequence[tuple[float, float]] | None = None,
+                   options: MeasureOptions | None = None) -> ShapeMeasurement:
+    """Height (m) of the clicked ``point`` (x, y px) above a plane; the module docstring has the steps.
+
+    Args:
+        frame: the frame; ``point`` a click on the object (its top, or any point of it).
+        base: three or more clicks (x, y px) around a region of the floor or table to measure from,
+            or None to take the plane the clicked surface stands on.
+        options: ``click_px`` and ``seed`` are used.
+
+    Returns:
+        A :class:`ShapeMeasurement` of kind "height" whose ``points_m`` are the point and its foot.
+
+    Raises:
+        MeasureError: a click outside the image or on no surface with depth, a base of fewer than three
+            clicks, or no plane found under the point.
+    """
+    t0 = time.perf_counter()
+    opts = check_options(options)
+    x, y = check_point(frame, point, "point")
+    top = window_plane(frame, x, y, opts.seed)
+    reasons: list[str] = []
+    if top.n_support < EDGE_SHARE * top.n_points:
+        reasons.append("point on a depth edge")
+    if base is not None:
+        verts = check_points(frame, base, 3, "a base region")
+        floor = region_plane(frame, verts, opts.seed, erode_px=3)
+        clicks = ((x, y), *(tuple(v) for v in verts))
+    else:
+        grown = grow_plane(frame, (x, y), opts.seed)
+        floor = support_plane(frame, grown.mask, top.points_at(x, y), seed=opts.seed)
+        if floor is None:
+            raise MeasureError("no plane found under the point; click three or more points around a region of "
+                               "the floor or table to measure from")
+        clicks = ((x, y),)
+    h, sigma, p, foot = height_above(top, floor, x, y, opts.click_px)
+    if h <= 0:
+        raise MeasureError("the point is not above the base plane (it is on it or behind it); click the object's top "
+                           "and a base region under it")
+    sigma *= HEIGHT_SIGMA_SCALE
+    quality, why, interval = verdict(h, sigma, reasons, unreliable=False)
+    return ShapeMeasurement("height", h, "m", sigma, interval, quality, why, clicks,
+                            (tuple(map(float, p)), tuple(map(float, foot))),
+                            elapsed_ms=(time.perf_counter() - t0) * 1000.0)

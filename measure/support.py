@@ -1,0 +1,149 @@
+"""The plane an object stands on, found around it, and what the shape measurements share (m, px).
+
+:func:`support_plane` takes the pixels of a ring around the object's surface mask (clear of the
+contended band at its edge), fits a robust plane (``measure.planes.fit_plane``) and accepts it when
+the object's top lies on the camera's side of it and in front of it along the top's viewing ray
+(a front face of the object itself fails that test); otherwise the plane's inliers leave the ring
+and the next plane is tried. With ``parallel_to``, only planes within ``PARALLEL_DEG`` of it count
+(a box's top and the floor it stands on).
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from measure.planes import INLIER_SIGMAS, MIN_PLANE_PIXELS, Plane, fit_plane
+from measure.sampling import check_point
+from measure.types import Frame, MeasureError, MeasureOptions
+from measure.verdict import judge
+
+RING_GAP_PX = 8
+RING_MIN_PX = 25
+PARALLEL_DEG = 12.0
+MAX_CANDIDATES = 4
+INTERVAL_Z = 1.96
+LEVEL_BIN_M = 0.01
+LEVEL_SHARE = 0.08
+
+
+def ring_pixels(mask: np.ndarray, gap_px: int, width_px: int) -> tuple[np.ndarray, np.ndarray]:
+    """Pixels (xs, ys) between ``gap_px`` and ``gap_px + width_px`` px around ``mask`` (H x W bool)."""
+    import cv2
+
+    m = mask.astype(np.uint8)
+    inner = cv2.dilate(m, np.ones((2 * gap_px + 1,) * 2, np.uint8))
+    outer = cv2.dilate(m, np.ones((2 * (gap_px + width_px) + 1,) * 2, np.uint8))
+    ys, xs = np.nonzero(outer.astype(bool) & ~inner.astype(bool))
+    return xs, ys
+
+
+def angle_deg(a: Plane, b: Plane) -> float:
+    """Angle between two planes' normals (degrees)."""
+    na, nb = a.metric()[0], b.metric()[0]
+    return math.degrees(math.acos(min(1.0, abs(float(na @ nb)))))
+
+
+def parallel_support(frame: Frame, mask: np.ndarray, top: Plane, seed: int = 0, min_drop_m: float = 0.0) -> Plane | None:
+    """The plane a box with top plane ``top`` stands on: among the ring's pixels, the nearest dense
+    level below the top along its normal (a histogram of n . P + o in ``LEVEL_BIN_M`` bins holding at
+    least ``LEVEL_SHARE`` of the ring; side faces spread over all levels, a floor or table is one),
+    then a robust plane of that level's pixels, parallel to the top within ``PARALLEL_DEG``."""
+    area = int(mask.sum())
+    width = max(RING_MIN_PX, int(0.6 * math.sqrt(max(area, 1))))
+    xs, ys = ring_pixels(mask, RING_GAP_PX, width)
+    d = frame.disparity[ys, xs]
+    keep = frame.valid(d)
+    xs, ys, d = xs[keep], ys[keep], d[keep].astype(float)
+    if len(xs) < MIN_PLANE_PIXELS * 4:
+        return None
+    z = top.fb / (d + top.doffs)
+    pts = np.stack([(xs - top.cx) * z / top.fx, (ys - top.cy) * z / top.fy, z], axis=1)
+    n, o = top.metric()
+    below = -(pts @ n + o)  # metres below the top plane
+    lo = max(min_drop_m, 0.0)
+    sel = below > lo
+    if sel.sum() < MIN_PLANE_PIXELS * 4:
+        return None
+    bins = np.arange(lo, float(below[sel].max()) + 2 * LEVEL_BIN_M, LEVEL_BIN_M)
+    hist, edges = np.histogram(below[sel], bins=bins)
+    # Two neighbouring bins together: a level straddling a bin edge still counts once.
+    pair = hist[:-1] + hist[1:] if len(hist) > 1 else hist
+    dense = np.flatnonzero(pair >= LEVEL_SHARE * len(xs))
+    for k in dense[np.argsort(-pair[dense], kind="stable")][:MAX_CANDIDATES]:  # densest level first
+        level = (below >= edges[k] - LEVEL_BIN_M) & (below <= edges[k] + 3 * LEVEL_BIN_M)
+        try:
+            plane = fit_plane(frame, xs[level], ys[level], seed)
+            # Refit on the whole ring from there: inliers chosen by their residual to the plane, not by
+            # their noisy level, which would truncate the noise on one side and bias the plane.
+            plane = fit_plane(frame, xs, ys, seed, start=plane)
+        except MeasureError:
+            continue
+        if angle_deg(plane, top) <= PARALLEL_DEG and plane.n_support >= MIN_PLANE_PIXELS * 4:
+            return plane
+    return None
+
+
+def support_plane(frame: Frame, mask: np.ndarray, top_m: np.ndarray, parallel_to: Plane | None = None,
+                  seed: int = 0, min_drop_m: float = 0.0) -> Plane | None:
+    """The plane under an object (see the module docstring) or None; ``top_m`` a 3D point of its top (m)."""
+    area = int(mask.sum())
+    width = max(RING_MIN_PX, int(0.6 * math.sqrt(max(area, 1))))
+    xs, ys = ring_pixels(mask, RING_GAP_PX, width)
+    keep = frame.valid(frame.disparity[ys, xs])
+    xs, ys = xs[keep], ys[keep]
+    for _ in range(MAX_CANDIDATES):
+        if len(xs) < MIN_PLANE_PIXELS * 4:
+            return None
+        try:
+            plane = fit_plane(frame, xs, ys, seed)
+        except MeasureError:
+            return None
+        n, o = plane.metric()
+        drop = float(n @ top_m + o)  # > 0: the top is on the camera's side of the plane
+        ok = drop > max(min_drop_m, 0.0) and (parallel_to is None or angle_deg(plane, parallel_to) <= PARALLEL_DEG)
+        if ok and plane.n_support >= MIN_PLANE_PIXELS * 4:
+            return plane
+        r = frame.disparity[ys, xs] - plane.disparity_at(xs, ys)
+        off = ~(np.abs(r) <= INLIER_SIGMAS * max(plane.sigma_px, plane.quantum))
+        xs, ys = xs[off], ys[off]
+    return None
+
+
+def polygon_mask(shape: tuple[int, int], vertices: np.ndarray) -> np.ndarray:
+    """Pixels inside the polygon of ``vertices`` (n x 2, x y px) (H x W bool)."""
+    import cv2
+
+    m = np.zeros(shape, np.uint8)
+    cv2.fillPoly(m, [np.round(vertices).astype(np.int32).reshape(-1, 1, 2)], 1)
+    return m.astype(bool)
+
+
+def check_points(frame: Frame, points: object, least: int, what: str) -> np.ndarray:
+    """``points`` as an n x 2 float array of clicks inside the image, n >= ``least``; MeasureError otherwise."""
+    try:
+        seq = list(points)  # type: ignore[call-overload]
+    except TypeError as exc:
+        raise MeasureError(f"{what} needs a list of (x, y) clicks, got {points!r}") from exc
+    if len(seq) < least:
+        raise MeasureError(f"{what} needs at least {least} clicks, got {len(seq)}; add points")
+    return np.array([check_point(frame, p, f"point {i + 1}") for i, p in enumerate(seq)], dtype=float)
+
+
+def check_options(options: MeasureOptions | None) -> MeasureOptions:
+    """``options`` or the defaults; MeasureError for anything that is not MeasureOptions."""
+    if options is None:
+        return MeasureOptions()
+    if not isinstance(options, MeasureOptions):
+        raise MeasureError(f"options must be a measure.MeasureOptions, got {type(options).__name__}")
+    return options
+
+
+def verdict(value: float, sigma: float, reasons: list[str], unreliable: bool) -> tuple[str, tuple[str, ...], tuple[float, float]]:
+    """Quality, reasons and the 95 % interval of a shape value (``measure.verdict.judge`` on it)."""
+    half = INTERVAL_Z * sigma
+    quality, out = judge(reasons, None, abs(value), half)
+    if unreliable:
+        quality = "unreliable"
+    return quality, out, (value - half, value + half)
