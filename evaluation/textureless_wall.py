@@ -35,8 +35,6 @@ def _segments(mask: np.ndarray, count: int, rng: np.random.Generator) -> list[tu
     """``count`` segments whose every pixel lies in ``mask`` (tries a bounded number of draws)."""
     import cv2
 
-    from measure.sampling import segment_pixels
-
     inner = cv2.erode(mask.astype(np.uint8), np.ones((2 * MARGIN_PX + 1, 2 * MARGIN_PX + 1), np.uint8)) > 0
     ys, xs = np.nonzero(inner)
     out: list[tuple[tuple[int, int], tuple[int, int]]] = []
@@ -50,8 +48,9 @@ def _segments(mask: np.ndarray, count: int, rng: np.random.Generator) -> list[tu
         h, w = mask.shape
         if not (0 <= b[0] < w and 0 <= b[1] < h):
             continue
-        px = segment_pixels(a[0], a[1], b[0], b[1])
-        if inner[px[:, 1], px[:, 0]].all():
+        k = int(max(abs(b[0] - a[0]), abs(b[1] - a[1]))) + 1
+        xs_, ys_ = np.rint(np.linspace(a[0], b[0], k)).astype(int), np.rint(np.linspace(a[1], b[1], k)).astype(int)
+        if inner[ys_, xs_].all():
             out.append((a, b))
     return out
 

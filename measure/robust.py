@@ -33,6 +33,7 @@ import numpy as np
 
 from measure.answer import measurement, window_measurement
 from measure.basic import BasicEnds, basic_ends
+from measure.bend import bent_end_models
 from measure.censored import censored_line, few_levels
 from measure.confidence import LOW_CONFIDENCE_REASON, low_confidence, support_inflation
 from measure.dline import DisparityLine, fit_disparity_line
@@ -102,6 +103,7 @@ def _robust(request: Request, samples: SegmentSamples, terms: dict[str, float] |
     ends = _clean_ends(frame, xy1, xy2, options.window, ends)
     ends = _neighbourhood_ends(frame, xy1, xy2, ends, quantum, max(line.sigma_d, quantum / math.sqrt(12.0)))
     ends = _observed_ends(frame, xy1, xy2, basic, t, line, length, ends, options.window)
+    ends = bent_end_models(t, samples.disparity, length, quantum, line.sigma_d, ends)
     d_end = ends.d_end
     warnings: list[str] = []
     reasons: list[str] = []
