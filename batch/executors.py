@@ -132,6 +132,8 @@ class RayExecutor:
     name = "ray"
 
     def __init__(self, address: str = "auto", num_cpus: int | None = None, task_cpus: int = 1) -> None:
+        if address != "local":
+            _send_token_if_held()  # before the import: Ray reads its authentication mode when it loads
         try:
             import ray
         except ImportError as exc:
@@ -149,7 +151,8 @@ class RayExecutor:
             except (ConnectionError, RuntimeError, ValueError) as exc:
                 raise ExecutorError(
                     f"cannot reach a Ray cluster at {address!r} ({exc}); start one with `ray start --head`, "
-                    "give its address (HOST:6379 or ray://HOST:10001), or use --ray local"
+                    "give its address (HOST:6379 or ray://HOST:10001), or use --ray local; a cluster with token "
+                    "authentication needs its token here too (~/.ray/auth_token or RAY_AUTH_TOKEN, see docs/batch.md)"
                 ) from exc
             self._started = True
         self.task_cpus = task_cpus
@@ -191,6 +194,20 @@ class RayExecutor:
 
     def __exit__(self, *exc: object) -> None:
         self.close()
+
+
+def _send_token_if_held() -> None:
+    """Join with token authentication when this machine holds a Ray token and nobody chose a mode.
+
+    ``ray start --head`` turns token authentication on whenever ``~/.ray/auth_token`` exists, but a
+    driver joining by address sends no token unless ``RAY_AUTH_MODE=token`` is set (it then fails with
+    InvalidAuthToken); a cluster without authentication accepts a driver that sends one. Ray reads the
+    mode once per process, when it is imported, so it is set before that."""
+    if os.environ.get("RAY_AUTH_MODE"):
+        return
+    held = os.environ.get("RAY_AUTH_TOKEN") or os.environ.get("RAY_AUTH_TOKEN_PATH")
+    if held or os.path.isfile(os.path.expanduser("~/.ray/auth_token")):
+        os.environ["RAY_AUTH_MODE"] = "token"
 
 
 def make_executor(workers: int | None = None, ray: str | None = None) -> InProcessExecutor | PoolExecutor | RayExecutor:
