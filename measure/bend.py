@@ -17,7 +17,8 @@ at once; then again on the samples within 3 robust sigmas of the first fit). The
    ``LOCAL_ROUGHNESS`` times the one line's noise on its support;
 3. the bend is large: the two pieces' lines, extended to the far end of the shorter piece, part by
    more than ``BEND_SIGMAS`` · s, one disparity quantum and ``DISAGREE_REL`` of the disparity at the
-   crease (the offset at which ``measure.surfaces`` gives an end a surface of its own).
+   crease (the offset at which ``measure.surfaces`` gives an end a surface of its own);
+4. no extrapolation: each end's value lies within its piece's inlying samples' range (and a quantum).
 
 Units: t in px along the segment from p1, disparities in px. Why and the measurement:
 docs/decisions/bent-segments.md.
@@ -109,7 +110,13 @@ def hinge_ends(t: np.ndarray, d: np.ndarray, length: float, quantum: float, nois
     at_crease = abs(a + b * t0)
     if not abs(c) * shorter > max(BEND_SIGMAS * float(s2[k]), quantum, DISAGREE_REL * at_crease):
         return None
-    return Hinge(t0, (a, a + b * length + c * (length - t0)), (b, b + c), float(s2[k]))
+    ends = (a, a + b * length + c * (length - t0))
+    # No extrapolation: each end's value lies within the range of its piece's inlying samples (and a quantum).
+    inl = np.abs(r2[k] - np.median(r2[k])) <= 3.0 * s2[k]
+    for e, piece in ((0, inl & (t < t0)), (1, inl & (t >= t0))):
+        if piece.sum() < MIN_PIECE_SAMPLES or not (d[piece].min() - quantum <= ends[e] <= d[piece].max() + quantum):
+            return None
+    return Hinge(t0, ends, (b, b + c), float(s2[k]))
 
 
 def bent_end_models(t: np.ndarray, d: np.ndarray, length: float, quantum: float, noise: float, ends: EndModels) -> EndModels:
