@@ -103,6 +103,37 @@ def run(repeats: int) -> tuple[list[dict], dict]:
     return rows, env
 
 
+def confidence_cost(repeats: int) -> str:
+    """The "## SGBM confidence" section: the default live pipeline (rectify + sgbm_3way) with the texture
+    confidence on against off, timed alternately in this process (the ratio is the figure; the target is
+    at most 20 % lower frame rate)."""
+    left0, right0 = cv2.imread(str(SCENE / "im0.png")), cv2.imread(str(SCENE / "im1.png"))
+    if left0 is None or right0 is None:
+        raise SystemExit(f"Middlebury scene not found at {SCENE}; set DEPTHRULER_SHARED")
+    lines = ["## SGBM confidence", "",
+             f"`bench/bench_sgbm.py --confidence`, {datetime.now(timezone.utc).strftime('%Y-%m-%d %H:%M UTC')}: "
+             f"{cpu_name()}, {os.cpu_count()} cores, OpenCV {cv2.__version__}, load average {os.getloadavg()[0]:.1f} "
+             f"before. The live pipeline (rectify + sgbm_3way, 64 disparities) with the texture confidence "
+             f"(`texture_confidence`, the default) and without; medians of {repeats} alternating runs.", "",
+             "| size | ms without | ms with | frame rate with / without |", "|---|---:|---:|---:|"]
+    for w, h in SIZES:
+        left = cv2.resize(left0, (w, h), interpolation=cv2.INTER_AREA)
+        right = cv2.resize(right0, (w, h), interpolation=cv2.INTER_AREA)
+        fx = 0.9 * w
+        k = np.array([[fx, 0, w / 2 - 0.5], [0, fx, h / 2 - 0.5], [0, 0, 1]])
+        calib = StereoCalibration(image_size=(w, h), K1=k, D1=np.zeros(5), K2=k, D2=np.zeros(5),
+                                  R=cv2.Rodrigues(np.array([0.0, 0.005, 0.0]))[0], T=np.array([-0.06, 0, 0]))
+        on = StereoProcessor(calib, SGBMConfig(num_disparities=64))
+        off = StereoProcessor(calib, SGBMConfig(num_disparities=64, texture_confidence=False))
+        t_on, t_off = [], []
+        for _ in range(repeats):
+            t_off.append(timed(lambda: off.process(left, right), 1))
+            t_on.append(timed(lambda: on.process(left, right), 1))
+        a, b = float(np.median(t_off)), float(np.median(t_on))
+        lines.append(f"| {w}x{h} | {a * 1000:.0f} | {b * 1000:.0f} | {a / b:.2f} |")
+    return "\n".join(lines) + "\n"
+
+
 def accuracy() -> list[dict]:
     """Share of non-occluded Middlebury pixels within 1 px of ground truth, per mode and WLS setting
     (all eight shared scenes at their own disparity range): what each speed buys."""
@@ -161,7 +192,14 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument("--repeats", type=int, default=5)
     parser.add_argument("--write", action="store_true", help="update bench/RESULTS.md")
     parser.add_argument("--notes", default="", help="text appended under the table (e.g. the chosen defaults)")
+    parser.add_argument("--confidence", action="store_true", help="only the texture confidence's cost (its own section)")
     args = parser.parse_args(argv)
+    if args.confidence:
+        text = confidence_cost(args.repeats)
+        print(text)
+        if args.write:
+            replace_section("## SGBM confidence", text)
+        return
     rows, env = run(args.repeats)
     env["accuracy"] = accuracy()
     text = table(rows, env) + (f"\n{args.notes}\n" if args.notes else "")

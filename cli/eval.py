@@ -1,4 +1,4 @@
-"""`depthruler eval sim|middlebury`: the accuracy reports (Markdown + PNG plots + results.json)."""
+"""`depthruler eval sim|middlebury|wall|rooms|gaps|...`: the accuracy reports (Markdown + PNG plots + results.json)."""
 
 from __future__ import annotations
 
@@ -95,6 +95,45 @@ def stress_sim_command(
     dev, held = run_stress_sim(DEV_SEEDS), run_stress_sim(HELD_OUT_SEEDS)
     paths = write_stress_sim(out, dev, held, {"wall_time_s": time.perf_counter() - t0})
     print(f"{len(dev) + len(held)} stress measurements; report: {paths['report']}")
+
+
+def _two_splits(out: Path, title: str, note: str, dev, held) -> None:
+    from evaluation.stress import figures, write_stress_report
+
+    paths = write_stress_report(out, title, {}, {"dev": dev, "held-out": held}, [note])
+    for split, recs in (("dev", dev), ("held-out", held)):
+        f = figures(recs)
+        print(f"{split}: {f['n']} cases, mean A {f['mean_A']:.2f} (basic {f['basic_mean_A']:.2f}), good {100 * f['good']:.1f} %, "
+              f"good & A<90 {100 * f['good_and_A_below_90']:.1f} %, 2σ coverage {100 * f['cov_2sigma']:.1f} %")
+    print(f"report: {paths['report']}")
+
+
+@app.command("wall")
+def wall_command(out: Path = typer.Option(..., "--out", help="Output folder for report.md, results.json and plots.")) -> None:
+    """Segments on a plain wall beside a poster, SGBM on the rendered stereo pair (evaluation/textureless_wall.py)."""
+    from evaluation.textureless_wall import DEV_SEEDS, HELD_OUT_SEEDS, run_textureless_wall
+
+    _two_splits(out, "Textureless wall", "Plain wall and poster, SGBM stereo (evaluation/textureless_wall.py); "
+                "disparity sgbm = as delivered, sgbm-no-confidence = the same frame without its confidence map.",
+                run_textureless_wall(DEV_SEEDS), run_textureless_wall(HELD_OUT_SEEDS))
+
+
+@app.command("rooms")
+def rooms_command(out: Path = typer.Option(..., "--out", help="Output folder for report.md, results.json and plots.")) -> None:
+    """Wall or board down to the floor: bent segments in analytic rooms (evaluation/bent_rooms.py)."""
+    from evaluation.bent_rooms import DEV_SEEDS, HELD_OUT_SEEDS, run_bent_rooms
+
+    _two_splits(out, "Bent segments", "Wall/board-to-floor rooms (evaluation/bent_rooms.py).",
+                run_bent_rooms(DEV_SEEDS), run_bent_rooms(HELD_OUT_SEEDS))
+
+
+@app.command("gaps")
+def gaps_command(out: Path = typer.Option(..., "--out", help="Output folder for report.md, results.json and plots.")) -> None:
+    """The doorway and the gap between boxes clicked at their true edges, 1.5-5 m (evaluation/gap_edges.py)."""
+    from evaluation.gap_edges import DEV_SEEDS, HELD_OUT_SEEDS, run_gap_edges
+
+    _two_splits(out, "Gaps at their true edges", "Doorway and box gap, true edge clicks, 1.5-5 m (evaluation/gap_edges.py).",
+                run_gap_edges(DEV_SEEDS), run_gap_edges(HELD_OUT_SEEDS))
 
 
 @app.command("middlebury")

@@ -157,15 +157,16 @@ def scene_frames(scene: Any, rng: np.random.Generator, disparities: Sequence[str
     config = scene_sgbm_config(scene)
     out = {}
     for name in disparities:
+        conf = None
         if name == "sgbm":
-            d, _ = compute_disparity(scene.left, scene.right, config)
+            d, conf = compute_disparity(scene.left, scene.right, config)
         elif name == "bm":
             d = bm_disparity(scene.left, scene.right, config.num_disparities)
         elif name == "gt_out50":
             d = outlier_disparity(scene.gt_disparity, 0.5, rng)
         else:
             raise ValueError(f"disparity {name!r} is unknown; use one of {', '.join(DISPARITIES)}")
-        out[name] = scene_frame(scene, d)
+        out[name] = scene_frame(scene, d, conf)
     return out
 
 

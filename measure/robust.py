@@ -33,7 +33,9 @@ import numpy as np
 
 from measure.answer import measurement, window_measurement
 from measure.basic import BasicEnds, basic_ends
+from measure.bend import bent_end_models
 from measure.censored import censored_line, few_levels
+from measure.confidence import LOW_CONFIDENCE_REASON, low_confidence, support_inflation
 from measure.dline import DisparityLine, fit_disparity_line
 from measure.edges import on_edge, on_surface_edge
 from measure.gap import end_surface, is_clear_gap, leading_run
@@ -101,6 +103,7 @@ def _robust(request: Request, samples: SegmentSamples, terms: dict[str, float] |
     ends = _clean_ends(frame, xy1, xy2, options.window, ends)
     ends = _neighbourhood_ends(frame, xy1, xy2, ends, quantum, max(line.sigma_d, quantum / math.sqrt(12.0)))
     ends = _observed_ends(frame, xy1, xy2, basic, t, line, length, ends, options.window)
+    ends = bent_end_models(t, samples.disparity, length, quantum, line.sigma_d, ends)
     d_end = ends.d_end
     warnings: list[str] = []
     reasons: list[str] = []
@@ -136,11 +139,14 @@ def _robust(request: Request, samples: SegmentSamples, terms: dict[str, float] |
             model = MODEL_SHARE * abs(float(np.linalg.norm(r2 * z1[1] - r1 * z1[0])) - dist)
     structure = math.hypot(grad[0] * ends.offsets[0], grad[1] * ends.offsets[1])
     sensor2 = fit_sigma**2 + quant**2 + model**2 + structure**2
-    sigma = calibrated_sigma(math.sqrt(sensor2 + click**2), dist)
+    # Weakly supported samples carry less information: the fit term grows by the effective sample
+    # size (measure.confidence). The decisions below keep the plain terms, so answers stay the same.
+    fit_weak = fit_sigma * support_inflation(samples.confidence, line.support)
+    sigma = calibrated_sigma(math.sqrt(sensor2 - fit_sigma**2 + fit_weak**2 + click**2), dist)
     # Whether the line says little (IMPRECISE, below) is judged at a mouse's click whatever the stated
     # click error: the same clicks answer the same, only the uncertainty follows options.click_px.
     sigma_line = calibrated_sigma(math.sqrt(sensor2 + (DECISION_CLICK_PX * click_1px) ** 2), dist)
-    parts = {"fit": fit_sigma, "click": click, "quant": quant, "model": model, "structure": structure}
+    parts = {"fit": fit_weak, "click": click, "quant": quant, "model": model, "structure": structure}
     q1f, q2f, gap = q1, q2, False
     if options.gap_detection:
         # The gap question is about the segment's own surface (the global line), whatever an end's
@@ -159,19 +165,21 @@ def _robust(request: Request, samples: SegmentSamples, terms: dict[str, float] |
             g1, g2 = r1 * zg1, r2 * zg2
             gd = float(np.linalg.norm(g2 - g1))
             ext_sigma = endpoint_depth_sigma(g1, g2, zg1 * zg1 / fb * ends_s[0].se, zg2 * zg2 / fb * ends_s[1].se)
-            # The alternative is the segment's own surface at both clicks (no gap); a click off by a pixel
-            # stays on its end's surface.
-            zl = fb / (np.array([line.at(0.0), line.at(length)]) + frame.doffs)
-            alt = float(np.linalg.norm(r2 * zl[1] - r1 * zl[0])) if (zl > 0).all() else dist
+            # What limits a gap's width: its end surfaces' depths and the clicks (a click off by a pixel
+            # stays on its end's surface), both shrinking as the camera comes closer. The segment's own
+            # surface (no gap) is not counted: at a doorway it is metres behind the ends
+            # (docs/decisions/gap-sigma.md).
             click_g = _click_term(frame, xy1, xy2, np.array([e.disparity for e in ends_s]), np.zeros(2), gd, options.click_px)
-            sigma = calibrated_sigma(math.sqrt(ext_sigma**2 + quant**2 + click_g**2 + (MODEL_SHARE * abs(gd - alt)) ** 2), gd)
-            parts = {"fit": ext_sigma, "click": click_g, "quant": quant, "model": MODEL_SHARE * abs(gd - alt), "structure": 0.0}
+            sigma = calibrated_sigma(math.sqrt(ext_sigma**2 + quant**2 + click_g**2), gd)
+            parts = {"fit": ext_sigma, "click": click_g, "quant": quant, "model": 0.0, "structure": 0.0}
             warnings.append("gap detected: both ends' surfaces are in front of the segment's; measured at their depths")
             reasons = [r for r in reasons if r != "segment crosses several surfaces"] + ["gap detected"]
             q1f, q2f, gap = g1, g2, True
     out = float(np.linalg.norm(q2f - q1f))
     if len(samples.points) < FEW_SAMPLES or len(samples.points) < FEW_SHARE * samples.n_samples:
         reasons.append("few valid samples")
+    if low_confidence(samples.confidence):
+        reasons.append(LOW_CONFIDENCE_REASON)
     if not gap and (on_edge(frame, xy1, xy2, d_end[0]) or on_edge(frame, xy2, xy1, d_end[1])):
         reasons.append("end point on a depth edge")
     if not basic.ok or extrapolated(t, line.support, length, ends.own, EXTRAPOLATED_PX):

@@ -2,10 +2,11 @@
 
 "good" means: the truth is expected inside the stated 95 % interval and that interval is narrow
 (half-width at most ``GOOD_HALF_WIDTH`` of the distance, i.e. one sigma at most 8 %). Any reason
-below except the two ``INFORMATIONAL`` ones makes an answer "check"; very few samples or an
+below except the ``INFORMATIONAL`` ones makes an answer "check"; very few samples or an
 interval wider than ``UNRELIABLE_HALF_WIDTH`` make it "unreliable". Why "end point on a depth edge"
 and "end point extrapolated" only inform: an edge click is the robust method's normal case
-(docs/decisions/verdict-reasons.md).
+(docs/decisions/verdict-reasons.md); "gap detected" informs because a gap answer's uncertainty is
+that of its end surfaces and clicks (docs/decisions/gap-sigma.md).
 
 Reasons (the phrases the CLI, API and page show):
 - "few valid samples": fewer than ``FEW_SAMPLES`` valid samples along the segment, or fewer than
@@ -16,8 +17,9 @@ Reasons (the phrases the CLI, API and page show):
   click (a mis-click of a pixel or two lands on another surface).
 - "segment crosses several surfaces": the samples near an end disagree with the one-line model
   (``measure.surfaces``).
-- "gap detected": the answer is measured across a gap (``measure.gap``), a model choice the data
-  cannot always make.
+- "gap detected": the answer is measured across a gap (``measure.gap``), between the end surfaces.
+- "low matcher confidence along the segment": the frame's confidence says the matcher had little
+  support along the segment (``measure.confidence``).
 - "end point extrapolated": an end is farther than ``EXTRAPOLATED_PX`` px (and 15 % of the length)
   from the nearest sample that supports its model, or has no depth at all.
 - "uncertainty above N %": the interval's half-width exceeds ``GOOD_HALF_WIDTH``.
@@ -37,7 +39,7 @@ GOOD_HALF_WIDTH = 0.24
 UNRELIABLE_HALF_WIDTH = 0.5
 
 QUALITIES: tuple[str, ...] = ("good", "check", "unreliable")
-INFORMATIONAL: tuple[str, ...] = ("end point on a depth edge", "end point extrapolated")
+INFORMATIONAL: tuple[str, ...] = ("end point on a depth edge", "end point extrapolated", "gap detected")
 
 
 def judge(reasons: list[str], n_valid: int | None, distance: float, half_width: float) -> tuple[str, tuple[str, ...]]:

@@ -34,7 +34,7 @@ from sim.truth import Truth
 CAMERA_HEIGHT_M = 1.4
 REFERENCE_FX_AT_1280 = 1000.0  # focal length (px) of the reference camera at 1280 px long side: 65 deg HFOV
 
-SCENES: tuple[str, ...] = ("poster", "person", "doorway", "boxes", "table", "charuco")
+SCENES: tuple[str, ...] = ("poster", "person", "doorway", "boxes", "table", "charuco", "plain-wall")
 TARGETS: dict[str, tuple[str, ...]] = {  # the first one is the scene's default target
     "poster": ("poster-width", "poster-length", "poster-width-upper", "poster-width-lower", "poster-length-left",
                "poster-length-right"),
@@ -43,6 +43,7 @@ TARGETS: dict[str, tuple[str, ...]] = {  # the first one is the scene's default 
     "boxes": ("box-gap", "box-width"),
     "table": ("table-width",),
     "charuco": ("board-width", "board-height"),
+    "plain-wall": ("wall-width", "poster-width"),
 }
 
 
@@ -312,8 +313,27 @@ def _table(p: SceneParams, top=(1.2, 0.75), height_m: float = 0.75, thickness_m:
     return SceneSpec(tuple(prims), targets, height_m)
 
 
+def _plain_wall(p: SceneParams) -> SceneSpec:
+    """A plain painted wall (``paint``: grain far below the image noise, what passive stereo cannot match)
+    filling the view, with a printed poster glued flat on it left of centre. Targets: a horizontal
+    stretch of the plain wall right of the poster at the poster's centre height, and the poster's
+    width. Rendered as a stereo pair (``mode=stereo``) it runs through the real SGBM path."""
+    place = _Placer(p.distance_m, p.yaw_deg)
+    w, l = p.board_w_m, p.board_l_m
+    centre = np.array(place(-0.55 - w / 2, CAMERA_HEIGHT_M)) - 0.002 * place.lz  # 2 mm proud of the wall
+    down = np.array([0.0, 1.0, 0.0])
+    poster = Rect(place.vec(centre), place.vec(place.lx), place.vec(down), (w / 2, l / 2), "poster", "poster")
+    wall_y = CAMERA_HEIGHT_M
+    targets = {
+        "wall-width": TargetSpec("wall-width", place(0.15, wall_y), place(0.15 + 0.8, wall_y), ("wall",), ("wall",), False),
+        "poster-width": TargetSpec("poster-width", place.vec(centre - w / 2 * place.lx), place.vec(centre + w / 2 * place.lx),
+                                   ("poster",), ("poster",), False),
+    }
+    return SceneSpec((_floor(), _wall(place, 0.0), poster), targets, CAMERA_HEIGHT_M)
+
+
 _BUILDERS = {"poster": _poster, "person": _person, "doorway": _doorway, "boxes": _boxes, "table": _table,
-             "charuco": _charuco}
+             "charuco": _charuco, "plain-wall": _plain_wall}
 
 
 def build_scene(params: SceneParams) -> SceneSpec:

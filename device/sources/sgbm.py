@@ -52,6 +52,7 @@ class SGBMConfig:
     wls_sigma: float = option(0.8, min=0.0, help="WLS edge sensitivity")
     lr_confidence: bool = option(False, help="left-right consistency as the confidence map (slower)")
     fill_left_band: bool = option(True, help="disparity in SGBM's blind left band too (module docstring)")
+    texture_confidence: bool = option(True, help="texture term in the confidence map (0 on plain surfaces; cheap)")
 
     def __post_init__(self) -> None:
         check_options(self, ValueError, "SGBM option ")
@@ -94,8 +95,10 @@ def compute_disparity(
 ) -> tuple[np.ndarray, np.ndarray]:
     """Disparity (px, float32, NaN = no match) and confidence (float32 in [0, 1]) of a rectified pair.
 
-    Confidence is the left-right consistency ``clip(1 - |dL(x) - dR(x - dL)| / 2, 0, 1)`` when
-    ``lr_confidence`` or ``wls`` asks for the right matcher, else 1 where SGBM matched and 0 elsewhere.
+    Confidence (0 = no support, 1 = fully supported) is 0 where SGBM found no match, else the product
+    of the left-right consistency ``clip(1 - |dL(x) - dR(x - dL)| / 2, 0, 1)`` when ``lr_confidence``
+    or ``wls`` asks for the right matcher, and the texture term ``texture_confidence`` of the left
+    image when ``config.texture_confidence`` (docs/decisions/matcher-confidence.md).
     """
     import cv2
 
@@ -105,6 +108,7 @@ def compute_disparity(
             f"and {right_bgr.shape} {right_bgr.dtype}"
         )
     pad = max(0, config.min_disparity + config.num_disparities) if config.fill_left_band else 0
+    texture = texture_confidence(left_bgr, config.block_size) if config.texture_confidence else None
     if pad:
         left_bgr = cv2.copyMakeBorder(left_bgr, 0, 0, pad, 0, cv2.BORDER_REPLICATE)
         right_bgr = cv2.copyMakeBorder(right_bgr, 0, 0, pad, 0, cv2.BORDER_REPLICATE)
@@ -138,7 +142,56 @@ def compute_disparity(
         in_padding = disparity > columns
         disparity[in_padding] = np.nan
         confidence[in_padding] = 0.0
+    if texture is not None:
+        confidence *= texture
     return disparity, confidence
+
+
+NOISE_FLOOR_GREY = 1.0  # grey levels: an 8-bit camera's noise is never below about one level (JPEG flattens it)
+NOISE_BLOCK = 16  # px: the noise is read per block of this side ...
+NOISE_PERCENTILE = 10.0  # ... in the flattest tenth of the blocks, where texture adds least
+TEXTURE_REACH = 3  # matching blocks across the texture window (docs/decisions/matcher-confidence.md)
+
+
+def image_noise_sigma(grey: np.ndarray) -> float:
+    """Image noise (grey levels, one sigma) by Immerkaer's Laplacian-difference operator N, whose response
+    to white noise of sigma has variance 36 sigma^2: the mean squared response per ``NOISE_BLOCK`` block,
+    at the ``NOISE_PERCENTILE`` of the blocks (texture only adds to a block's energy), over 36; at least
+    ``NOISE_FLOOR_GREY``."""
+    import cv2
+
+    kernel = np.array([[1, -2, 1], [-2, 4, -2], [1, -2, 1]], np.float32)
+    r = cv2.filter2D(np.asarray(grey, np.float32), cv2.CV_32F, kernel)[1:-1, 1:-1]
+    b = NOISE_BLOCK
+    h, w = (r.shape[0] // b) * b, (r.shape[1] // b) * b
+    if h == 0 or w == 0:
+        return NOISE_FLOOR_GREY
+    blocks = (r[:h, :w] ** 2).reshape(h // b, b, w // b, b).mean(axis=(1, 3))
+    return max(NOISE_FLOOR_GREY, float(np.sqrt(np.percentile(blocks, NOISE_PERCENTILE) / 36.0)))
+
+
+def texture_confidence(image: np.ndarray, block_size: int = 5) -> np.ndarray:
+    """Share of the horizontal texture that is signal, per pixel, in [0, 1] (float32, H x W).
+
+    SGBM matches along rows on the horizontal derivative (its pre-filter), so only texture across x
+    tells disparities apart. With g the Sobel x-derivative of the grey image and sigma the image noise
+    (``image_noise_sigma``; the derivative of white noise has variance 12 sigma^2), the confidence is
+    ``clip(1 - 12 sigma^2 / mean_W(g^2), 0, 1)``: the signal's share of the gradient energy over a
+    square of ``TEXTURE_REACH`` matching blocks (``block_size`` px each) around the pixel, i.e.
+    SNR^2 / (1 + SNR^2). SGBM's path aggregation carries a match across a small flat patch, not across
+    a plain wall: there its smoothness terms, not the images, decide the disparity, and this is near 0.
+    """
+    import cv2
+
+    grey = cv2.cvtColor(image, cv2.COLOR_BGR2GRAY) if image.ndim == 3 else image
+    grey = grey.astype(np.float32)
+    g = cv2.Sobel(grey, cv2.CV_32F, 1, 0, ksize=3)
+    side = TEXTURE_REACH * block_size
+    energy = cv2.boxFilter(g * g, cv2.CV_32F, (side, side))
+    noise = 12.0 * image_noise_sigma(grey) ** 2
+    with np.errstate(divide="ignore"):
+        c = 1.0 - noise / energy
+    return np.clip(np.nan_to_num(c, nan=0.0, neginf=0.0), 0.0, 1.0).astype(np.float32)
 
 
 def lr_consistency(disp_left: np.ndarray, disp_right: np.ndarray) -> np.ndarray:

@@ -61,10 +61,13 @@ def test_gap_rule_does_not_fire_without_a_gap(middlebury_stress):
         nogap = [r for r in middlebury_stress if r.case.condition == "nogap" and r.disparity == disparity]
         assert len(nogap) >= 20
         assert figures(nogap)["gap_rate_no_gap"] <= 0.03, disparity
-    # A recessed surface between two nearer ones is a gap's geometry: answered as a gap it is never "good".
+    # A recessed surface between two nearer ones is a gap's geometry; its truth here is the recessed
+    # surface. A gap answer's sigma leaves that reading out (docs/decisions/gap-sigma.md): it may be
+    # "good", but rarely so when wrong.
     recess = [r for r in middlebury_stress if r.case.condition == "recess"]
     assert len(recess) >= 10
-    assert not any(r.gap and r.quality == "good" for r in recess)
+    wrong = [r for r in recess if r.gap and r.quality == "good" and abs(r.robust_m - r.case.truth_m) > 0.1 * r.case.truth_m]
+    assert len(wrong) <= 0.05 * len(recess), wrong
 
 
 def test_gap_between_boxes_is_found_on_evidence_not_a_fixed_step():
@@ -78,7 +81,8 @@ def test_gap_between_boxes_is_found_on_evidence_not_a_fixed_step():
         m = measure_distance(boxes_frame(0.2, seed), p1, p2)
         assert m.gap_detected and "gap detected" in m.reasons, m
         assert abs(m.distance_m - truth) / truth < 0.02, (m.distance_m, truth)
-        assert m.quality != "good"
+        # Its sigma is that of the end surfaces and the clicks, and covers the truth.
+        assert abs(m.distance_m - truth) <= 2 * m.uncertainty_m <= 0.1 * truth, m
         flat = measure_distance(boxes_frame(0.05, seed), p1, p2)
         assert not flat.gap_detected
 
@@ -88,7 +92,6 @@ def test_every_answer_has_a_verdict(middlebury_stress):
         if np.isfinite(r.robust_m):
             assert r.quality in ("good", "check", "unreliable")
             assert r.lo_m <= r.robust_m <= r.hi_m
-            assert r.quality != "good" or "gap detected" not in r.reasons
 
 
 def test_several_surfaces_in_simulated_rooms(sim_stress):
