@@ -271,8 +271,8 @@ def from_table(table: Mapping[str, object]) -> object:
     kind = kind.lower()
     entry = backend(kind)
     target = table.get(entry.target, "")
-    if not isinstance(target, (str, list)):
-        raise SourceError(f"{kind} {entry.target} = {target!r} must be text (or a list of text)")
+    if isinstance(target, bool) or not isinstance(target, (str, list, int, float)):
+        raise SourceError(f"{kind} {entry.target} = {target!r} must be text, a number or a list of text")
     module = importlib.import_module(entry.module)
     if not target:
         module.config_from_spec(SourceSpec(kind))  # the kind's own error when its target is required
@@ -353,7 +353,8 @@ def markdown(cls: type, target_key: str = "") -> str:
                 joined.setdefault(o.joined[0], []).append(f)
                 if len(joined[o.joined[0]]) == 2:
                     w, h = sorted(joined[o.joined[0]], key=lambda g: g.opt.joined[1])  # type: ignore[index]
-                    rows.append(f"| `{o.joined[0]}` | WxH | `{w.default}x{h.default}` | {_bounds(w)} each | {o.unit} "
+                    default = w.opt.default_text or f"`{w.default}x{h.default}`"
+                    rows.append(f"| `{o.joined[0]}` | WxH | {default} | {_bounds(w)} each | {o.unit} "
                                 f"| {w.help_text()}, {h.help_text()} |")
                 continue
             key = f"any of {', '.join(f'`{k}`' for k in o.extras())}" if o.extras is not None and len(o.extras()) < 6 \

@@ -19,25 +19,21 @@ import time
 from collections.abc import Callable, Sequence
 from concurrent.futures import Future, ThreadPoolExecutor
 from concurrent.futures import TimeoutError as FutureTimeout
-from dataclasses import dataclass, field, replace
+from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Protocol
 
 import numpy as np
 
+from measure import check_options, option
+
+from device import configs
 from device.base import SourceInfo, SourceSpec
 from device.calibration.files import CalibrationRef
 from device.calibration.stereo import StereoCalibration
 from device.errors import SourceDisconnected, SourceEnded, SourceError, SourceNotFound, SourceTimeout
 from device.sources.sgbm import SGBMConfig
-from device.sources.stereo_processing import (
-    SGBM_KEYS,
-    CALIB_KEYS,
-    FrameGrabber,
-    ProcessedPairSource,
-    calibration_from_params,
-    sgbm_from_params,
-)
+from device.sources.stereo_processing import FrameGrabber, ProcessedPairSource
 
 log = logging.getLogger(__name__)
 LAYOUTS = ("side-by-side", "two-nodes")
@@ -58,40 +54,44 @@ class StereoPairConfig:
     of a two-node pair (default: half a frame period).
     """
 
-    devices: tuple[str, ...] = ("/dev/video0",)
-    layout: str = "side-by-side"
-    fourcc: str = "MJPG"
-    width: int = 1280
-    height: int = 480
-    fps: float = 30.0
-    calibration: CalibrationRef = field(default_factory=lambda: CalibrationRef(""))
-    sgbm: SGBMConfig = field(default_factory=SGBMConfig)
-    scale: float = 1.0
-    max_skew_s: float | None = None
+    devices: tuple[str, ...] = option(("/dev/video0",), target=True, key="device", example=("/dev/video2",),
+                                      help="the V4L2 node of a side-by-side camera, or LEFT,RIGHT: one node per eye")
+    layout: str = option("", choices=LAYOUTS, default_text="side-by-side (two-nodes for two devices)",
+                         help="one camera giving both eyes side by side, or one node per eye")
+    fourcc: str = option("MJPG", case="upper", example="YUYV", help="the pixel format asked of the driver (four characters)")
+    width: int | None = option(None, joined=("size", 0), min=16, unit="px", example=640,
+                               default_text="1280x480 side-by-side, 640x480 per node", help="capture width per node")
+    height: int | None = option(None, joined=("size", 1), min=16, unit="px", example=360, help="capture height per node")
+    fps: float = option(30.0, min=0.0, max=240.0, min_open=True, unit="frames/s", help="capture frame rate asked of the driver")
+    calibration: CalibrationRef = option(factory=CalibrationRef, nested=True, help="the pair's calibration")
+    sgbm: SGBMConfig = option(factory=SGBMConfig, nested=True, help="SGBM settings")
+    scale: float = option(1.0, min=0.1, max=1.0, help="rectification and SGBM on a pair downscaled by this")
+    max_skew_s: float | None = option(None, min=0.0, min_open=True, unit="s", default_text="half a frame period",
+                                      help="largest timestamp gap of a two-node pair")
 
     def __post_init__(self) -> None:
-        if self.layout not in LAYOUTS:
-            raise SourceError(f"layout {self.layout!r} is unknown; use one of {', '.join(LAYOUTS)}")
+        if not self.layout:
+            object.__setattr__(self, "layout", "two-nodes" if len(self.devices) == 2 else "side-by-side")
+        if self.width is None or self.height is None:
+            w, h = (1280, 480) if self.layout == "side-by-side" else (640, 480)
+            object.__setattr__(self, "width", self.width or w)
+            object.__setattr__(self, "height", self.height or h)
+        check_options(self, SourceError, "v4l2 option ")
         want = 1 if self.layout == "side-by-side" else 2
         if len(self.devices) != want:
             raise SourceError(
                 f"layout {self.layout} needs {want} device node(s), got {len(self.devices)}: {', '.join(self.devices)}"
             )
         if len(self.fourcc) != 4:
-            raise SourceError(f"fourcc {self.fourcc!r} must have four characters, e.g. MJPG or YUYV")
-        if self.width < 16 or self.height < 16 or (self.layout == "side-by-side" and self.width % 2):
-            raise SourceError(f"size {self.width}x{self.height} is not valid (side-by-side needs an even width)")
-        if not (0 < self.fps <= 240):
-            raise SourceError(f"fps={self.fps} must lie in (0, 240]")
-        if not (0.1 <= self.scale <= 1.0):
-            raise SourceError(f"scale={self.scale} must lie in [0.1, 1]")
+            raise SourceError(f"v4l2 option fourcc={self.fourcc!r} must have four characters, e.g. MJPG or YUYV")
+        if self.layout == "side-by-side" and self.width % 2:  # type: ignore[operator]
+            raise SourceError(f"v4l2 option size={self.width}x{self.height}: side-by-side needs an even width")
 
     @property
     def eye_size(self) -> tuple[int, int]:
         """Size of one camera's image as captured."""
-        if self.layout == "side-by-side":
-            return (self.width // 2, self.height)
-        return (self.width, self.height)
+        w, h = int(self.width or 0), int(self.height or 0)
+        return (w // 2, h) if self.layout == "side-by-side" else (w, h)
 
 
 def open_v4l2(device: str) -> Capture:
@@ -358,27 +358,4 @@ class StereoPairSource(ProcessedPairSource):
 
 def config_from_spec(spec: SourceSpec) -> StereoPairConfig:
     """StereoPairConfig from a ``v4l2:`` spec (see the module docstring for the options)."""
-    devices = tuple(d.strip() for d in spec.target.split(",") if d.strip()) or ("/dev/video0",)
-    kwargs: dict = {"devices": devices, "layout": "side-by-side" if len(devices) == 1 else "two-nodes"}
-    for key, value in spec.params.items():
-        try:
-            if key == "size":
-                w, _, h = value.lower().partition("x")
-                kwargs["width"], kwargs["height"] = int(w), int(h)
-            elif key in ("layout", "fourcc"):
-                kwargs[key] = value if key == "layout" else value.upper()
-            elif key in ("fps", "scale", "max_skew_s"):
-                kwargs[key] = float(value)
-            elif key not in SGBM_KEYS and key not in CALIB_KEYS:
-                raise SourceError(
-                    f"unknown v4l2 option {key!r} in {str(spec)!r}; use: size, layout, fourcc, fps, scale, "
-                    f"max_skew_s, {', '.join(CALIB_KEYS)}, {', '.join(SGBM_KEYS)}"
-                )
-        except (ValueError, KeyError) as exc:
-            raise SourceError(f"v4l2 option {key}={value!r} in {str(spec)!r} is not valid") from exc
-    if kwargs["layout"] == "two-nodes" and "size" not in spec.params:
-        kwargs["width"], kwargs["height"] = 640, 480
-    kwargs["sgbm"] = sgbm_from_params(spec.params, spec)
-    kwargs["calibration"] = calibration_from_params(spec.params)
-    return StereoPairConfig(**kwargs)
-
+    return configs.from_spec(StereoPairConfig, spec)

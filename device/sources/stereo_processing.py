@@ -6,8 +6,7 @@ A :class:`FrameGrabber` yields (left, right, timestamp in s) — ``device.source
 cameras or memory, ``device.sources.video`` from files — and :class:`StereoProcessor` turns a pair into a
 :class:`measure.Frame`: rectification from the calibration (device/calibration/, ``cv2.stereoRectify``),
 SGBM (device/sources/sgbm.py), ``Z = fx * B / (d + doffs)`` in metres with disparity in pixels.
-:class:`ProcessedPairSource` is grabber + calibration + processor. The spec options shared by those
-kinds (``calib``, ``calib_units``, ``distortion`` and the SGBM options) are parsed here.
+:class:`ProcessedPairSource` is grabber + calibration + processor.
 """
 
 from __future__ import annotations
@@ -214,39 +213,3 @@ class ProcessedPairSource(SourceBase):
     def close(self) -> None:
         self.grabber.close()
         super().close()
-
-
-SGBM_KEYS = {"mode": "mode", "ndisp": "num_disparities", "block": "block_size", "p1": "p1", "p2": "p2",
-              "uniqueness": "uniqueness", "wls": "wls", "wls_lambda": "wls_lambda", "wls_sigma": "wls_sigma",
-              "lr_confidence": "lr_confidence", "speckle_window": "speckle_window", "speckle_range": "speckle_range",
-              "fill_left_band": "fill_left_band"}
-CALIB_KEYS = ("calib", "calib_units", "distortion")
-SGBM_OPTIONS = tuple(SGBM_KEYS)
-
-
-def sgbm_from_params(params: dict[str, str], spec: SourceSpec) -> SGBMConfig:
-    """The SGBMConfig of a spec's SGBM options (``ndisp``, ``block``, ``mode``, ...); others are ignored."""
-    sgbm: dict = {}
-    sgbm_types = {f.name: str(f.type) for f in fields(SGBMConfig)}
-    for key, value in params.items():
-        if key not in SGBM_KEYS:
-            continue
-        name = SGBM_KEYS[key]
-        kind = sgbm_types[name]
-        try:
-            sgbm[name] = (parse_flag(value) if "bool" in kind else value if name == "mode"
-                          else float(value) if "float" in kind else int(value))
-        except ValueError as exc:
-            raise SourceError(f"{spec.kind} option {key}={value!r} in {str(spec)!r} is not valid") from exc
-    if "mode" in sgbm and sgbm["mode"] not in MODES:
-        raise SourceError(f"SGBM mode {sgbm['mode']!r} is unknown; use one of {', '.join(MODES)}")
-    try:
-        return SGBMConfig(**sgbm)
-    except ValueError as exc:
-        raise SourceError(f"SGBM options in {str(spec)!r}: {exc}") from exc
-
-
-def calibration_from_params(params: dict[str, str]) -> CalibrationRef:
-    """The calibration a spec names: ``calib=FILE`` (or ``calib=LEFT.yaml,RIGHT.yaml`` for ROS),
-    ``calib_units=m|mm`` (unit of T in OpenCV/ROS files) and ``distortion=opencv|equidistant``."""
-    return CalibrationRef(params.get("calib", ""), params.get("calib_units", "m"), params.get("distortion") or None)

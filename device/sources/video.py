@@ -32,45 +32,54 @@ non-occluded pixels within 1 px of ground truth, 2026-12-01), FFV1 changes nothi
 from __future__ import annotations
 
 import time
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from pathlib import Path
 
 import cv2
 import numpy as np
 
+from measure import check_options, option
+
+from device import configs
 from device.base import SourceInfo, SourceSpec
 from device.calibration.files import CalibrationRef
 from device.errors import SourceEnded, SourceError, SourceNotFound
 from device.sources.sgbm import SGBMConfig
-from device.sources.stereo_processing import CALIB_KEYS, SGBM_OPTIONS, ProcessedPairSource, calibration_from_params, sgbm_from_params
+from device.sources.stereo_processing import ProcessedPairSource
 
 LAYOUTS = ("side-by-side", "top-bottom", "two-files")
 MAX_UNLISTED_MISSES = 8  # failed reads in a row that end a file whose container lists no frame count
 MAX_WARNINGS = 50
+NEEDS_FILE = "a video: spec needs a file, e.g. video:pair.mkv?layout=side-by-side&calib=stereo.yaml"
 
 
 @dataclass(frozen=True)
 class VideoConfig:
-    """Video file(s), how the eyes are laid out, calibration, playback and SGBM settings."""
+    """Video file(s), how the eyes are laid out, calibration, playback and SGBM settings; spellings,
+    bounds and help in each field's metadata (``device.configs`` parses specs, TOML and API bodies)."""
 
-    paths: tuple[str, ...]
-    layout: str = "side-by-side"
-    calibration: CalibrationRef = field(default_factory=lambda: CalibrationRef(""))
-    loop: bool = False
-    realtime: bool = False
-    sgbm: SGBMConfig = field(default_factory=SGBMConfig)
-    scale: float = 1.0
+    paths: tuple[str, ...] = option(target=True, key="path", example=("pair.mkv",),
+                                    help="one file holding both eyes, or LEFT,RIGHT: one file per eye")
+    layout: str = option("", choices=LAYOUTS, default_text="side-by-side (two-files for two files)",
+                         help="how one file holds the eyes: left | right halves, or left over right")
+    calibration: CalibrationRef = option(factory=CalibrationRef, nested=True, help="the pair's calibration")
+    loop: bool = option(False, help="start over at the end (timestamps keep increasing)")
+    realtime: bool = option(False, help="pace reads to the file's timestamps (otherwise as fast as processed)")
+    sgbm: SGBMConfig = option(factory=SGBMConfig, nested=True, help="SGBM settings")
+    scale: float = option(1.0, min=0.1, max=1.0, help="rectification and SGBM on a pair downscaled by this")
 
     def __post_init__(self) -> None:
-        if self.layout not in LAYOUTS:
-            raise SourceError(f"video layout {self.layout!r} is unknown; use side-by-side or top-bottom "
-                              "(or two files: video:LEFT,RIGHT)")
+        if not self.paths:
+            raise SourceError(NEEDS_FILE)
+        if not self.layout:
+            object.__setattr__(self, "layout", "two-files" if len(self.paths) == 2 else "side-by-side")
+        check_options(self, SourceError, "video option ")
+        if len(self.paths) == 2 and self.layout != "two-files":
+            raise SourceError(f"two files are one per eye; drop layout={self.layout} (it is for one file holding both eyes)")
         want = 2 if self.layout == "two-files" else 1
         if len(self.paths) != want:
             raise SourceError(f"video layout {self.layout} needs {want} file(s), got {len(self.paths)}: "
-                              f"{', '.join(self.paths) or 'none'}")
-        if not (0.1 <= self.scale <= 1.0):
-            raise SourceError(f"scale={self.scale} must lie in [0.1, 1]")
+                              f"{', '.join(self.paths)}")
 
 
 def split_eyes(image: np.ndarray, layout: str) -> tuple[np.ndarray, np.ndarray]:
@@ -262,29 +271,6 @@ class VideoSource(ProcessedPairSource):
                                    state="playing", extra=self.info.extra)
 
 
-_VIDEO_KEYS = ("layout", "loop", "realtime", "scale")
-
-
 def config_from_spec(spec: SourceSpec) -> VideoConfig:
     """VideoConfig from a ``video:`` spec (module docstring)."""
-    paths = tuple(p.strip() for p in spec.target.split(",") if p.strip())
-    if not paths:
-        raise SourceError("a video: spec needs a file, e.g. video:pair.mkv?layout=side-by-side&calib=stereo.yaml")
-    spec.check_keys(_VIDEO_KEYS + CALIB_KEYS + SGBM_OPTIONS)
-    layout = spec.params.get("layout", "side-by-side" if len(paths) == 1 else "two-files")
-    if len(paths) == 2 and layout != "two-files":
-        raise SourceError(f"two files are one per eye; drop layout={layout} (it is for one file holding both eyes)")
-    try:
-        scale = float(spec.params.get("scale", 1.0))
-    except ValueError as exc:
-        raise SourceError(f"scale={spec.params['scale']!r} is not a number") from exc
-    return VideoConfig(
-        paths=paths,
-        layout=layout,
-        calibration=calibration_from_params(spec.params),
-        loop=spec.flag("loop", False),
-        realtime=spec.flag("realtime", False),
-        sgbm=sgbm_from_params(spec.params, spec),
-        scale=scale,
-    )
-
+    return configs.from_spec(VideoConfig, spec, SourceError(NEEDS_FILE))

@@ -58,7 +58,7 @@ def test_opencv_sample_files_intrinsics_and_extrinsics_in_mm(tmp_path):
     no_size = _storage(tmp_path / "nosize.yml", {"M1": K1, "D1": D_PINHOLE, "M2": K2, "D2": D_PINHOLE})
     with pytest.raises(CalibrationError, match="image_width and image_height"):
         load_any(f"{no_size},{extr}", units="mm")
-    with pytest.raises(CalibrationError, match="unknown; use m or mm"):
+    with pytest.raises(CalibrationError, match="calib_units='cm' must be one of m, mm"):
         CalibrationRef(ref, units="cm")
 
 
