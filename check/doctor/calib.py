@@ -54,16 +54,16 @@ def baseline_finding(frame: Frame, kind: str, ref: CalibrationRef | None) -> Fin
     guesses = [f"{u} (it would be {1000 * b * UNITS[u]:.1f} mm)" for u in likely]
     if 1.0 <= b <= 60.0:
         guesses.append("board squares (a calibration run with square size 1: multiply T by the square side in m)")
+    unit = f"T is probably in {' or '.join(guesses)}" if guesses else f"a stereo baseline lies in {lo * 100:g} - {hi * 100:g} cm"
     if ref is not None:
         to = "add calib_units=mm to the source spec" if "mm" in likely else "convert T in the file to metres"
-        fix = f"T is probably in {' or '.join(guesses) or 'another unit'}; {to}, or recalibrate: depthruler calibrate"
+        fix = f"{unit}; {to}, or recalibrate: depthruler calibrate"
     elif kind == "replay":
-        fix = "the recording carries its source's baseline: fix that source's calibration and record again"
+        fix = f"{unit}; the recording carries its source's baseline: fix that source's calibration and record again"
     elif kind == "oak":
-        fix = "the on-board calibration is off: recalibrate the OAK with Luxonis' calibration tool"
+        fix = f"{unit}; the on-board calibration is off: recalibrate the OAK with Luxonis' calibration tool"
     else:
-        fix = f"a stereo baseline lies between {lo * 100:g} cm and {hi * 100:g} cm; check the calibration" + (
-            f" (T is probably in {' or '.join(guesses)})" if guesses else "")
+        fix = f"{unit}; check the source's calibration"
     return Finding("baseline", "fail", f"{measured}: outside {lo * 100:g} cm - {hi * 100:g} cm", fix, figures)
 
 

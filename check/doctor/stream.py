@@ -24,7 +24,7 @@ from check.doctor.findings import Finding
 
 FPS_SHARE_WARN = 0.8  # delivered below 80 % of the source's own rate: frames are being lost on the way
 FILL_WARN, FILL_FAIL = 0.6, 0.3  # share of pixels with depth in the centre of the view
-DROP_GAP = 1.5  # a timestamp step over 1.5 x the median step counts as dropped frames
+DROP_GAP = 1.5  # a timestamp step over 1.5 x the due step counts as dropped frames
 
 
 @dataclass(frozen=True)
@@ -117,7 +117,9 @@ def timestamps_finding(w: Window) -> Finding:
     back, same = int(np.sum(steps < 0)), int(np.sum(steps == 0))
     pos = steps[steps > 0]
     median = float(np.median(pos)) if pos.size else math.nan
-    dropped = int(np.sum(np.maximum(np.round(pos / median) - 1, 0)[pos > DROP_GAP * median])) if pos.size else 0
+    # a frame's due step is the source's own rate where it states one, else the median step seen
+    due = 1.0 / w.info.fps if w.info.fps else median
+    dropped = int(np.sum(np.maximum(np.round(pos / due) - 1, 0)[pos > DROP_GAP * due])) if pos.size else 0
     figures = {"frames": int(t.size), "backwards": back, "repeated": same, "median_step_s": None if math.isnan(median) else median,
                "device_fps": None if math.isnan(median) else 1.0 / median, "dropped": dropped}
     rate = f", steps of {1000 * median:.1f} ms ({1 / median:.1f} fps on the device clock)" if pos.size else ""
