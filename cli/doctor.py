@@ -14,7 +14,7 @@ BOARD_OPTIONS = ("squares", "square_mm", "marker_mm", "dictionary", "board_paper
 def doctor(
     ctx: typer.Context,
     source: str | None = typer.Option(None, "--source", help="Source spec to check, e.g. oak, sim, replay:DIR, "
-                                      "video:pair.mkv?layout=side-by-side&calib=stereo.yaml (default: the attached camera)."),
+                                      "video:pair.mkv?layout=side-by-side&calib=stereo.yaml; left out, the attached camera."),
     window_s: float = typer.Option(10.0, "--window", min=0.1, max=600.0, help="Seconds to read frames for (fps, timestamps)."),
     json_out: bool = typer.Option(False, "--json", help="Print the findings as JSON."),
     squares: str = board_options.squares_option(),
