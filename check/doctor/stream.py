@@ -80,6 +80,7 @@ def _slow_fix(kind: str) -> str:
         "oak": "use a USB3 port and cable, lower fps= or the size, and close other programs using the OAK",
         "v4l2": "ask the camera for MJPEG at this size, lower size= or scale=, or ndisp= (SGBM's cost grows with it)",
         "bag": "the bag is read as fast as it decodes; nothing to fix unless it is far below the recorded rate",
+        "replay": "the recording is read as fast as its PNGs decode: expect it on a slow host",
     }.get(kind, "the host computes frames slower than this rate: lower width=/height= (or scale=), or expect it")
 
 
@@ -134,7 +135,9 @@ def timestamps_finding(w: Window) -> Finding:
     if same:
         return Finding("timestamps", "warn", measured, "repeated timestamps: the source sends a frame twice", figures)
     if dropped > 0.05 * t.size:
-        return Finding("timestamps", "warn", measured, "frames are dropped on the way: " + _slow_fix(w.info.kind), figures)
+        fix = ("the recording has gaps: it was written slower than its source's rate; record again at a lower fps= or size"
+               if w.info.kind == "replay" else "frames are dropped on the way: " + _slow_fix(w.info.kind))
+        return Finding("timestamps", "warn", measured, fix, figures)
     return Finding("timestamps", "pass", measured, "", figures)
 
 
