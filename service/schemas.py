@@ -256,6 +256,8 @@ class SourceStatusOut(_Out):
     width: int
     height: int
     fps: float
+    depth: dict[str, Any] | None = Field(None, description="the depth post-processing the device applies "
+                                         "(an OAK's stereo filters, confidence threshold, baseline); None where the source does not say")
     measured_fps: float
     frames: int
     retries: int
