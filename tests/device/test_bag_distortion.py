@@ -70,3 +70,22 @@ def test_inverse_brown_conrady_maps_invert_librealsense_deprojection():
     u, v = np.meshgrid(np.arange(CAM.width), np.arange(CAM.height))
     assert np.abs(ux - u).max() < 0.01 and np.abs(uy - v).max() < 0.01
     assert np.abs(mx - u).max() > 3  # the distortion is not negligible at the corners
+
+
+def test_modified_brown_conrady_is_librealsense_projection():
+    """librealsense's D400 colour model: radial first, tangential on the radially distorted point. Without
+    tangential terms it is plumb_bob; with them the two differ, and the map follows librealsense."""
+    radial = (-0.1, 0.03, 0.0, 0.0, 0.004)
+    plumb = undistort_maps(CAM, Distortion("plumb_bob", radial))
+    modified = undistort_maps(CAM, distortion_from_info(_info("Modified Brown Conrady", radial), "t"))
+    assert np.abs(plumb[0] - modified[0]).max() < 1e-3 and np.abs(plumb[1] - modified[1]).max() < 1e-3
+    k1, k2, p1, p2, k3 = c = (-0.1, 0.03, 0.004, -0.003, 0.004)
+    mx, my = undistort_maps(CAM, Distortion("modified_brown_conrady", c))
+    x, y = (639 - CAM.cx) / CAM.fx, (359 - CAM.cy) / CAM.fy  # the bottom-right pixel, by librealsense's formula
+    r2 = x * x + y * y
+    f = 1 + k1 * r2 + k2 * r2**2 + k3 * r2**3
+    x, y = x * f, y * f
+    want = (x + 2 * p1 * x * y + p2 * (r2 + 2 * x * x)) * CAM.fx + CAM.cx, (y + 2 * p2 * x * y + p1 * (r2 + 2 * y * y)) * CAM.fy + CAM.cy
+    assert (mx[359, 639], my[359, 639]) == pytest.approx(want, abs=1e-3)
+    opencv = undistort_maps(CAM, Distortion("plumb_bob", c))
+    assert abs(opencv[0][359, 639] - mx[359, 639]) > 0.01  # the order of the terms shows at the corner
