@@ -8,7 +8,8 @@ colour bilinearly, depth by nearest neighbour (no depth invented between surface
 k6 [s1..s4 [tx ty]]]]), the Viewer's ``Brown Conrady`` (the same forward model), ``Modified Brown
 Conrady`` (tangential terms on the radially distorted point) and ``Inverse Brown Conrady``
 (librealsense's colour model: the polynomial maps distorted to undistorted coordinates).
-All-zero coefficients are no distortion whatever the model.
+All-zero coefficients are no distortion whatever the model. Why and what it changes:
+docs/decisions/bag-source.md ("Distortion").
 """
 
 from __future__ import annotations

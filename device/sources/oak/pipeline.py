@@ -28,7 +28,8 @@ def measurement_filters(stereo_config: dai.StereoDepthConfig) -> dai.StereoDepth
       depth in the gaps at object edges, exactly where people click.
 
     Median, speckle and threshold filters, which remove or smooth but do not invent depth, keep the
-    preset's values. Returns the same (mutated) object.
+    preset's values. Returns the same (mutated) object. The presets' values and why:
+    docs/decisions/oak-depth-processing.md.
     """
     pp = stereo_config.postProcessing
     pp.temporalFilter.enable = False
