@@ -2,7 +2,8 @@
 
 Steps (metres, px): the point is where the click's viewing ray meets the robust plane of the window
 around it (``measure.planes.fit_plane``, Eq. 9-10); the base is the robust plane of a clicked polygon,
-or the plane the clicked surface stands on (``measure.support.support_plane``); the height is the
+or the plane the clicked surface stands on: the dense level parallel to it below it
+(``measure.support.parallel_support``), else the dominant plane around it (``support_plane``); the height is the
 signed distance n . P + o of the point from the base (Eq. 12). Its one-sigma adds in quadrature the
 two planes' covariances (propagated with their sigma points) and the click's ``click_px`` along x and
 y, times ``HEIGHT_SIGMA_SCALE`` (docs/decisions/shape-uncertainty.md).
@@ -19,10 +20,11 @@ import numpy as np
 from measure.planes import SEED_HALF_PX, Plane, fit_plane, grow_plane, sigma_of
 from measure.sampling import check_point
 from measure.shape_types import ShapeMeasurement
-from measure.support import check_options, check_points, polygon_mask, support_plane, verdict
+from measure.support import check_options, check_points, parallel_support, polygon_mask, support_plane, verdict
 from measure.types import Frame, MeasureError, MeasureOptions
 
 HEIGHT_SIGMA_SCALE = 1.0
+MIN_DROP_M = 0.02  # a level this close below the top is the top's own noise, not a base
 EDGE_SHARE = 0.6  # a click window with fewer of its pixels on its plane straddles an edge
 
 
@@ -94,7 +96,12 @@ def measure_height(frame: Frame, point: tuple[float, float], base: Sequence[tupl
         clicks = ((x, y), *(tuple(v) for v in verts))
     else:
         grown = grow_plane(frame, (x, y), opts.seed)
-        floor = support_plane(frame, grown.mask, top.points_at(x, y), seed=opts.seed)
+        # A level top (a box, a table) stands on a parallel level: the ring's dense level below it is the
+        # floor or table alone, where a plane fit on the whole ring can tilt across side faces and a
+        # second level (a box on a table). Other tops take the ring's dominant plane.
+        floor = parallel_support(frame, grown.mask, grown.plane, seed=opts.seed, min_drop_m=MIN_DROP_M)
+        if floor is None:
+            floor = support_plane(frame, grown.mask, top.points_at(x, y), seed=opts.seed)
         if floor is None:
             raise MeasureError("no plane found under the point; click three or more points around a region of "
                                "the floor or table to measure from")
