@@ -1,7 +1,7 @@
 """Height of a clicked point above a plane: the floor or a table, clicked as a region or found under the point.
 
 Steps (metres, px): the point is where the click's viewing ray meets the robust plane of the window
-around it (``measure.planes.fit_plane``, Eq. 9-10); the base is the robust plane of a clicked polygon,
+around it (``measure.planes.fit_plane``, Eq. 9-10); the base is the robust plane of a clicked polygon or grown from one click,
 or the plane the clicked surface stands on: the dense level parallel to it below it
 (``measure.support.parallel_support``), else the dominant plane around it (``support_plane``); the height is the
 signed distance n . P + o of the point from the base (Eq. 12). Its one-sigma adds in quadrature the
@@ -72,16 +72,16 @@ def measure_height(frame: Frame, point: tuple[float, float], base: Sequence[tupl
 
     Args:
         frame: the frame; ``point`` a click on the object (its top, or any point of it).
-        base: three or more clicks (x, y px) around a region of the floor or table to measure from,
-            or None to take the plane the clicked surface stands on.
+        base: the floor or table to measure from: one click (x, y px) on it (its plane grown from
+            there), or three or more around a region of it; None: the plane the clicked surface stands on.
         options: ``click_px`` and ``seed`` are used.
 
     Returns:
         A :class:`ShapeMeasurement` of kind "height" whose ``points_m`` are the point and its foot.
 
     Raises:
-        MeasureError: a click outside the image or on no surface with depth, a base of fewer than three
-            clicks, or no plane found under the point.
+        MeasureError: a click outside the image or on no surface with depth, a base of two clicks, or no
+            plane found under the point.
     """
     t0 = time.perf_counter()
     opts = check_options(options)
@@ -91,8 +91,14 @@ def measure_height(frame: Frame, point: tuple[float, float], base: Sequence[tupl
     if top.n_support < EDGE_SHARE * top.n_points:
         reasons.append("point on a depth edge")
     if base is not None:
-        verts = check_points(frame, base, 3, "a base region")
-        floor = region_plane(frame, verts, opts.seed, erode_px=3)
+        verts = check_points(frame, base, 1, "a base")
+        if len(verts) == 1:  # one click on the base: the plane grown from it over its surface
+            floor = grow_plane(frame, tuple(verts[0]), opts.seed).plane
+        elif len(verts) == 2:
+            raise MeasureError("a base is one click on the floor or table, or at least 3 clicks around a region of it; "
+                               "got 2: add a click")
+        else:
+            floor = region_plane(frame, verts, opts.seed, erode_px=3)
         clicks = ((x, y), *(tuple(v) for v in verts))
     else:
         grown = grow_plane(frame, (x, y), opts.seed)

@@ -55,6 +55,9 @@ def test_height_above_a_clicked_base_region():
     assert abs(m.value - case.height_m) / case.height_m <= 0.03, (m.value, case.height_m)
     assert abs(m.value - case.height_m) <= 2.5 * m.uncertainty
     assert len(m.clicks_px) == 5
+    # One click on the floor: its plane grown from there.
+    one = measure_height(case.frame, case.click_px, base=[(x, H - 20)])
+    assert abs(one.value - case.height_m) / case.height_m <= 0.03, (one.value, case.height_m)
 
 
 def test_height_base_of_two_clicks_is_refused():
