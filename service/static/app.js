@@ -59,6 +59,7 @@ const state = {
   active: 0,          // the handle the keyboard moves
   dirty: false,       // the points moved since the last measurement (keyboard nudges wait for Enter)
   nudging: false,     // the keyboard is moving a handle (the loupe shows it)
+  saved: null,        // the history record reopened on screen (until the points change or the view goes live)
 };
 
 // ---- HTTP ---------------------------------------------------------------------------------------
@@ -268,14 +269,25 @@ function updateFreezeButton() {
   b.classList.toggle("frozen", state.mode !== "live");
 }
 
+// "frame k of n" (1-based) of a frame from a recording; n from the source's status ("frame k" when unknown).
+function framePosition(index, frames) {
+  if (index === null || index === undefined) return "";
+  return frames > 0 ? `frame ${index + 1} of ${frames}` : `frame ${index + 1}`;
+}
+
 function updateTag() {
   const f = state.frame;
   const tag = $("frame-tag");
   canvas.dataset.frozen = state.mode === "frozen" ? "1" : "";
   if (!f) { tag.textContent = ""; return; }
-  const word = state.mode === "frozen" ? "frozen" : state.mode === "freezing" ? "freezing…" : "live";
-  const replay = f.replay_index !== null && f.replay_index !== undefined ? ` · replay #${f.replay_index}` : "";
-  tag.textContent = `${word} · frame ${f.id}${replay} · ${f.width}×${f.height}`;
+  const saved = state.saved && state.mode === "frozen" ? state.saved : null;
+  const word = saved ? `saved #${saved.id}` : state.mode === "frozen" ? "frozen" : state.mode === "freezing" ? "freezing…" : "live";
+  const r = state.source && state.source.replay;
+  const index = saved && saved.frame_index !== undefined ? saved.frame_index : f.replay_index;
+  const pos = framePosition(index, r ? r.frames : 0);
+  const where = saved && saved.recording ? ` · ${saved.recording}` : "";
+  tag.textContent = `${word}${where}${pos ? " · " + pos : ""} · id ${f.id} · ${f.width}×${f.height}`;
+  tag.dataset.index = index === null || index === undefined ? "" : String(index);
 }
 
 async function setView(view) {
@@ -855,6 +867,7 @@ async function measure(adjusting) {
   const previous = adjusting && state.result ? state.result.id : null;
   const body = { frame_id: state.frame.id, p1: state.points[0], p2: state.points[1], options: { method: state.method, click_px: clickPx() } };
   state.dirty = false;
+  if (state.saved) { state.saved = null; showSaved(); }
   if (state.frames > 1 && state.method === "robust") body.frames = state.frames; // pooling is the robust method's
   $("hint").textContent = "Measuring…";
   let res;
@@ -932,7 +945,27 @@ function endState(res, i) {
   return nearest > Math.max(5, 0.15 * length) ? "extrapolated" : "measured";
 }
 
+// What a history record says about where it came from: "replay desk · frame 3", or the live source.
+function sourceLabel(m) {
+  const kind = m.source_kind || "";
+  const index = m.frame_index !== undefined && m.frame_index !== null ? ` · frame ${m.frame_index + 1}` : "";
+  if (["replay", "bag", "video"].includes(kind)) return `${kind} ${m.recording || ""}`.trim() + index;
+  return kind || m.source;
+}
+
+// A reopened measurement is marked as the saved one, with when and where it was made.
+function showSaved() {
+  const el = $("saved");
+  const m = state.saved;
+  el.classList.toggle("hidden", !m);
+  el.dataset.id = m ? String(m.id) : "";
+  if (m) el.textContent = `Saved measurement #${m.id}${m.name ? " “" + m.name + "”" : ""} · ${new Date(m.created * 1000).toLocaleString()} · ${sourceLabel(m)}`;
+  updateTag();
+}
+
 function showResult(res) {
+  if (!res || !state.saved || res.id !== state.saved.id) state.saved = null;
+  showSaved();
   showError("");
   const d = $("distance");
   const verdict = $("verdict");
@@ -1014,6 +1047,7 @@ function clearPoints() {
   state.press = null;
   state.dirty = false;
   state.nudging = false;
+  state.saved = null;
   state.seq++;
   loupe.classList.add("hidden");
   showResult(null);
@@ -1105,7 +1139,7 @@ function historyItem(m) {
     const dot = Object.assign(document.createElement("span"), { className: `qdot v-${m.quality}`, title: m.quality });
     text.querySelector(".h-dist").prepend(dot);
   }
-  text.querySelector(".h-meta").textContent = `${m.source} · ${m.method} · ${when}${m.warnings.length ? " · ⚠ " + m.warnings.length : ""}`;
+  text.querySelector(".h-meta").textContent = `${sourceLabel(m)} · ${m.method} · ${when}${m.warnings.length ? " · ⚠ " + m.warnings.length : ""}`;
   text.querySelector(".h-meta").title = [...(m.reasons || []), ...m.warnings].join("\n");
   text.querySelector(".h-note").textContent = m.note || "";
   const edit = Object.assign(document.createElement("button"), { className: "h-btn h-edit", title: "Name and note", textContent: "✎" });
@@ -1188,6 +1222,7 @@ function reopen(id) {
       if (!(await showFrame(frame, gen))) return false;
       state.mode = "frozen";
       resetZoom();
+      state.saved = measurement;
       state.points = [measurement.p1, measurement.p2];
       state.result = measurement;
       state.seq++;
@@ -1207,7 +1242,7 @@ function reopen(id) {
 // ---- source: badge, status, replay controls, recording ------------------------------------------
 function sourceBadge(s) {
   const kind = s.kind || (s.spec || "").split(":")[0];
-  if (kind === "replay") return ["replay", `REPLAY ${(s.replay && s.replay.recording) || s.name || ""}`];
+  if (kind === "replay" || kind === "bag" || kind === "video") return [kind, `${kind.toUpperCase()} ${(s.replay && s.replay.recording) || s.name || ""}`.trim()];
   if (kind === "sim") return ["sim", "SIMULATOR"];
   if (!kind) return ["", "source"];
   const fps = s.fps ? ` · ${(+s.fps).toFixed(0)} fps` : "";
@@ -1224,7 +1259,7 @@ async function pollSource() {
     const b = $("source-badge");
     b.className = `badge badge-${cls0}`;
     b.textContent = badge;
-    b.title = s.replay ? `recording ${s.replay.recording} of ${s.replay.recorded_source} (${s.replay.frames} frames)` : `${s.name || ""} ${s.spec || ""}`.trim();
+    b.title = s.replay ? `${s.replay.kind} ${s.replay.recording}${s.replay.recorded_source ? " of " + s.replay.recorded_source : ""} (${s.replay.frames || "?"} frames)` : `${s.name || ""} ${s.spec || ""}`.trim();
     b.dataset.kind = cls0;
     const size = s.width ? ` · ${s.width}×${s.height}` : "";
     const fps = s.measured_fps ? ` · ${s.measured_fps.toFixed(1)} fps` : s.fps ? ` · ${s.fps} fps` : "";
@@ -1264,6 +1299,7 @@ function showReplay(r) {
   $("replay-play").textContent = r.paused ? "Play" : "Pause";
   bar.dataset.paused = r.paused ? "1" : "";
   $("replay-scrub").max = String(Math.max(0, r.frames - 1));
+  $("replay-scrub").disabled = !(r.frames > 0); // a video that does not list its frames: pause and step only
   $("replay-pos").dataset.frames = String(r.frames);
   showReplayPosition();
 }
@@ -1276,7 +1312,7 @@ function showReplayPosition() {
   const index = f && f.replay_index !== null && f.replay_index !== undefined ? f.replay_index : r ? r.index : null;
   const scrub = $("replay-scrub");
   if (document.activeElement !== scrub && index !== null) scrub.value = String(index);
-  pos.textContent = `frame ${index === null ? "—" : index} / ${pos.dataset.frames || "—"}`;
+  pos.textContent = index === null ? "—" : framePosition(index, Number(pos.dataset.frames) || 0);
   pos.dataset.index = index === null ? "" : String(index);
 }
 
