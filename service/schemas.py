@@ -195,7 +195,9 @@ class TruthOut(_Out):
 
 class FrameOut(_Out):
     """A frame of the ring: ``id`` for this service run, ``uid`` for the history; size in pixels,
-    times in seconds since the epoch; ``replay_index`` the frame's index in a replayed recording."""
+    times in seconds since the epoch; ``replay_index`` the frame's 0-based index in the recording it is
+    played from (a replay, a bag, a video file) and ``recording`` that recording's name; None and ""
+    for a live source."""
 
     id: int
     uid: str
@@ -208,6 +210,7 @@ class FrameOut(_Out):
     meta: dict[str, str | int | float | bool | None]
     truth: TruthOut | None
     replay_index: int | None
+    recording: str
 
 
 class DepthOut(_Out):
@@ -250,6 +253,11 @@ class HealthOut(_Out):
 
 
 class ReplayStatusOut(_Out):
+    """A recorded source's position: ``kind`` "replay", "bag" or "video"; ``index`` (0-based) of the
+    last frame delivered; ``frames`` in the recording (0: unknown, e.g. a video whose container does not
+    list them); ``recording`` its name; ``recorded_source`` the source a native recording was made from."""
+
+    kind: str
     paused: bool
     index: int | None
     frames: int
@@ -277,6 +285,8 @@ class SourceStatusOut(_Out):
     width: int
     height: int
     fps: float
+    depth: dict[str, Any] | None = Field(None, description="the depth post-processing the device applies "
+                                         "(an OAK's stereo filters, confidence threshold, baseline); None where the source does not say")
     measured_fps: float
     frames: int
     retries: int

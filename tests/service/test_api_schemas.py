@@ -101,7 +101,7 @@ def test_real_answers_validate_against_the_documented_models(client):
 def test_extra_fields_in_a_frame_answer_are_caught():
     """The check above can fail: an answer with a key the model does not declare is refused."""
     good = {"id": 1, "uid": "u", "width": 2, "height": 2, "timestamp": 0.0, "received": 0.0, "frozen": False,
-            "source": "sim", "meta": {}, "truth": None, "replay_index": None}
+            "source": "sim", "meta": {}, "truth": None, "replay_index": None, "recording": ""}
     schemas.FrameOut.model_validate(good)
     with pytest.raises(ValueError):
         schemas.FrameOut.model_validate({**good, "depth": 3})
