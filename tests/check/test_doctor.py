@@ -99,6 +99,11 @@ def test_timestamps_backwards_fail_and_drops_warn():
     assert drops.status == "warn" and drops.figures["dropped"] == 4
     even = timestamps_finding(window([i / 30 for i in range(30)]))
     assert even.status == "pass" and even.figures["device_fps"] == pytest.approx(30.0)
+    free = Window(SourceInfo(kind="sim", name="sim", fps=0.0), (0, 1, 2, 3), (0.0, 0.1, 0.5, 0.6), None, (), 1.0)
+    assert timestamps_finding(free).figures["dropped"] == 0  # no rate stated: nothing was due, nothing dropped
+    from check.doctor import Finding
+
+    assert Finding("fill", "warn", "x", figures={"fov_deg": float("nan")}).to_dict()["figures"]["fov_deg"] is None
 
 
 def _usb_device(root, name, vid, pid, speed, bus=1, dev=2, uvc=False):
