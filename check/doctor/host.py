@@ -99,7 +99,10 @@ def _speed(cams: Sequence[UsbCamera]) -> Finding:
     for c in cams:
         link = "USB3" if c.speed_mbps >= USB3_MBPS else "USB2" if c.speed_mbps >= 480 else "USB1"
         parts.append(f"{c.product} {c.usb_id} at {c.speed_mbps:g} Mbit/s ({link}){f', {c.state}' if c.oak else ''}")
-        if c.speed_mbps >= USB3_MBPS or (not c.oak and c.speed_mbps >= 480):
+        if c.oak and c.state in ("unbooted", "bootloader"):
+            parts[-1] += " (not booted: an OAK boots over USB2 and comes back at its link's speed once opened)"
+            states.append("skip")
+        elif c.speed_mbps >= USB3_MBPS or (not c.oak and c.speed_mbps >= 480):
             states.append("pass")
         elif c.oak and c.speed_mbps >= 480:
             states.append("warn")
@@ -109,7 +112,8 @@ def _speed(cams: Sequence[UsbCamera]) -> Finding:
             states.append("fail")
             fixes.append(f"{c.name}: a {c.speed_mbps:g} Mbit/s link cannot carry video: use another port or cable")
     figures = {"speed_mbps": [c.speed_mbps for c in cams], "usb_id": [c.usb_id for c in cams]}
-    return Finding("usb-speed", worst(states), "; ".join(parts), "; ".join(fixes), figures)
+    status = "skip" if set(states) == {"skip"} else worst(states)
+    return Finding("usb-speed", status, "; ".join(parts), "; ".join(fixes), figures)
 
 
 def _permission(cams: Sequence[UsbCamera], kind: str, video_root: Path, video_sys: Path) -> Finding:

@@ -1,6 +1,7 @@
 """`depthruler doctor` as one function: every check on one source, in the order a person would fix them.
 
-Host first (versions, USB speed and permissions), then the stream (does it open, frames and their rate,
+Host first (versions, then USB speed and permissions, read once the source is open: an OAK boots over
+USB2 and re-enumerates at its link's speed), then the stream (does it open, frames and their rate,
 timestamps, registration, fill), then the calibration the frames carry (baseline, intrinsics,
 rectification error), then the board check when a board is in view. A check that cannot run
 because an earlier one failed (no frame) is listed with status "skip", so every check is reported.
@@ -45,22 +46,26 @@ def run_doctor(spec: str, *, window_s: float = WINDOW_S, board: BoardSpec | None
         kind = SourceSpec.parse(spec).kind
     except SourceError as exc:
         return DoctorReport(spec, (Finding("open", "fail", str(exc), "fix the --source spec"),))
-    found = host.version_findings(kind) + host.usb_findings(kind, sys_root, dev_root)
+    found = host.version_findings(kind)
     progress(f"opening {spec}")
     t0 = time.monotonic()
     try:
         src = make_source(spec)
         src.open()
     except SourceError as exc:  # the message says what to plug in, install or fix
+        found += host.usb_findings(kind, sys_root, dev_root)
         found.append(Finding("open", "fail", f"{spec} does not open: {exc}", _open_fix(kind)))
         found += [Finding(name, "skip", "the source did not open") for name in AFTER_OPEN]
         return DoctorReport(spec, tuple(found))
     try:
         opened_s = time.monotonic() - t0
         info = src.info
+        # read while the source is open: an OAK boots over USB2 and re-enumerates at its real speed
+        usb = host.usb_findings(kind, sys_root, dev_root)
         said = info.extra.get("usb_speed") if isinstance(info.extra, dict) else None
         if said:  # an OAK source that states DepthAI's dai.UsbSpeed of the open device
-            found = [host.with_depthai_speed(f, said) if f.check == "usb-speed" else f for f in found]
+            usb = [host.with_depthai_speed(f, said) if f.check == "usb-speed" else f for f in usb]
+        found += usb
         found.append(Finding("open", "pass", f"{info.name} ({info.kind}, serial {info.serial or '-'}) opened in {opened_s:.1f} s",
                              "", {"open_s": opened_s, "kind": info.kind, "serial": info.serial}))
         progress(f"reading for {window_s:g} s")

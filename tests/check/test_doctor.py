@@ -132,6 +132,9 @@ def test_usb_speed_and_permission_from_sysfs(tmp_path):
     (tmp_path / "bare").mkdir()
     assert usb_findings("oak", tmp_path / "bare", dev_root)[0].status == "fail"  # no OAK on the bus
     assert usb_findings("replay", sys_root, dev_root)[0].status == "skip"
+    (sys_root / "2-1" / "idProduct").write_text("2485\n")  # unbooted: enumerates at USB2 until DepthAI boots it
+    (sys_root / "2-1" / "speed").write_text("480\n")
+    assert usb_findings("oak", sys_root, dev_root)[0].status == "skip"
     # what DepthAI says of the open OAK (dai.UsbSpeed): a USB2 link warns even where sysfs is not visible
     blind = usb_findings("oak", tmp_path / "empty-sys", dev_root)[0]
     assert with_depthai_speed(blind, "UsbSpeed.HIGH").status == "warn" and with_depthai_speed(blind, "SUPER").status == "pass"
