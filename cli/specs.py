@@ -60,14 +60,18 @@ def source_spec(text: str) -> str:
     kind, colon, _ = head.partition(":")
     if not head or kind.lower() in BACKENDS:
         return text
-    parts = [Path(p).expanduser() for p in head.split(",")]
-    if len(parts) == 2 and all(p.is_file() and p.suffix.lower() in VIDEO_SUFFIXES for p in parts):
-        return f"video:{text}"
-    path = parts[0] if len(parts) == 1 else Path(head).expanduser()
-    if path.exists():
-        found = _kind_of(path)
-        if found:
-            return f"{found}:{text}"
+    try:  # a name the file system cannot hold (too long, a NUL byte, ~nouser) is no existing path
+        parts = [Path(p).expanduser() for p in head.split(",")]
+        if len(parts) == 2 and all(p.is_file() and p.suffix.lower() in VIDEO_SUFFIXES for p in parts):
+            return f"video:{text}"
+        path = parts[0] if len(parts) == 1 else Path(head).expanduser()
+        exists = path.exists()
+        found = _kind_of(path) if exists else None
+    except (OSError, ValueError, RuntimeError):
+        exists, found = False, None
+    if found:
+        return f"{found}:{text}"
+    if exists:
         what = "folder" if path.is_dir() else "file"
         holds = ("no recording (manifest.json), ROS 2 bag (metadata.yaml), Middlebury scene (im0.png, calib.txt) "
                  "or depth PNGs (depth/*.png)") if what == "folder" else (

@@ -9,6 +9,8 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
 from typer.testing import CliRunner
 
 from cli.main import app
@@ -183,3 +185,15 @@ def test_saved_frames_go_where_the_help_and_the_manual_say(tmp_path):
     for page in ("docs/operating.md", "docs/decisions/full-disk.md"):
         text = (ROOT / page).read_text()
         assert "<db stem>-frames/" in text and "<db>-frames" not in text, page
+
+
+@given(st.one_of(st.text(max_size=40), st.text(max_size=8).map(lambda t: "x" * 300 + t), st.sampled_from(["~nouser/r", "a\x00b", ","])))
+@settings(max_examples=60, deadline=None, database=None)
+def test_any_typed_source_is_a_spec_or_a_typed_refusal(text):
+    """Names the file system cannot hold (too long, a NUL byte, an unknown ~user) are refused like any missing path."""
+    from device.errors import SourceError
+
+    try:
+        assert isinstance(source_spec(text), str)
+    except SourceError as exc:
+        assert "no source kind" in str(exc) or " but holds " in str(exc)
