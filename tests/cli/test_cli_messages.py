@@ -197,3 +197,16 @@ def test_any_typed_source_is_a_spec_or_a_typed_refusal(text):
         assert isinstance(source_spec(text), str)
     except SourceError as exc:
         assert "no source kind" in str(exc) or " but holds " in str(exc)
+
+
+def test_serve_and_record_take_a_bare_recording_folder(recording, tmp_path, monkeypatch):
+    import uvicorn
+    from server_process import free_port
+
+    monkeypatch.setattr(uvicorn, "run", lambda app, **kw: None)
+    served = CliRunner().invoke(app, ["serve", "--source", str(recording), "--port", str(free_port()), "--db", str(tmp_path / "s.db")])
+    assert served.exit_code == 0, served.output
+    assert f"source replay:{recording};" in served.stderr
+    copied = CliRunner().invoke(app, ["record", "--source", str(recording), "--out", str(tmp_path / "copy"), "--frames", "2"])
+    assert copied.exit_code == 0, copied.output
+    assert "2 frames" in copied.stdout and (tmp_path / "copy" / "manifest.json").is_file()
