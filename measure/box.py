@@ -30,7 +30,7 @@ from measure.height import height_above
 from measure.planes import INLIER_SIGMAS, GrownPlane, Plane, grow_plane, sigma_of
 from measure.sampling import check_point
 from measure.shape_types import BoxMeasurement
-from measure.support import angle_deg, check_options, parallel_support, verdict
+from measure.support import angle_deg, check_options, cross2, parallel_support, verdict
 from measure.types import Frame, MeasureError, MeasureOptions
 
 BOX_SIGMA_SCALE = 1.0
@@ -273,7 +273,7 @@ def measure_box(frame: Frame, click_px: tuple[float, float], options: MeasureOpt
         return np.stack([top.fx * p[:, 0] / p[:, 2] + top.cx, top.fy * p[:, 1] / p[:, 2] + top.cy], 1)
 
     cpx = to_px(corners)
-    rect_px_area = 0.5 * abs(float(np.cross(cpx[1] - cpx[0], cpx[2] - cpx[0]) + np.cross(cpx[2] - cpx[0], cpx[3] - cpx[0])))
+    rect_px_area = 0.5 * abs(float(cross2(cpx[1] - cpx[0], cpx[2] - cpx[0]) + cross2(cpx[2] - cpx[0], cpx[3] - cpx[0])))
     fill = n_top / rect_px_area if rect_px_area > 0 else 0.0
     if fill < FILL_MIN:
         reasons.append(f"top face not rectangular ({100 * fill:.0f} % of its rectangle)")

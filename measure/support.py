@@ -111,6 +111,12 @@ def support_plane(frame: Frame, mask: np.ndarray, top_m: np.ndarray, parallel_to
     return None
 
 
+def cross2(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """z of the cross product of 2D vectors (..., 2): a_x b_y - a_y b_x (np.cross of 2-vectors is deprecated)."""
+    a, b = np.asarray(a, float), np.asarray(b, float)
+    return a[..., 0] * b[..., 1] - a[..., 1] * b[..., 0]
+
+
 def polygon_mask(shape: tuple[int, int], vertices: np.ndarray) -> np.ndarray:
     """Pixels inside the polygon of ``vertices`` (n x 2, x y px) (H x W bool)."""
     import cv2

@@ -22,6 +22,8 @@ from typing import Any
 from device import CalibrationError, Source, SourceEnded, SourceInfo, SourceTimeout
 from measure import Frame
 
+from service.provenance import RECORDED_KINDS, recorded_index
+
 
 class FrameGone(KeyError):
     """The frame id was evicted from the ring buffer (HTTP 410)."""
@@ -370,19 +372,22 @@ class Capture:
                 "frames": self._frames,
                 "retries": self._retries,
                 "retry_in_s": retry_in,
-                "replay": self._replay_status(info) if info and info.kind == "replay" else None,
+                "replay": self._replay_status(info) if info and info.kind in RECORDED_KINDS else None,
                 "timeouts": self._timeouts,
                 "warnings": list(self._warnings)[-10:],
             }
 
     def _replay_status(self, info: SourceInfo) -> dict[str, Any]:
         path = str(info.extra.get("path", "") or "")
+        replay = info.kind == "replay"
         return {
+            "kind": info.kind,
             "paused": self._paused,
             "index": self._replay_index,
             "frames": int(info.extra.get("frames", 0) or 0),
-            "recording": path.rstrip("/").rsplit("/", 1)[-1],
-            "recorded_source": info.name,
+            # a replay's folder name (its info.name is the recorded source's); a bag's or video's file name(s)
+            "recording": path.rstrip("/").rsplit("/", 1)[-1] if replay else info.name,
+            "recorded_source": info.name if replay else "",
         }
 
     def control(self, action: str, index: int | None = None) -> dict[str, Any]:
@@ -390,8 +395,9 @@ class Capture:
         (pauses and shows it). Raises :class:`NotAReplay` or :class:`SeekOutOfRange`."""
         with self._lock:
             info = self._info
-            if info is None or info.kind != "replay":
-                raise NotAReplay(f"the source {self.spec!r} is not a replay; pause, step and seek drive replays only")
+            if info is None or info.kind not in RECORDED_KINDS:
+                raise NotAReplay(f"the source {self.spec!r} is not a replay of a recording; pause, step and seek drive replays, "
+                                 "bags and video files only")
             frames = int(info.extra.get("frames", 0) or 0)
             if action == "pause":
                 self._paused = True
@@ -401,9 +407,7 @@ class Capture:
                 self._paused, self._steps = True, self._steps + 1
             elif action == "seek":
                 if index is None or not 0 <= index < frames:
-                    raise SeekOutOfRange(
-                        f"seek needs an index in 0..{frames - 1} (the replay has {frames} frames), got {index}"
-                    )
+                    raise SeekOutOfRange(f"seek needs an index in 0..{frames - 1} (the recording has {frames} frames), got {index}")
                 self._paused, self._seek, self._steps = True, index, 1
             status = self._replay_status(info)
         self._wake.set()
@@ -414,11 +418,7 @@ class Capture:
         while not self._stop.is_set():
             with self._lock:
                 if self._seek is not None:
-                    seek = getattr(src, "seek", None)
-                    if callable(seek):
-                        seek(self._seek)
-                    else:  # ReplaySource reads from _pos; it has no public seek yet
-                        src._pos = self._seek  # type: ignore[attr-defined]
+                    src.seek(self._seek)  # type: ignore[attr-defined]  # every recorded kind has seek(i)
                     self._seek = None
                 if not self._paused:
                     return
@@ -495,7 +495,6 @@ class Capture:
             self._info = info
             self._frames += 1
             self._times = (self._times + [now])[-30:]
-            replay = frame.meta.get("replay")
-            self._replay_index = replay.get("index") if isinstance(replay, dict) else None
+            self._replay_index = recorded_index(frame)
         for sink in list(self.sinks):
             sink(frame)
