@@ -26,7 +26,9 @@ def test_poster_width_measured_where_the_user_clicks_on_a_distorted_bag(tmp_path
     path = write_distorted_oak_bag(tmp_path / "oak", coeffs, model)
     with open_source(f"bag:{path}") as src:
         frame = src.read()
+        info = src.info
     assert frame.meta["color_distortion"] == model and frame.meta["undistorted"] is True
+    assert (info.extra["color_distortion"], info.extra["depth_distortion"]) == (model, model)
     clicks = find_marks(frame.image)
     assert len(clicks) == 2
     # The dots are back where a pinhole camera of the frame's K sees them.
