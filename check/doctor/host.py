@@ -162,3 +162,23 @@ def version_findings(kind: str) -> list[Finding]:
     measured = ", ".join(f"{k} {v or 'not installed'}" for k, v in found.items())
     status = worst([Finding("x", s, "") for s, _ in problems])
     return [Finding("versions", status, measured, "; ".join(f for _, f in problems), found)]
+
+
+DEPTHAI_SPEEDS = {"LOW": 1.5, "FULL": 12.0, "HIGH": 480.0, "SUPER": 5000.0, "SUPER_PLUS": 10000.0}  # dai.UsbSpeed, Mbit/s
+
+
+def with_depthai_speed(found: Finding, said: str) -> Finding:
+    """``found`` ("usb-speed" from sysfs) with what DepthAI reports for the open device (``dai.UsbSpeed`` name, as an
+    OAK source states it in ``info.extra["usb_speed"]``); DepthAI's word decides when sysfs could not be read."""
+    name = str(said).rsplit(".", 1)[-1].upper()
+    mbps = DEPTHAI_SPEEDS.get(name)
+    if mbps is None:
+        return found
+    status = "pass" if mbps >= USB3_MBPS else "warn" if mbps >= 480 else "fail"
+    fix = "" if status == "pass" else ("DepthAI runs the OAK over a USB2 link: plug it straight into a USB3 port with a USB3 "
+                                       "cable (no USB2 hub or extension)")
+    measured = f"{found.measured}; DepthAI says {name} ({mbps:g} Mbit/s)"
+    # without a sysfs reading (no /sys in a container) the open device's own word decides; with one, the worse
+    merged = status if "speed_mbps" not in found.figures else worst([found, Finding("x", status, "")])
+    return Finding("usb-speed", merged, measured, "; ".join(x for x in (found.fix, fix) if x),
+                   {**found.figures, "depthai_usb_speed": name})

@@ -58,6 +58,9 @@ def run_doctor(spec: str, *, window_s: float = WINDOW_S, board: BoardSpec | None
     try:
         opened_s = time.monotonic() - t0
         info = src.info
+        said = info.extra.get("usb_speed") if isinstance(info.extra, dict) else None
+        if said:  # an OAK source that states DepthAI's dai.UsbSpeed of the open device
+            found = [host.with_depthai_speed(f, said) if f.check == "usb-speed" else f for f in found]
         found.append(Finding("open", "pass", f"{info.name} ({info.kind}, serial {info.serial or '-'}) opened in {opened_s:.1f} s",
                              "", {"open_s": opened_s, "kind": info.kind, "serial": info.serial}))
         progress(f"reading for {window_s:g} s")

@@ -80,6 +80,7 @@ def _slow_fix(kind: str) -> str:
         "oak": "use a USB3 port and cable, lower fps= or the size, and close other programs using the OAK",
         "v4l2": "ask the camera for MJPEG at this size, lower size= or scale=, or ndisp= (SGBM's cost grows with it)",
         "bag": "the bag is read as fast as it decodes; nothing to fix unless it is far below the recorded rate",
+        "replay": "the recording is read as fast as its PNGs decode: expect it on a slow host",
     }.get(kind, "the host computes frames slower than this rate: lower width=/height= (or scale=), or expect it")
 
 
@@ -87,7 +88,7 @@ def frames_finding(w: Window) -> Finding:
     """"frames": did frames arrive, and at what rate (host clock) against the source's own rate."""
     kind, nominal = w.info.kind, float(w.info.fps or 0.0)
     if w.n == 0:
-        why = w.error or (f"the source ended before the first frame" if w.ended else f"{w.timeouts} read(s) timed out")
+        why = w.error or ("the source ended before the first frame" if w.ended else f"{w.timeouts} read(s) timed out")
         return Finding("frames", "fail", f"no frame in {w.window_s:g} s: {why}",
                        "check the cable and that no other program holds the camera; run `depthruler devices`",
                        {"frames": 0, "fps": 0.0, "timeouts": w.timeouts})
@@ -117,13 +118,14 @@ def timestamps_finding(w: Window) -> Finding:
     back, same = int(np.sum(steps < 0)), int(np.sum(steps == 0))
     pos = steps[steps > 0]
     median = float(np.median(pos)) if pos.size else math.nan
-    # a frame's due step is the source's own rate where it states one, else the median step seen
-    due = 1.0 / w.info.fps if w.info.fps else median
+    # a frame is due at the source's own rate; a source that states none (as fast as read) drops nothing
+    due = 1.0 / w.info.fps if w.info.fps else math.inf
     dropped = int(np.sum(np.maximum(np.round(pos / due) - 1, 0)[pos > DROP_GAP * due])) if pos.size else 0
     figures = {"frames": int(t.size), "backwards": back, "repeated": same, "median_step_s": None if math.isnan(median) else median,
                "device_fps": None if math.isnan(median) else 1.0 / median, "dropped": dropped}
     rate = f", steps of {1000 * median:.1f} ms ({1 / median:.1f} fps on the device clock)" if pos.size else ""
-    measured = f"{t.size} timestamps: {back} step(s) backwards, {same} repeated{rate}, {dropped} frame(s) dropped"
+    drops = f"{dropped} frame(s) dropped" if w.info.fps else "no rate stated, so no drops to count"
+    measured = f"{t.size} timestamps: {back} step(s) backwards, {same} repeated{rate}, {drops}"
     if float(np.ptp(t)) == 0.0:
         return Finding("timestamps", "warn", f"all {t.size} timestamps are {t[0]:g}: the source gives none",
                        "the frames cannot be told apart in time; record with a source that stamps them", figures)
@@ -133,7 +135,9 @@ def timestamps_finding(w: Window) -> Finding:
     if same:
         return Finding("timestamps", "warn", measured, "repeated timestamps: the source sends a frame twice", figures)
     if dropped > 0.05 * t.size:
-        return Finding("timestamps", "warn", measured, "frames are dropped on the way: " + _slow_fix(w.info.kind), figures)
+        fix = ("the recording has gaps: it was written slower than its source's rate; record again at a lower fps= or size"
+               if w.info.kind == "replay" else "frames are dropped on the way: " + _slow_fix(w.info.kind))
+        return Finding("timestamps", "warn", measured, fix, figures)
     return Finding("timestamps", "pass", measured, "", figures)
 
 

@@ -13,7 +13,7 @@ from typer.testing import CliRunner
 
 from check.doctor import NO_CAMERA, run_doctor
 from check.doctor.calib import baseline_finding, rectification_finding
-from check.doctor.host import usb_findings
+from check.doctor.host import usb_findings, with_depthai_speed
 from check.doctor.stream import Window, timestamps_finding
 from device.base import SourceInfo
 from device.calibration.files import CalibrationRef
@@ -127,6 +127,10 @@ def test_usb_speed_and_permission_from_sysfs(tmp_path):
     (tmp_path / "bare").mkdir()
     assert usb_findings("oak", tmp_path / "bare", dev_root)[0].status == "fail"  # no OAK on the bus
     assert usb_findings("replay", sys_root, dev_root)[0].status == "skip"
+    # what DepthAI says of the open OAK (dai.UsbSpeed): a USB2 link warns even where sysfs is not visible
+    blind = usb_findings("oak", tmp_path / "empty-sys", dev_root)[0]
+    assert with_depthai_speed(blind, "UsbSpeed.HIGH").status == "warn" and with_depthai_speed(blind, "SUPER").status == "pass"
+    assert with_depthai_speed(speed, "HIGH").figures["depthai_usb_speed"] == "HIGH" and with_depthai_speed(speed, "HIGH").status == "warn"
 
 
 def _write_video(path, frames):
