@@ -59,6 +59,7 @@ from cli import bench as bench_cmd  # noqa: E402
 from cli import check as check_cmd  # noqa: E402
 from cli import data as data_cmd  # noqa: E402
 from cli import devices as devices_cmd  # noqa: E402
+from cli import doctor as doctor_cmd  # noqa: E402
 from cli import eval as eval_cmd  # noqa: E402
 from cli import recording as recording_cmd  # noqa: E402
 from cli import serve as serve_cmd  # noqa: E402
@@ -66,6 +67,7 @@ from cli import serve as serve_cmd  # noqa: E402
 # Each command module keeps its heavy imports inside the command body, so `--help` stays fast.
 for name, command in {
     "devices": devices_cmd.devices,
+    "doctor": doctor_cmd.doctor,
     "serve": serve_cmd.serve,
     "measure": serve_cmd.measure,
     "record": recording_cmd.record,

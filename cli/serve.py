@@ -179,21 +179,38 @@ def _point(text: str, name: str) -> tuple[float, float]:
 
 def measure(
     source: str = typer.Argument(..., help="Source spec (sim:poster?seed=1, replay:DIR, middlebury:DIR, oak, ...), or a recording folder, bag, video file or Middlebury scene folder."),
-    p1: str = typer.Option(..., "--p1", help="First point X,Y (pixels of the colour image)."),
-    p2: str = typer.Option(..., "--p2", help="Second point X,Y."),
+    p1: Optional[str] = typer.Option(None, "--p1", help="First point X,Y (pixels of the colour image) of a segment."),
+    p2: Optional[str] = typer.Option(None, "--p2", help="Second point X,Y of the segment."),
+    box: Optional[str] = typer.Option(None, "--box", help="Instead of a segment: a box's dimensions from a click X,Y on its top face."),
+    height: Optional[str] = typer.Option(None, "--height", help="Instead of a segment: the height of the point X,Y above the plane it stands on (or the plane --on names)."),
+    on: Optional[list[str]] = typer.Option(None, "--on", help="With --height: the plane to measure from, one click X,Y on it or three or more around a region of it (repeat)."),
+    path: bool = typer.Option(False, "--path", help="Instead of a segment: the length of the polyline through the --point clicks (two or more)."),
+    area: bool = typer.Option(False, "--area", help="Instead of a segment: the area of the polygon of the --point clicks (three or more, in order around it, on one plane)."),
+    point: Optional[list[str]] = typer.Option(None, "--point", help="A click X,Y of a --path or --area (repeat, in order)."),
     frame: int = typer.Option(0, "--frame", "-n", min=0, help="Measure on this frame index (0 = first)."),
     method: str = typer.Option(None, "--method", "-m", help="One of {methods}; left out, {method}."),
     as_json: bool = typer.Option(False, "--json", help="Print the measurement as JSON."),
     timeout: float = typer.Option(5.0, min=0.01, help="Seconds to wait for each frame."),
     frames: int = typer.Option(1, "--frames", min=1, help="Measure over this many frames of a still scene (at most {max_frames}): the frame measured and the ones before it (robust method; with --frame K below N-1 the frame measured is N-1)."),
 ) -> None:
-    """Measure between two points on one frame of a source, headless; prints distance, uncertainty and method."""
+    """Measure between two points (or a box, a height, a path, an area) on one frame of a source, headless; prints the value, uncertainty and verdict."""
     from device import SourceError, open_source
     from device.base import FrameAccess
     from measure import MAX_FRAMES, MeasureError, MeasureOptions, measure_distance, measure_sequence
+    from cli.shapes import measure_shape, shape_json, shape_kind, shape_text
     from cli.specs import source_spec
 
-    a, b = _point(p1, "--p1"), _point(p2, "--p2")
+    kind = shape_kind(box, height, path, area, point or [], on or [], p1 is not None or p2 is not None)
+    if kind is None:
+        if p1 is None or p2 is None:
+            raise typer.BadParameter("a segment needs both --p1 and --p2", param_hint="--p1/--p2")
+        a, b = _point(p1, "--p1"), _point(p2, "--p2")
+    else:
+        if frames > 1:
+            raise typer.BadParameter("a shape is measured on one frame", param_hint="--frames")
+        click = _point(box or height, "--box" if box else "--height") if (box or height) else None
+        clicks = [_point(t, "--point") for t in point or []]
+        base = [_point(t, "--on") for t in on or []]
     try:
         options = MeasureOptions() if method is None else MeasureOptions(method=method)
     except MeasureError as exc:
@@ -214,6 +231,18 @@ def measure(
     except SourceError as exc:
         _fail(f"cannot read frame {frame} of {source}: {exc}", 1)
     f = read[-1]
+    if kind is not None:
+        from service.render import truth_json
+
+        try:
+            shape = measure_shape(f, kind, click, clicks, base, options)
+        except MeasureError as exc:
+            _fail(str(exc), 1)
+        if as_json:
+            typer.echo(shape_json(shape, kind, source, frame, truth_json(f.meta.get("truth"))))
+        else:
+            typer.echo("\n".join(shape_text(shape, kind)))
+        return
     try:
         result = measure_sequence(read, a, b, options) if frames > 1 else measure_distance(f, a, b, options)
     except MeasureError as exc:

@@ -6,7 +6,9 @@ all records (docs/decisions/streamed-exports.md).
 
 CSV (:func:`csv_chunks`): columns :data:`CSV_COLUMNS`; lengths and 3D coordinates in the chosen
 unit (:data:`UNITS`), rounded to what each measurement's uncertainty supports
-(:func:`supported_decimals`), pixels to 0.1 px; ``frame_url`` opens the saved colour image. Text
+(:func:`supported_decimals`), pixels to 0.1 px; ``frame_url`` opens the saved colour image;
+``source_kind`` and ``recording`` say what the frame was read from ("replay" and the recording's
+folder, "bag" or "video" and the file; empty for measurements stored before the service kept them). Text
 cells go through :mod:`history.csv_safe`, so a name or note typed as a formula is written as text.
 The CSV never writes the per-sample arrays, so its rows are read without them.
 
@@ -30,7 +32,7 @@ from history.records import record
 UNITS = {"m": 1.0, "cm": 100.0, "mm": 1000.0, "in": 1 / 0.0254}
 
 CSV_COLUMNS = (
-    "id", "created_utc", "name", "note", "source", "frame_id", "frame_index", "units", "distance", "uncertainty_1sigma",
+    "id", "created_utc", "name", "note", "source", "source_kind", "recording", "frame_id", "frame_index", "units", "distance", "uncertainty_1sigma",
     "interval_low", "interval_high", "quality", "reasons", "method", "fit", "basic_distance",
     "p1_x_px", "p1_y_px", "p2_x_px", "p2_y_px", "p1_X", "p1_Y", "p1_Z", "p2_X", "p2_Y", "p2_Z",
     "n_samples", "n_valid", "n_support", "gap_detected", "warnings", "frame_url",
@@ -58,7 +60,8 @@ def _row(r: dict[str, Any], units: str, base_url: str) -> list[Any]:
     lo, hi = (list(r.get("interval_m") or []) + [None, None])[:2]
     created = time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime(r["created"]))
     return [
-        r["id"], created, r["name"], r["note"], r["source"], r["frame_id"], r.get("frame_index", ""), units,
+        r["id"], created, r["name"], r["note"], r["source"], r.get("source_kind", ""), r.get("recording", ""), r["frame_id"],
+        r.get("frame_index", ""), units,
         length(r["distance_m"]), sigma, length(lo), length(hi), r.get("quality", ""), "; ".join(r.get("reasons", [])),
         r["method"], r["fit"], length(r["basic_distance_m"]),
         *(Decimal(f"{v:.1f}") for v in (*r["p1"], *r["p2"])), *(length(v) for v in (*r["p1_m"], *r["p2_m"])),

@@ -11,10 +11,12 @@ from fastapi import FastAPI, Request
 from fastapi.exceptions import RequestValidationError
 from fastapi.responses import JSONResponse
 
+from check.errors import CheckError
+from history.checks import CheckHistoryError
 from history.errors import FrameDropped, FrameNotSaved, MeasurementUnknown, SavedFrameUnreadable, StoreError, StoreFull
 from measure import MeasureError
 
-from service import recorder
+from service import playback, recorder
 from service.frames import FrameGone, FrameUnknown, NotAReplay, SeekOutOfRange, TooManyWaiters
 from service.workers import Busy
 
@@ -32,10 +34,13 @@ STATUS: dict[type[Exception], int] = {
     SavedFrameUnreadable: 500,
     StoreError: 500,  # nothing was stored
     StoreFull: 507,
+    CheckError: 422,  # no board in the frames, or a board that cannot be
+    CheckHistoryError: 500,  # the check ran but its record or picture could not be kept
     recorder.RecorderError: 409,
     recorder.RecordingUnavailable: 503,
     recorder.BadRecordingName: 422,
     recorder.CannotRecord: 400,
+    playback.NoSuchRecording: 404,
 }
 HEADERS: dict[type[Exception], dict[str, str]] = {TooManyWaiters: {"Retry-After": "1"}, Busy: {"Retry-After": "1"}}
 

@@ -22,29 +22,11 @@ from typing import Any
 from device import CalibrationError, Source, SourceEnded, SourceInfo, SourceTimeout
 from measure import Frame
 
+from service.frame_errors import FrameGone, FrameUnknown, NotAReplay, ReplayControlError, SeekOutOfRange, TooManyWaiters
+from service.provenance import RECORDED_KINDS, recorded_index
 
-class FrameGone(KeyError):
-    """The frame id was evicted from the ring buffer (HTTP 410)."""
-
-
-class FrameUnknown(KeyError):
-    """The frame id was never issued (HTTP 404)."""
-
-
-class ReplayControlError(ValueError):
-    """Pause, play, step or seek cannot be done."""
-
-
-class NotAReplay(ReplayControlError):
-    """Pause, play, step or seek asked of a source that is no replay (HTTP 409)."""
-
-
-class SeekOutOfRange(ReplayControlError):
-    """A seek to an index outside the replay (HTTP 422)."""
-
-
-class TooManyWaiters(RuntimeError):
-    """More long-polls are waiting than the ring allows (HTTP 429)."""
+__all__ = ["Capture", "FrameGone", "FrameRing", "FrameUnknown", "NotAReplay", "ReplayControlError", "RingFrame",
+           "SeekOutOfRange", "TooManyWaiters"]  # the errors live in service.frame_errors; named here as before
 
 
 @dataclass
@@ -315,23 +297,31 @@ class Capture:
         self.read_timeout_s = read_timeout_s
         self.sinks: list[FrameSink] = []
         self._lock = threading.Lock()
-        self._stop = threading.Event()
         self._thread: threading.Thread | None = None
-        self._state = "connecting"
-        self._message = ""
-        self._info: SourceInfo | None = None
-        self._frames = 0
-        self._retries = 0
+        self._wake = threading.Event()
+        self._reset()
+
+    def _reset(self) -> None:
+        """The state of a capture that has not read yet (at construction, and on :meth:`switch`)."""
+        self._stop = threading.Event()
+        self._state, self._message, self._info = "connecting", "", None
+        self._frames, self._retries, self._timeouts = 0, 0, 0
         self._next_retry: float | None = None
         self._times: list[float] = []
+        self._warnings: list[str] = []
         # replay control: paused, frames to deliver while paused, position to jump to, last index shown
-        self._paused = False
-        self._steps = 0
+        self._paused, self._steps = False, 0
         self._seek: int | None = None
         self._replay_index: int | None = None
-        self._wake = threading.Event()
-        self._timeouts = 0
-        self._warnings: list[str] = []
+
+    def switch(self, factory: SourceFactory, spec: str) -> None:
+        """Read from another source from now on: the thread stops (closing the source) and starts again
+        on ``factory``. Frames already in the ring, frozen ones included, stay."""
+        self.stop()
+        with self._lock:
+            self.factory, self.spec = factory, spec
+            self._reset()
+        self.start()
 
     def start(self) -> None:
         self._thread = threading.Thread(target=self._run, name="depthruler-capture", daemon=True)
@@ -364,23 +354,28 @@ class Capture:
                 "width": info.width if info else 0,
                 "height": info.height if info else 0,
                 "fps": info.fps if info else 0.0,
+                # What the device does to depth before it arrives (the OAK's stereo post-processing).
+                "depth": dict(info.extra["depth"]) if info and isinstance(info.extra.get("depth"), dict) else None,
                 "measured_fps": round(fps, 2),
                 "frames": self._frames,
                 "retries": self._retries,
                 "retry_in_s": retry_in,
-                "replay": self._replay_status(info) if info and info.kind == "replay" else None,
+                "replay": self._replay_status(info) if info and info.kind in RECORDED_KINDS else None,
                 "timeouts": self._timeouts,
                 "warnings": list(self._warnings)[-10:],
             }
 
     def _replay_status(self, info: SourceInfo) -> dict[str, Any]:
         path = str(info.extra.get("path", "") or "")
+        replay = info.kind == "replay"
         return {
+            "kind": info.kind,
             "paused": self._paused,
             "index": self._replay_index,
             "frames": int(info.extra.get("frames", 0) or 0),
-            "recording": path.rstrip("/").rsplit("/", 1)[-1],
-            "recorded_source": info.name,
+            # a replay's folder name (its info.name is the recorded source's); a bag's or video's file name(s)
+            "recording": path.rstrip("/").rsplit("/", 1)[-1] if replay else info.name,
+            "recorded_source": info.name if replay else "",
         }
 
     def control(self, action: str, index: int | None = None) -> dict[str, Any]:
@@ -388,8 +383,9 @@ class Capture:
         (pauses and shows it). Raises :class:`NotAReplay` or :class:`SeekOutOfRange`."""
         with self._lock:
             info = self._info
-            if info is None or info.kind != "replay":
-                raise NotAReplay(f"the source {self.spec!r} is not a replay; pause, step and seek drive replays only")
+            if info is None or info.kind not in RECORDED_KINDS:
+                raise NotAReplay(f"the source {self.spec!r} is not a replay of a recording; pause, step and seek drive replays, "
+                                 "bags and video files only")
             frames = int(info.extra.get("frames", 0) or 0)
             if action == "pause":
                 self._paused = True
@@ -399,9 +395,7 @@ class Capture:
                 self._paused, self._steps = True, self._steps + 1
             elif action == "seek":
                 if index is None or not 0 <= index < frames:
-                    raise SeekOutOfRange(
-                        f"seek needs an index in 0..{frames - 1} (the replay has {frames} frames), got {index}"
-                    )
+                    raise SeekOutOfRange(f"seek needs an index in 0..{frames - 1} (the recording has {frames} frames), got {index}")
                 self._paused, self._seek, self._steps = True, index, 1
             status = self._replay_status(info)
         self._wake.set()
@@ -412,11 +406,7 @@ class Capture:
         while not self._stop.is_set():
             with self._lock:
                 if self._seek is not None:
-                    seek = getattr(src, "seek", None)
-                    if callable(seek):
-                        seek(self._seek)
-                    else:  # ReplaySource reads from _pos; it has no public seek yet
-                        src._pos = self._seek  # type: ignore[attr-defined]
+                    src.seek(self._seek)  # type: ignore[attr-defined]  # every recorded kind has seek(i)
                     self._seek = None
                 if not self._paused:
                     return
@@ -493,7 +483,6 @@ class Capture:
             self._info = info
             self._frames += 1
             self._times = (self._times + [now])[-30:]
-            replay = frame.meta.get("replay")
-            self._replay_index = replay.get("index") if isinstance(replay, dict) else None
+            self._replay_index = recorded_index(frame)
         for sink in list(self.sinks):
             sink(frame)

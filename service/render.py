@@ -12,6 +12,7 @@ import numpy as np
 
 
 from service.frames import RingFrame
+from service.provenance import recorded_index, recording_name
 
 THUMB_WIDTH = 240
 LIVE_JPEG_QUALITY = 85
@@ -118,5 +119,6 @@ def frame_json(entry: RingFrame) -> dict[str, Any]:
         "source": str(f.meta.get("source", "")),
         "meta": {k: (v if not isinstance(v, float) or math.isfinite(v) else None) for k, v in meta.items()},
         "truth": truth_json(f.meta.get("truth")),
-        "replay_index": replay.get("index") if isinstance(replay := f.meta.get("replay"), dict) else None,
+        "replay_index": recorded_index(f),
+        "recording": recording_name(f),
     }

@@ -79,6 +79,27 @@ class MeasureIn(BaseModel):
     frames: Annotated[int, Strict(), Field(ge=1, le=MAX_FRAMES)] = 1
 
 
+class BoardIn(BaseModel):
+    """A printed ChArUco board: squares across and down, square and marker side in mm, ArUco dictionary."""
+
+    model_config = ConfigDict(extra="forbid")
+    squares_x: Annotated[int, Strict(), Field(ge=3, le=100)] = 11
+    squares_y: Annotated[int, Strict(), Field(ge=3, le=100)] = 8
+    square_mm: Annotated[float, Field(gt=0, le=3000, allow_inf_nan=False)] = 30.0
+    marker_mm: Annotated[float, Field(gt=0, le=3000, allow_inf_nan=False)] = 22.0
+    dictionary: Annotated[str, Strict(), Field(pattern=r"^DICT_[A-Z0-9_]{1,40}$")] = "DICT_5X5_100"
+
+
+class CheckIn(BaseModel):
+    """``POST /api/checks`` body: check the board on frame ``frame_id`` (and the ``frames - 1`` received
+    before it); ``board`` as printed, or none for the source's own board (the simulator's) or the default."""
+
+    model_config = ConfigDict(extra="forbid")
+    frame_id: Id
+    frames: Annotated[int, Strict(), Field(ge=1, le=MAX_FRAMES)] = 1
+    board: BoardIn | None = None
+
+
 class RecordingIn(BaseModel):
     """``POST /api/recordings``: start or stop; ``out`` names a folder inside the server's recordings root."""
 
@@ -103,6 +124,14 @@ class ReplayIn(BaseModel):
     model_config = ConfigDict(extra="forbid")
     action: Literal["pause", "play", "step", "seek"]
     index: Annotated[int, Strict(), Field(ge=0, le=10_000_000)] | None = None
+
+
+class SourceOpenIn(BaseModel):
+    """``POST /api/source``: play ``recording`` (a folder of the server's recordings root) in place of
+    the server's source; ``null`` goes back to that source."""
+
+    model_config = ConfigDict(extra="forbid")
+    recording: Annotated[str, Field(min_length=1, max_length=200)] | None
 
 
 class AnnotationIn(BaseModel):
@@ -174,7 +203,9 @@ class TruthOut(_Out):
 
 class FrameOut(_Out):
     """A frame of the ring: ``id`` for this service run, ``uid`` for the history; size in pixels,
-    times in seconds since the epoch; ``replay_index`` the frame's index in a replayed recording."""
+    times in seconds since the epoch; ``replay_index`` the frame's 0-based index in the recording it is
+    played from (a replay, a bag, a video file) and ``recording`` that recording's name; None and ""
+    for a live source."""
 
     id: int
     uid: str
@@ -187,6 +218,7 @@ class FrameOut(_Out):
     meta: dict[str, str | int | float | bool | None]
     truth: TruthOut | None
     replay_index: int | None
+    recording: str
 
 
 class DepthOut(_Out):
@@ -229,6 +261,11 @@ class HealthOut(_Out):
 
 
 class ReplayStatusOut(_Out):
+    """A recorded source's position: ``kind`` "replay", "bag" or "video"; ``index`` (0-based) of the
+    last frame delivered; ``frames`` in the recording (0: unknown, e.g. a video whose container does not
+    list them); ``recording`` its name; ``recorded_source`` the source a native recording was made from."""
+
+    kind: str
     paused: bool
     index: int | None
     frames: int
@@ -256,11 +293,14 @@ class SourceStatusOut(_Out):
     width: int
     height: int
     fps: float
+    depth: dict[str, Any] | None = Field(None, description="the depth post-processing the device applies "
+                                         "(an OAK's stereo filters, confidence threshold, baseline); None where the source does not say")
     measured_fps: float
     frames: int
     retries: int
     retry_in_s: float | None
     replay: ReplayStatusOut | None
+    home: str  # the server's own source while one of its recordings plays in its place; "" otherwise
     timeouts: int
     warnings: list[str]
     recording: RecordingStatusOut
@@ -324,6 +364,21 @@ class ChecksOut(_Out):
     checks: list[dict[str, Any]]
     count: int
     file: str
+
+
+class CheckOut(_Out):
+    """``POST /api/checks``: the check's record as the checks log keeps it (status, figures, findings,
+    source, serial, calibration hashes) with ``id``, the frames used, the board and ``png_url``."""
+
+    model_config = ConfigDict(extra="allow")
+    id: str
+    status: str
+    figures: dict[str, Any]
+    findings: list[dict[str, Any]]
+    frame_id: int
+    frame_ids: list[int]
+    board: dict[str, Any]
+    png_url: str | None = None
 
 
 def json_doc(model: type[BaseModel] | object, csv: bool = False) -> dict[str, object]:

@@ -31,6 +31,7 @@ non-occluded pixels within 1 px of ground truth, 2026-12-01), FFV1 changes nothi
 
 from __future__ import annotations
 
+import dataclasses
 import time
 from dataclasses import dataclass
 from pathlib import Path
@@ -38,7 +39,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from measure import check_options, option
+from measure import Frame, check_options, option
 
 from device import configs
 from device.base import SourceInfo, SourceSpec
@@ -122,6 +123,7 @@ class VideoGrabber:
         self.skipped_in_lap = 0  # undecodable frames skipped in the current lap
         self.skipped_total = 0
         self.warnings: list[str] = []  # the newest skip messages, updated in place (a caller may hold it)
+        self.position = -1  # the index in the file of the frame grab() returned last (-1: none yet)
 
     def open(self) -> None:
         self.close()
@@ -148,6 +150,20 @@ class VideoGrabber:
     def fps(self) -> float:
         return self._fps
 
+    @property
+    def frames(self) -> int:
+        """Frames the container lists (0: it does not say)."""
+        return self._listed
+
+    def seek(self, i: int) -> None:
+        """Make frame ``i`` of the file the next one ``grab`` returns (a replay bar's step back and scrub);
+        exact for intra-only codecs such as FFV1. Raises IndexError outside the listed frames."""
+        if not 0 <= i < max(self._listed, 1):
+            raise IndexError(f"frame {i} is out of range: {' and '.join(self.config.paths)} lists {self._listed} frames")
+        for cap in self._caps:
+            cap.set(cv2.CAP_PROP_POS_FRAMES, i)
+        self._lap_read, self._t0 = i, None
+
     def _read_all(self) -> list[np.ndarray] | None:
         # Every capture reads, even after one failed: a failed read still moves past its frame, so the
         # eyes of two files stay in step.
@@ -165,6 +181,7 @@ class VideoGrabber:
             if images is not None:
                 self._skip(misses, "could not be decoded")
                 self._lap_read += 1
+                self.position = self._lap_read - 1
                 return images
             misses += 1
             budget = self._listed - self._lap_read if self._listed else MAX_UNLISTED_MISSES
@@ -268,7 +285,16 @@ class VideoSource(ProcessedPairSource):
             w, h = self._processor.calibration.image_size
             self._grabber.calib_size = (int(w), int(h))
             self.info = SourceInfo(kind="video", name=self.info.name, width=w, height=h, fps=self._grabber.fps,
-                                   state="playing", extra=self.info.extra)
+                                   state="playing", extra={**self.info.extra, "frames": self._grabber.frames})
+
+    def read(self, timeout_s: float = 1.0) -> Frame:
+        """The next frame, its index in the file in ``meta["frame_index"]`` (as a bag's frames carry theirs)."""
+        frame = super().read(timeout_s)
+        return dataclasses.replace(frame, meta={**frame.meta, "frame_index": self._grabber.position})
+
+    def seek(self, i: int) -> None:
+        """Make frame ``i`` of the file the next one ``read`` returns."""
+        self._grabber.seek(i)
 
 
 def config_from_spec(spec: SourceSpec) -> VideoConfig:

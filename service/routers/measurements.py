@@ -13,6 +13,7 @@ from measure import measure_distance, measure_sequence
 from history.export import csv_chunks, json_chunks
 
 from service.deps import MeasurementDep, MeasurementId, State
+from service.provenance import provenance
 from service.render import encode_png, frame_json, make_thumb, png_from_jpeg, quarter
 from service.schemas import (
     MAX_ID,
@@ -55,7 +56,7 @@ def _measure(state: ServiceState, body: MeasureIn) -> Response:
         result = measure_sequence([e.frame for e in used], body.p1, body.p2, core)
     else:
         result = measure_distance(frame, body.p1, body.p2, core)
-    context = {"frame_index": replay["index"]} if isinstance(replay := frame.meta.get("replay"), dict) else {}
+    source, context = provenance(frame, state.capture.info, state.capture.spec)
     if body.frames > 1:
         # The ids of the frames pooled, oldest first (the motion check may keep fewer than offered).
         context |= {"frames_requested": body.frames, "frame_ids": [e.id for e in used[len(used) - result.frames_used :]]}
@@ -63,12 +64,12 @@ def _measure(state: ServiceState, body: MeasureIn) -> Response:
         frame_id=entry.id,
         frame_uid=entry.uid,
         frame=frame,
-        source=str(frame.meta.get("source", "")) or state.capture.spec,
+        source=source,
         p1=body.p1,
         p2=body.p2,
         options=options,
         result=result.to_dict(),
-        context=context or None,
+        context=context,
     )  # returns once the measurement and its frame are on disk; the thumbnail is drawn on request
     return _json(record)
 

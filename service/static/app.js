@@ -17,6 +17,7 @@ const CLICK_SIGMA_PX = { mouse: 1.5, pen: 1.5, touch: 3 };
 const LONG_POLL_S = 5;
 const LOUPE_ZOOM = 4; // loupe pixels per screen pixel of the view
 const UNDO_MS = 6000;
+const MAX_ZOOM = 8; // image magnification on screen; at 8x a phone shows a 48 px wide patch of a 640 px image
 
 const $ = (id) => document.getElementById(id);
 const canvas = $("canvas");
@@ -49,6 +50,16 @@ const state = {
   depthQuery: { busy: false, next: null },
   hoverDepth: null,   // the last depth readout (GET /api/frames/{id}/depth)
   scaleAt: 0,         // when the colour bar's scale was last fetched (performance.now())
+  zoom: { k: 1, x: 0, y: 0 }, // magnification and the image point at the view's top-left (zoom and pan)
+  touches: new Map(), // pointerId -> [clientX, clientY] of the fingers on the image
+  gesture: null,      // a two-finger pinch / pan under way
+  pan: null,          // a space-drag pan under way
+  space: { down: false, used: false }, // space held (pans with the mouse); used: a drag happened meanwhile
+  readMode: false,    // touch "read depth": a press reads the depth under it and stores nothing
+  active: 0,          // the handle the keyboard moves
+  dirty: false,       // the points moved since the last measurement (keyboard nudges wait for Enter)
+  nudging: false,     // the keyboard is moving a handle (the loupe shows it)
+  saved: null,        // the history record reopened on screen (until the points change or the view goes live)
 };
 
 // ---- HTTP ---------------------------------------------------------------------------------------
@@ -157,6 +168,7 @@ async function showFrame(frame, gen) {
   if (canvas.width !== img.naturalWidth || canvas.height !== img.naturalHeight) {
     canvas.width = img.naturalWidth;
     canvas.height = img.naturalHeight;
+    resetZoom();
     fitCanvas();
   }
   state.frame = frame;
@@ -244,6 +256,7 @@ function goLive() {
   state.mode = "live";
   state.gen++;
   if (held) api(`api/frames/${held.id}/freeze`, { method: "DELETE" }).catch(() => {});
+  resetZoom(); // zoom and pan belong to the frozen frame
   clearPoints();
   updateFreezeButton();
   updateTag();
@@ -256,14 +269,25 @@ function updateFreezeButton() {
   b.classList.toggle("frozen", state.mode !== "live");
 }
 
+// "frame k of n" (1-based) of a frame from a recording; n from the source's status ("frame k" when unknown).
+function framePosition(index, frames) {
+  if (index === null || index === undefined) return "";
+  return frames > 0 ? `frame ${index + 1} of ${frames}` : `frame ${index + 1}`;
+}
+
 function updateTag() {
   const f = state.frame;
   const tag = $("frame-tag");
   canvas.dataset.frozen = state.mode === "frozen" ? "1" : "";
   if (!f) { tag.textContent = ""; return; }
-  const word = state.mode === "frozen" ? "frozen" : state.mode === "freezing" ? "freezing…" : "live";
-  const replay = f.replay_index !== null && f.replay_index !== undefined ? ` · replay #${f.replay_index}` : "";
-  tag.textContent = `${word} · frame ${f.id}${replay} · ${f.width}×${f.height}`;
+  const saved = state.saved && state.mode === "frozen" ? state.saved : null;
+  const word = saved ? `saved #${saved.id}` : state.mode === "frozen" ? "frozen" : state.mode === "freezing" ? "freezing…" : "live";
+  const r = state.source && state.source.replay;
+  const index = saved && saved.frame_index !== undefined ? saved.frame_index : f.replay_index;
+  const pos = framePosition(index, r ? r.frames : 0);
+  const where = saved && saved.recording ? ` · ${saved.recording}` : "";
+  tag.textContent = `${word}${where}${pos ? " · " + pos : ""} · id ${f.id} · ${f.width}×${f.height}`;
+  tag.dataset.index = index === null || index === undefined ? "" : String(index);
 }
 
 async function setView(view) {
@@ -278,10 +302,11 @@ async function setView(view) {
 
 // ---- depth: the readout under the pointer, the colour bar ---------------------------------------
 // One request in flight; a newer position replaces a waiting one.
-function queryDepth(p) {
+// `read`: a read-depth press, whose answer is shown even when the live view has moved on meanwhile.
+function queryDepth(p, read = false) {
   if (!state.frame) return;
   const q = state.depthQuery;
-  q.next = { frame: state.frame, x: Math.round(p[0]), y: Math.round(p[1]) };
+  q.next = { frame: state.frame, x: Math.round(p[0]), y: Math.round(p[1]), read };
   if (q.busy) return;
   q.busy = true;
   (async () => {
@@ -290,7 +315,7 @@ function queryDepth(p) {
       q.next = null;
       try {
         const r = await api(`api/frames/${job.frame.id}/depth?x=${job.x}&y=${job.y}`);
-        if (state.frame && job.frame.id === state.frame.id) showDepth(r);
+        if (state.frame && (job.read || job.frame.id === state.frame.id)) showDepth(r);
       } catch (e) { /* a live frame may have left the ring; the next position asks again */ }
     }
     q.busy = false;
@@ -304,7 +329,7 @@ function showDepth(r) {
   el.dataset.frameId = String(r.frame_id);
   el.textContent = `depth ${r.depth_m === null ? "no data" : fmt(r.depth_m)} · px (${r.x}, ${r.y})`;
   state.hoverDepth = r;
-  if (state.press) drawLoupe();
+  drawLoupe();
 }
 
 async function loadScale(frame) {
@@ -328,12 +353,13 @@ function drawColorbar() {
   $("colorbar-ramp").style.background = `linear-gradient(to right, ${s.colors.join(", ")})`;
   const ticks = $("colorbar-ticks");
   const pos = (z) => ((s.fx_baseline / z - s.doffs - lo) / Math.max(hi - lo, 1e-9)) * 100; // far left, near right
-  const labels = [];
-  for (const z of niceDepths(far, near)) {
+  const labels = depthTicks(s).map((z) => {
     const x = pos(z);
-    if (x < 0 || x > 100) continue;
-    labels.push(Object.assign(document.createElement("span"), { textContent: fmt(z), style: `left:${x.toFixed(1)}%` }));
-  }
+    const el = Object.assign(document.createElement("span"), { textContent: fmtTick(z), style: `left:${x.toFixed(2)}%` });
+    el.dataset.m = String(z);
+    el.dataset.x = String(x);
+    return el;
+  });
   ticks.replaceChildren(...labels);
   bar.dataset.near = String(near);
   bar.dataset.far = String(far);
@@ -341,13 +367,42 @@ function drawColorbar() {
   $("colorbar-range").textContent = `${fmt(near)} – ${fmt(far)}`;
 }
 
-function niceDepths(far, near) {
-  if (!(far > 0 && near > 0)) return [];
-  const span = Math.abs(far - near);
-  const step = [0.01, 0.02, 0.05, 0.1, 0.2, 0.25, 0.5, 1, 2, 5, 10].find((st) => span / st <= 4) || 20;
-  const out = [];
-  for (let z = Math.ceil(Math.min(near, far) / step) * step; z <= Math.max(near, far) + 1e-9; z += step) out.push(+z.toFixed(4));
-  return out;
+// 4 to 6 round depths for the colour bar, spread evenly along it. The colours run linearly in
+// disparity, so evenly spaced depths would crowd at the far end: the ticks are taken at even steps of
+// the bar and each rounded (in the page's unit) to the nearest 1, 1.5, 2, 2.5, 3, 4, 5, 6 or 8 times a
+// power of ten; a rounding that lands two ticks on one value, or off the bar, drops one.
+const ROUND_STEPS = [1, 1.5, 2, 2.5, 3, 4, 5, 6, 8, 10];
+
+function roundNice(v) {
+  const mag = 10 ** Math.floor(Math.log10(v));
+  const m = v / mag;
+  const best = ROUND_STEPS.reduce((a, b) => (Math.abs(b - m) < Math.abs(a - m) ? b : a));
+  return +(best * mag).toPrecision(3);
+}
+
+function depthTicks(s) {
+  const [lo, hi] = s.disparity_px;
+  const k = UNITS[state.units][0];
+  if (!(hi > lo) || !(s.fx_baseline > 0)) return [];
+  const depthAt = (x) => s.fx_baseline / (lo + x * (hi - lo) + s.doffs); // bar position 0..1 -> metres
+  const inside = (z) => { const d = s.fx_baseline / z - s.doffs; return d >= lo - 1e-9 && d <= hi + 1e-9; };
+  for (const n of [5, 6, 7, 8]) { // more candidates when rounding merges some
+    const out = [];
+    for (let i = 0; i < n; i++) {
+      const z = depthAt(0.04 + (0.92 * i) / (n - 1));
+      if (!(z > 0 && isFinite(z))) continue;
+      const r = roundNice(z * k) / k;
+      if (inside(r) && !out.includes(r)) out.push(r);
+    }
+    if (out.length >= 4) return out.slice(0, 6);
+  }
+  return [depthAt(0.04), depthAt(0.5), depthAt(0.96)].filter((z) => z > 0 && isFinite(z)); // a very narrow span
+}
+
+// A tick's label: the round value as it is ("2.5 m", "400 mm"), without the trailing zeros of fmt().
+function fmtTick(metres) {
+  const v = metres * UNITS[state.units][0];
+  return `${+v.toPrecision(3)} ${state.units}`;
 }
 
 // ---- drawing ------------------------------------------------------------------------------------
@@ -363,14 +418,77 @@ function fitCanvas() {
 }
 
 function clickPx() {
-  // the less precise of the two ends' pointers, in image pixels at the displayed scale
+  // the less precise of the two ends' pointers, in image pixels at the displayed scale (and zoom)
   const sigma = Math.max(...[0, 1].map((i) => CLICK_SIGMA_PX[state.pointerTypes[i]] || CLICK_SIGMA_PX.mouse));
   return Math.min(OPTIONS.clickMax, Math.round(sigma * screenScale() * 100) / 100);
 }
 
-function screenScale() {
+// ---- zoom and pan -------------------------------------------------------------------------------
+// The canvas holds the image at its own resolution; zoom draws the part of the image from (x, y) (image
+// coordinates, pixel i spans [i, i + 1]) magnified k times. Every conversion between the screen and the
+// image goes through clientToImage / imageToClient, so handles, clicks and the loupe agree at any zoom.
+function canvasPerCss() {
   const r = canvas.getBoundingClientRect();
   return r.width > 0 ? canvas.width / r.width : 1;
+}
+
+function screenScale() { // image pixels per CSS pixel
+  return canvasPerCss() / state.zoom.k;
+}
+
+function clientToImage(cx, cy) {
+  const r = canvas.getBoundingClientRect(), z = state.zoom;
+  return [z.x + ((cx - r.left) * (canvas.width / r.width)) / z.k - 0.5, z.y + ((cy - r.top) * (canvas.height / r.height)) / z.k - 0.5];
+}
+
+function imageToClient([x, y]) {
+  const r = canvas.getBoundingClientRect(), z = state.zoom;
+  return [r.left + ((x + 0.5 - z.x) * z.k * r.width) / canvas.width, r.top + ((y + 0.5 - z.y) * z.k * r.height) / canvas.height];
+}
+
+function clampPan() {
+  const z = state.zoom;
+  z.x = Math.min(Math.max(z.x, 0), canvas.width - canvas.width / z.k);
+  z.y = Math.min(Math.max(z.y, 0), canvas.height - canvas.height / z.k);
+}
+
+// Zoom to k keeping the image point under client position (cx, cy) where it is on screen.
+function zoomAt(k, cx, cy) {
+  const z = state.zoom;
+  const [u, v] = clientToImage(cx, cy).map((c) => c + 0.5);
+  const r = canvas.getBoundingClientRect();
+  const ox = (cx - r.left) * (canvas.width / r.width), oy = (cy - r.top) * (canvas.height / r.height);
+  z.k = Math.min(Math.max(k, 1), MAX_ZOOM);
+  z.x = u - ox / z.k;
+  z.y = v - oy / z.k;
+  clampPan();
+  showZoom();
+  draw();
+}
+
+function resetZoom() {
+  Object.assign(state.zoom, { k: 1, x: 0, y: 0 });
+  showZoom();
+}
+
+// Pan so that image point p is inside the view (a handle nudged by the keyboard stays visible).
+function keepVisible(p) {
+  const z = state.zoom, w = canvas.width / z.k, h = canvas.height / z.k, m = 0.1;
+  if (p[0] + 0.5 < z.x + m * w) z.x = p[0] + 0.5 - m * w;
+  if (p[0] + 0.5 > z.x + (1 - m) * w) z.x = p[0] + 0.5 - (1 - m) * w;
+  if (p[1] + 0.5 < z.y + m * h) z.y = p[1] + 0.5 - m * h;
+  if (p[1] + 0.5 > z.y + (1 - m) * h) z.y = p[1] + 0.5 - (1 - m) * h;
+  clampPan();
+  showZoom();
+}
+
+function showZoom() {
+  const z = state.zoom;
+  canvas.dataset.zoom = String(z.k);
+  canvas.dataset.viewX = String(z.x);
+  canvas.dataset.viewY = String(z.y);
+  $("zoom-reset").classList.toggle("hidden", z.k === 1);
+  $("zoom-reset").textContent = `${z.k.toFixed(1)}× ⟲`;
 }
 
 function drawSegment(c, pts, s) {
@@ -401,14 +519,25 @@ function drawHandle(c, x, y, s, active) {
   }
 }
 
+// The handle being moved: by a press, else the keyboard's active one while the canvas has focus.
+function activeHandle() {
+  if (state.press && !state.press.read) return state.press.index;
+  return document.activeElement === canvas && state.points.length ? Math.min(state.active, state.points.length - 1) : -1;
+}
+
 function draw() {
+  const z = state.zoom;
+  ctx.setTransform(1, 0, 0, 1, 0, 0);
   ctx.clearRect(0, 0, canvas.width, canvas.height);
+  ctx.setTransform(z.k, 0, 0, z.k, -z.x * z.k, -z.y * z.k); // from here on: image coordinates
+  ctx.imageSmoothingEnabled = z.k < 2; // zoomed in: whole image pixels, to place a point on one
   if (state.img) ctx.drawImage(state.img, 0, 0);
   const s = screenScale();
   const res = state.result;
   const pts = state.points.map(([x, y]) => [x + 0.5, y + 0.5]);
   if (pts.length === 2) drawSegment(ctx, pts, s);
-  if (res && res.samples_px && state.points.length === 2 && !state.press) {
+  const moving = state.press && !state.press.read;
+  if (res && res.samples_px && state.points.length === 2 && !moving && !state.dirty) {
     ctx.lineWidth = 0.8 * s;
     ctx.strokeStyle = "rgba(0,0,0,.7)";
     for (let i = 0; i < res.samples_px.length; i++) {
@@ -420,9 +549,13 @@ function draw() {
       ctx.stroke();
     }
   }
-  pts.forEach(([x, y], i) => drawHandle(ctx, x, y, s, state.press && state.press.index === i));
-  if (res && pts.length === 2 && !state.press) drawLabel(ctx, pts, s, fmt(res.distance_m), verdictColor(res.quality));
-  if (state.press) drawLoupe();
+  const active = activeHandle();
+  pts.forEach(([x, y], i) => drawHandle(ctx, x, y, s, active === i));
+  if (res && pts.length === 2 && !moving && !state.dirty) drawLabel(ctx, pts, s, fmt(res.distance_m), verdictColor(res.quality));
+  ctx.setTransform(1, 0, 0, 1, 0, 0);
+  canvas.dataset.points = JSON.stringify(state.points);
+  canvas.dataset.active = String(active);
+  drawLoupe();
 }
 
 function verdictColor(q) {
@@ -447,19 +580,26 @@ function drawLabel(c, pts, s, label, color, sub) {
   if (sub) { c.font = subFont; c.fillStyle = "#cfd6df"; c.fillText(sub, mx, top + 31 * s); }
 }
 
+// The point the loupe magnifies: the one being placed or dragged, the one read in read-depth mode,
+// or the handle the keyboard nudges.
+function loupeTarget() {
+  const press = state.press;
+  if (press) return { p: press.read ? press.at : state.points[press.index], touchy: press.type !== "mouse" };
+  if (state.nudging && state.points[state.active]) return { p: state.points[state.active], touchy: false };
+  return null;
+}
+
 // The loupe: a magnified view of the image around the point being placed or dragged, drawn away
 // from the finger (above it, or below when there is no room) with a crosshair on the exact pixel.
 function drawLoupe() {
-  const press = state.press;
-  if (!press || !state.img) { loupe.classList.add("hidden"); return; }
-  const p = state.points[press.index];
-  if (!p) return;
+  const target = loupeTarget();
+  if (!target || !target.p || !state.img) { loupe.classList.add("hidden"); return; }
+  const { p, touchy } = target;
   const dpr = window.devicePixelRatio || 1;
   const size = 132;
   if (loupe.width !== Math.round(size * dpr)) { loupe.width = loupe.height = Math.round(size * dpr); }
   loupe.style.width = loupe.style.height = `${size}px`;
-  const s = screenScale();
-  const srcSize = (size / LOUPE_ZOOM) * s; // image pixels across the loupe
+  const srcSize = (size / LOUPE_ZOOM) * screenScale(); // image pixels across the loupe: LOUPE_ZOOM x the view
   lctx.imageSmoothingEnabled = false;
   lctx.fillStyle = "#000";
   lctx.fillRect(0, 0, loupe.width, loupe.height);
@@ -483,10 +623,8 @@ function drawLoupe() {
   }
   // position (viewport coordinates; it may cover the toolbar): above the point for touch, where the
   // finger is not, beside it for a mouse; below or to the side when there is no room
-  const r = canvas.getBoundingClientRect();
-  const sx = r.left + (p[0] + 0.5) / s, sy = r.top + (p[1] + 0.5) / s;
+  const [sx, sy] = imageToClient(p);
   const vw = document.documentElement.clientWidth, vh = window.innerHeight;
-  const touchy = press.type !== "mouse";
   let lx = touchy ? sx - size / 2 : sx + 30;
   let ly = touchy ? sy - size - 56 : sy - size - 30;
   if (ly < 4) ly = touchy ? sy + 70 : sy + 30;
@@ -499,11 +637,10 @@ function drawLoupe() {
 }
 
 // ---- pointer input (mouse, pen and touch) -------------------------------------------------------
+// One pointer places or drags a point (or, in read-depth mode, reads the depth under it); a second
+// finger turns the press into a pinch (zoom) and two-finger drag (pan); a mouse pans with space held.
 function toImage(ev) {
-  const r = canvas.getBoundingClientRect();
-  const x = (ev.clientX - r.left) * (canvas.width / r.width) - 0.5;
-  const y = (ev.clientY - r.top) * (canvas.height / r.height) - 0.5;
-  return [x, y];
+  return clientToImage(ev.clientX, ev.clientY);
 }
 
 function clampToImage([x, y]) {
@@ -520,39 +657,117 @@ function handleAt(p, type) {
   return best;
 }
 
+function setReadMode(on) {
+  state.readMode = on;
+  const b = $("read-depth");
+  b.classList.toggle("active", on);
+  b.setAttribute("aria-pressed", on ? "true" : "false");
+  canvas.dataset.mode = on ? "read" : "measure";
+  $("hint").textContent = on ? "Read depth: touch the image to read the depth there; nothing is stored." : "Place two points to measure. Drag a handle to adjust.";
+}
+
+function startGesture() {
+  // the first finger's press becomes part of the gesture: a point it had just placed is taken back
+  const press = state.press;
+  if (press && !press.read && press.isNew) {
+    state.points = press.before.points;
+    state.result = press.before.result;
+    showResult(state.result);
+  } else if (press && !press.read && press.moved) {
+    state.points[press.index] = press.before.points[press.index];
+  }
+  state.press = null;
+  const [a, b] = [...state.touches.values()];
+  state.gesture = {
+    d0: Math.hypot(a[0] - b[0], a[1] - b[1]) || 1, k0: state.zoom.k,
+    anchor: clientToImage((a[0] + b[0]) / 2, (a[1] + b[1]) / 2).map((c) => c + 0.5), // the image point under the fingers' middle
+  };
+  if (state.mode === "live") freeze();
+}
+
+function moveGesture() {
+  const g = state.gesture, z = state.zoom;
+  const [a, b] = [...state.touches.values()];
+  const mx = (a[0] + b[0]) / 2, my = (a[1] + b[1]) / 2;
+  z.k = Math.min(Math.max((g.k0 * Math.hypot(a[0] - b[0], a[1] - b[1])) / g.d0, 1), MAX_ZOOM);
+  // the anchor stays under the fingers' middle: moving both fingers pans
+  const r = canvas.getBoundingClientRect();
+  z.x = g.anchor[0] - ((mx - r.left) * (canvas.width / r.width)) / z.k;
+  z.y = g.anchor[1] - ((my - r.top) * (canvas.height / r.height)) / z.k;
+  clampPan();
+  showZoom();
+  draw();
+}
+
 canvas.addEventListener("pointerdown", (ev) => {
-  if (!state.frame || ev.button > 0 || state.press) return;
+  if (!state.frame || ev.button > 0) return;
   ev.preventDefault();
-  canvas.focus();
+  canvas.focus({ preventScroll: true });
+  if (ev.pointerType === "touch") {
+    state.touches.set(ev.pointerId, [ev.clientX, ev.clientY]);
+    canvas.setPointerCapture(ev.pointerId);
+    if (state.touches.size === 2) { startGesture(); draw(); return; }
+    if (state.touches.size > 2 || state.gesture) return;
+  }
+  if (state.press || state.pan) return;
   canvas.setPointerCapture(ev.pointerId);
+  state.nudging = false;
+  if (ev.pointerType === "mouse" && state.space.down) {
+    state.space.used = true;
+    state.pan = { pointerId: ev.pointerId, start: [ev.clientX, ev.clientY], view: [state.zoom.x, state.zoom.y] };
+    if (state.mode === "live") freeze();
+    canvas.style.cursor = "grabbing";
+    return;
+  }
   const p = toImage(ev);
+  if (state.readMode) {
+    state.press = { pointerId: ev.pointerId, read: true, at: clampToImage(p), type: ev.pointerType };
+    queryDepth(state.press.at, true);
+    draw();
+    return;
+  }
   const grab = state.points.length === 2 ? handleAt(p, ev.pointerType) : -1;
   showError("");
+  const before = { points: state.points.map((q) => q.slice()), result: state.result };
   if (grab >= 0) {
     // grab the handle where it is: the point keeps its offset from the finger instead of jumping under it
     const q = state.points[grab];
-    state.press = { pointerId: ev.pointerId, index: grab, offset: [q[0] - p[0], q[1] - p[1]], type: ev.pointerType, moved: false, isNew: false };
+    state.press = { pointerId: ev.pointerId, index: grab, offset: [q[0] - p[0], q[1] - p[1]], type: ev.pointerType, moved: false, isNew: false, before };
   } else {
     if (state.mode === "live") freeze(); // the frame on screen is frozen now; the point lands on it
     if (state.points.length >= 2) { state.points = []; state.result = null; showResult(null); }
     state.points.push(clampToImage(p));
-    state.press = { pointerId: ev.pointerId, index: state.points.length - 1, offset: [0, 0], type: ev.pointerType, moved: false, isNew: true };
+    state.press = { pointerId: ev.pointerId, index: state.points.length - 1, offset: [0, 0], type: ev.pointerType, moved: false, isNew: true, before };
   }
+  state.active = state.press.index;
   state.pointerTypes[state.press.index] = ev.pointerType;
   queryDepth(state.points[state.press.index]);
   draw();
 });
 
 canvas.addEventListener("pointermove", (ev) => {
+  if (state.touches.has(ev.pointerId)) {
+    state.touches.set(ev.pointerId, [ev.clientX, ev.clientY]);
+    if (state.gesture) { if (state.touches.size === 2) moveGesture(); return; }
+  }
+  if (state.pan && state.pan.pointerId === ev.pointerId) {
+    const k = screenScale(), pan = state.pan;
+    state.zoom.x = pan.view[0] - (ev.clientX - pan.start[0]) * k;
+    state.zoom.y = pan.view[1] - (ev.clientY - pan.start[1]) * k;
+    clampPan();
+    showZoom();
+    draw();
+    return;
+  }
   const p = toImage(ev);
   const press = state.press;
   if (press && press.pointerId === ev.pointerId) {
-    queryDepth(movePress(press, ev));
+    if (press.read) { press.at = clampToImage(p); queryDepth(press.at, true); } else queryDepth(movePress(press, ev));
     draw();
   } else if (!press && ev.pointerType === "mouse") {
     const inside = p[0] >= -0.5 && p[1] >= -0.5 && p[0] <= canvas.width - 0.5 && p[1] <= canvas.height - 0.5;
     if (inside) queryDepth(clampToImage(p));
-    canvas.style.cursor = handleAt(p, "mouse") >= 0 && state.points.length === 2 ? "grab" : "crosshair";
+    canvas.style.cursor = state.space.down ? "grab" : handleAt(p, "mouse") >= 0 && state.points.length === 2 ? "grab" : "crosshair";
   }
 });
 
@@ -566,13 +781,22 @@ function movePress(press, ev) {
 }
 
 async function endPress(ev) {
+  if (state.touches.delete(ev.pointerId) && state.gesture) {
+    if (state.touches.size === 0) state.gesture = null; // the gesture ends when the last finger lifts
+    return;
+  }
+  if (state.pan && state.pan.pointerId === ev.pointerId) {
+    state.pan = null;
+    canvas.style.cursor = state.space.down ? "grab" : "crosshair";
+    return;
+  }
   const press = state.press;
   if (!press || press.pointerId !== ev.pointerId) return;
-  if (ev.type === "pointerup") movePress(press, ev); // where the finger lifted, even if its last move was coalesced
+  if (ev.type === "pointerup" && !press.read) movePress(press, ev); // where the finger lifted, even if its last move was coalesced
   state.press = null;
   if (canvas.hasPointerCapture(ev.pointerId)) canvas.releasePointerCapture(ev.pointerId);
-  loupe.classList.add("hidden");
   draw();
+  if (press.read) return; // reading depth stores nothing
   if (!press.isNew) {
     if (press.moved) measure(true);
     return;
@@ -584,6 +808,84 @@ canvas.addEventListener("pointerup", endPress);
 canvas.addEventListener("pointercancel", endPress);
 canvas.addEventListener("pointerleave", () => { if (!state.press) $("readout").classList.add("stale"); });
 canvas.addEventListener("pointerenter", () => $("readout").classList.remove("stale"));
+canvas.addEventListener("wheel", (ev) => {
+  if (!state.frame) return;
+  ev.preventDefault();
+  if (state.mode === "live") freeze(); // zoom is on the frozen frame
+  // a mouse wheel notch is ~100 px of deltaY: 1.25x per notch; a touchpad's pinch arrives as ctrl+wheel
+  zoomAt(state.zoom.k * Math.exp(-ev.deltaY * (ev.ctrlKey ? 0.01 : 0.00223)), ev.clientX, ev.clientY);
+}, { passive: false });
+canvas.addEventListener("focus", draw);
+canvas.addEventListener("blur", () => { state.nudging = false; draw(); });
+
+// ---- keyboard placement ---------------------------------------------------------------------------
+// With the image focused: Enter places two handles (when there are none) and measures; arrows nudge the
+// active handle by one image pixel (Shift: 10); Tab goes to the other handle; Esc cancels.
+async function keyboardPlace() {
+  if (!state.frame) return;
+  if (state.mode !== "frozen" && !(await freeze())) return;
+  const w = canvas.width, h = canvas.height;
+  const spots = [[Math.round(w / 3), Math.round(h / 2)], [Math.round((2 * w) / 3), Math.round(h / 2)]];
+  if (state.points.length === 1) state.points.push(spots[1]);
+  else state.points = spots;
+  state.result = null;
+  showResult(null);
+  state.pointerTypes = ["mouse", "mouse"]; // a key moves by whole image pixels: no worse than a mouse
+  state.active = 0;
+  state.dirty = true;
+  state.nudging = true;
+  keepVisible(state.points[0]);
+  queryDepth(state.points[0]);
+  $("hint").textContent = "Arrows move the blue handle (Shift: 10 px), Tab the other one, Enter measures.";
+  draw();
+}
+
+function nudge(dx, dy) {
+  const i = Math.min(state.active, state.points.length - 1);
+  const p = state.points[i];
+  state.points[i] = clampToImage([p[0] + dx, p[1] + dy]);
+  state.pointerTypes[i] = state.pointerTypes[i] || "mouse";
+  state.dirty = true;
+  state.nudging = true;
+  keepVisible(state.points[i]);
+  queryDepth(state.points[i]);
+  draw();
+}
+
+function canvasKey(e) {
+  const arrows = { ArrowLeft: [-1, 0], ArrowRight: [1, 0], ArrowUp: [0, -1], ArrowDown: [0, 1] };
+  if (e.key in arrows) {
+    if (!state.points.length) { keyboardPlace(); return true; }
+    const step = e.shiftKey ? 10 : 1;
+    nudge(arrows[e.key][0] * step, arrows[e.key][1] * step);
+    return true;
+  }
+  if (e.key === "Tab" && state.points.length === 2) {
+    // two focus stops, one per handle: Tab from the first handle to the second, then on out of the image
+    const next = state.active + (e.shiftKey ? -1 : 1);
+    if (next < 0 || next > 1) return false;
+    state.active = next;
+    state.nudging = true;
+    keepVisible(state.points[next]);
+    queryDepth(state.points[next]);
+    draw();
+    return true;
+  }
+  if (e.key === "Enter") {
+    if (state.points.length < 2) keyboardPlace();
+    else if (state.dirty || !state.result) { state.nudging = false; measure(!!state.result); }
+    return true;
+  }
+  if (e.key === "+" || e.key === "=" || e.key === "-") {
+    const r = canvas.getBoundingClientRect();
+    const c = state.points.length ? imageToClient(state.points[Math.min(state.active, state.points.length - 1)]) : [r.left + r.width / 2, r.top + r.height / 2];
+    if (state.mode === "live") freeze();
+    zoomAt(state.zoom.k * (e.key === "-" ? 1 / 1.5 : 1.5), c[0], c[1]);
+    return true;
+  }
+  if (e.key === "0") { resetZoom(); draw(); return true; }
+  return false;
+}
 
 // ---- measuring ----------------------------------------------------------------------------------
 async function measure(adjusting) {
@@ -594,6 +896,8 @@ async function measure(adjusting) {
   const seq = ++state.seq;
   const previous = adjusting && state.result ? state.result.id : null;
   const body = { frame_id: state.frame.id, p1: state.points[0], p2: state.points[1], options: { method: state.method, click_px: clickPx() } };
+  state.dirty = false;
+  if (state.saved) { state.saved = null; showSaved(); }
   if (state.frames > 1 && state.method === "robust") body.frames = state.frames; // pooling is the robust method's
   $("hint").textContent = "Measuring…";
   let res;
@@ -671,7 +975,27 @@ function endState(res, i) {
   return nearest > Math.max(5, 0.15 * length) ? "extrapolated" : "measured";
 }
 
+// What a history record says about where it came from: "replay desk · frame 3", or the live source.
+function sourceLabel(m) {
+  const kind = m.source_kind || "";
+  const index = m.frame_index !== undefined && m.frame_index !== null ? ` · frame ${m.frame_index + 1}` : "";
+  if (["replay", "bag", "video"].includes(kind)) return `${kind} ${m.recording || ""}`.trim() + index;
+  return kind || m.source;
+}
+
+// A reopened measurement is marked as the saved one, with when and where it was made.
+function showSaved() {
+  const el = $("saved");
+  const m = state.saved;
+  el.classList.toggle("hidden", !m);
+  el.dataset.id = m ? String(m.id) : "";
+  if (m) el.textContent = `Saved measurement #${m.id}${m.name ? " “" + m.name + "”" : ""} · ${new Date(m.created * 1000).toLocaleString()} · ${sourceLabel(m)}`;
+  updateTag();
+}
+
 function showResult(res) {
+  if (!res || !state.saved || res.id !== state.saved.id) state.saved = null;
+  showSaved();
   showError("");
   const d = $("distance");
   const verdict = $("verdict");
@@ -751,6 +1075,9 @@ function clearPoints() {
   state.points = [];
   state.result = null;
   state.press = null;
+  state.dirty = false;
+  state.nudging = false;
+  state.saved = null;
   state.seq++;
   loupe.classList.add("hidden");
   showResult(null);
@@ -842,7 +1169,7 @@ function historyItem(m) {
     const dot = Object.assign(document.createElement("span"), { className: `qdot v-${m.quality}`, title: m.quality });
     text.querySelector(".h-dist").prepend(dot);
   }
-  text.querySelector(".h-meta").textContent = `${m.source} · ${m.method} · ${when}${m.warnings.length ? " · ⚠ " + m.warnings.length : ""}`;
+  text.querySelector(".h-meta").textContent = `${sourceLabel(m)} · ${m.method} · ${when}${m.warnings.length ? " · ⚠ " + m.warnings.length : ""}`;
   text.querySelector(".h-meta").title = [...(m.reasons || []), ...m.warnings].join("\n");
   text.querySelector(".h-note").textContent = m.note || "";
   const edit = Object.assign(document.createElement("button"), { className: "h-btn h-edit", title: "Name and note", textContent: "✎" });
@@ -924,6 +1251,8 @@ function reopen(id) {
       if (previous && previous.id !== frame.id) api(`api/frames/${previous.id}/freeze`, { method: "DELETE" }).catch(() => {});
       if (!(await showFrame(frame, gen))) return false;
       state.mode = "frozen";
+      resetZoom();
+      state.saved = measurement;
       state.points = [measurement.p1, measurement.p2];
       state.result = measurement;
       state.seq++;
@@ -943,7 +1272,7 @@ function reopen(id) {
 // ---- source: badge, status, replay controls, recording ------------------------------------------
 function sourceBadge(s) {
   const kind = s.kind || (s.spec || "").split(":")[0];
-  if (kind === "replay") return ["replay", `REPLAY ${(s.replay && s.replay.recording) || s.name || ""}`];
+  if (kind === "replay" || kind === "bag" || kind === "video") return [kind, `${kind.toUpperCase()} ${(s.replay && s.replay.recording) || s.name || ""}`.trim()];
   if (kind === "sim") return ["sim", "SIMULATOR"];
   if (!kind) return ["", "source"];
   const fps = s.fps ? ` · ${(+s.fps).toFixed(0)} fps` : "";
@@ -960,7 +1289,7 @@ async function pollSource() {
     const b = $("source-badge");
     b.className = `badge badge-${cls0}`;
     b.textContent = badge;
-    b.title = s.replay ? `recording ${s.replay.recording} of ${s.replay.recorded_source} (${s.replay.frames} frames)` : `${s.name || ""} ${s.spec || ""}`.trim();
+    b.title = s.replay ? `${s.replay.kind} ${s.replay.recording}${s.replay.recorded_source ? " of " + s.replay.recorded_source : ""} (${s.replay.frames || "?"} frames)` : `${s.name || ""} ${s.spec || ""}`.trim();
     b.dataset.kind = cls0;
     const size = s.width ? ` · ${s.width}×${s.height}` : "";
     const fps = s.measured_fps ? ` · ${s.measured_fps.toFixed(1)} fps` : s.fps ? ` · ${s.fps} fps` : "";
@@ -986,6 +1315,8 @@ async function pollSource() {
     pill.title = s.message || s.spec;
     setRecording(s.recording);
     showReplay(s.replay);
+    $("replay-home").classList.toggle("hidden", !s.home);
+    $("replay-home").title = s.home ? `Stop the replay and go back to ${s.home}` : "";
   } catch (e) {
     pill.className = "pill pill-bad";
     pill.textContent = "service unreachable";
@@ -1000,6 +1331,7 @@ function showReplay(r) {
   $("replay-play").textContent = r.paused ? "Play" : "Pause";
   bar.dataset.paused = r.paused ? "1" : "";
   $("replay-scrub").max = String(Math.max(0, r.frames - 1));
+  $("replay-scrub").disabled = !(r.frames > 0); // a video that does not list its frames: pause and step only
   $("replay-pos").dataset.frames = String(r.frames);
   showReplayPosition();
 }
@@ -1012,7 +1344,7 @@ function showReplayPosition() {
   const index = f && f.replay_index !== null && f.replay_index !== undefined ? f.replay_index : r ? r.index : null;
   const scrub = $("replay-scrub");
   if (document.activeElement !== scrub && index !== null) scrub.value = String(index);
-  pos.textContent = `frame ${index === null ? "—" : index} / ${pos.dataset.frames || "—"}`;
+  pos.textContent = index === null ? "—" : framePosition(index, Number(pos.dataset.frames) || 0);
   pos.dataset.index = index === null ? "" : String(index);
 }
 
@@ -1043,10 +1375,50 @@ function setRecording(rec) {
 }
 
 async function toggleRecording() {
+  const stopping = state.recording;
   try {
-    setRecording(await api("api/recordings", { method: "POST", body: { action: state.recording ? "stop" : "start" } }));
+    const rec = await api("api/recordings", { method: "POST", body: { action: stopping ? "stop" : "start" } });
+    setRecording(rec);
+    if (stopping && rec.path) recordingToast(rec);
   } catch (e) {
     showError(e.message);
+  }
+}
+
+// Where the recording went, said when it stops: its folder (copyable) and how to play it back.
+function recordingToast(rec) {
+  const toast = $("toast");
+  const command = `depthruler serve --source replay:${rec.path}`;
+  toast.dataset.path = rec.path;
+  $("toast-text").textContent = `Recorded ${rec.frames} frame${rec.frames === 1 ? "" : "s"} to`;
+  $("toast-path").textContent = rec.path;
+  const open = $("toast-open");
+  open.dataset.name = rec.path.split("/").pop();
+  open.title = `Play it back here, in place of the live source until "Back to live source"; or run: ${command}`;
+  toast.classList.remove("hidden");
+  clearTimeout(state.toastTimer);
+  state.toastTimer = setTimeout(() => toast.classList.add("hidden"), 20000);
+}
+
+// Play a recording of the server's recordings root in its source's place (null: back to that source).
+async function openSource(recording) {
+  try {
+    goLive();
+    const s = await api("api/source", { method: "POST", body: { recording } });
+    $("toast").classList.add("hidden");
+    state.source = s;
+    pollSource();
+  } catch (e) {
+    showError(e.message);
+  }
+}
+
+async function copyPath() {
+  const path = $("toast").dataset.path || "";
+  try { await navigator.clipboard.writeText(path); $("toast-copy").textContent = "Copied"; } catch (e) {
+    // no clipboard (plain http on another host): select the text so the person can copy it
+    const r = document.createRange(); r.selectNodeContents($("toast-path"));
+    const sel = window.getSelection(); sel.removeAllRanges(); sel.addRange(r);
   }
 }
 
@@ -1082,9 +1454,15 @@ $("freeze").addEventListener("click", () => (state.mode === "live" ? freeze() : 
 $("view-color").addEventListener("click", () => setView("color"));
 $("view-disparity").addEventListener("click", () => setView("disparity"));
 $("clear").addEventListener("click", clearPoints);
+$("read-depth").addEventListener("click", () => setReadMode(!state.readMode));
+$("zoom-reset").addEventListener("click", () => { resetZoom(); draw(); });
 $("record").addEventListener("click", toggleRecording);
 $("save-png").addEventListener("click", savePng);
 $("undo-btn").addEventListener("click", undoDelete);
+$("toast-open").addEventListener("click", () => openSource($("toast-open").dataset.name));
+$("toast-copy").addEventListener("click", copyPath);
+$("toast-close").addEventListener("click", () => $("toast").classList.add("hidden"));
+$("replay-home").addEventListener("click", () => openSource(null));
 $("history-filter").addEventListener("change", (e) => { state.filter = e.target.value; renderHistory(); });
 $("replay-play").addEventListener("click", () => replay(state.source && state.source.replay && state.source.replay.paused ? "play" : "pause"));
 $("replay-step").addEventListener("click", () => replayStep(1));
@@ -1094,10 +1472,11 @@ window.addEventListener("pagehide", commitPendingDelete);
 
 document.addEventListener("keydown", (e) => {
   if (["SELECT", "INPUT", "TEXTAREA"].includes(e.target.tagName) || e.ctrlKey || e.metaKey || e.altKey) return;
+  if (e.target === canvas && canvasKey(e)) { e.preventDefault(); return; }
   const keys = Object.keys(UNITS);
   switch (e.key) {
     case "Escape":
-      if (state.press || state.points.length) clearPoints(); else goLive();
+      if (state.press || state.points.length) clearPoints(); else if (state.zoom.k > 1) { resetZoom(); draw(); } else goLive();
       break;
     case "f": state.mode === "live" ? freeze() : goLive(); break;
     case "d": setView(state.view === "color" ? "disparity" : "color"); break;
@@ -1106,13 +1485,21 @@ document.addEventListener("keydown", (e) => {
     case "r": toggleRecording(); break;
     case ".": replayStep(1); break;
     case ",": replayStep(-1); break;
-    case " ": // a focused button takes space itself
-      if (!state.source || !state.source.replay || e.target.tagName === "BUTTON") return;
-      $("replay-play").click();
+    case " ": // held: the mouse pans; tapped alone: pause / play a replay (a focused button takes space itself)
+      if (e.target.tagName === "BUTTON") return;
+      if (!state.space.down) Object.assign(state.space, { down: true, used: false });
+      canvas.style.cursor = "grab";
       break;
     default: return;
   }
   e.preventDefault();
+});
+document.addEventListener("keyup", (e) => {
+  if (e.key !== " " || !state.space.down) return;
+  const used = state.space.used;
+  Object.assign(state.space, { down: false, used: false });
+  canvas.style.cursor = "crosshair";
+  if (!used && state.source && state.source.replay && e.target.tagName !== "BUTTON") $("replay-play").click();
 });
 window.addEventListener("resize", () => { fitCanvas(); draw(); });
 

@@ -52,24 +52,25 @@ def test_replay_badge_and_frame_stepping(server):
         while (now := httpx.get(f"{server}/api/source").json()["replay"]["index"]) != paused_at:
             paused_at = now
             page.wait_for_timeout(400)
-        page.wait_for_function(f"document.getElementById('frame-tag').textContent.includes('replay #{paused_at}')")
+        page.wait_for_function("n => document.getElementById('frame-tag').dataset.index === String(n)", arg=paused_at)
         assert shown_index() == paused_at and index() == paused_at
-        assert page.text_content("#replay-pos") == f"frame {paused_at} / {FRAMES}"
-        assert f"replay #{paused_at}" in page.text_content("#frame-tag")
+        # 1-based on screen, the same in the bar and on the image: the last frame reads "frame 6 of 6"
+        assert page.text_content("#replay-pos") == f"frame {paused_at + 1} of {FRAMES}"
+        assert f"frame {paused_at + 1} of {FRAMES}" in page.text_content("#frame-tag")
         page.wait_for_timeout(500)
         assert shown_index() == paused_at  # paused: the stream stands still
 
         page.click("#replay-step")
         page.wait_for_function("n => +document.getElementById('replay-pos').dataset.index === n", arg=(paused_at + 1) % FRAMES)
-        page.wait_for_function(f"document.getElementById('frame-tag').textContent.includes('replay #{(paused_at + 1) % FRAMES}')")
+        page.wait_for_function("n => document.getElementById('frame-tag').dataset.index === String(n)", arg=(paused_at + 1) % FRAMES)
         assert shown_index() == (paused_at + 1) % FRAMES
 
         page.keyboard.press(",")  # one frame back
         page.wait_for_function("n => +document.getElementById('replay-pos').dataset.index === n", arg=paused_at)
-        page.wait_for_function(f"document.getElementById('frame-tag').textContent.includes('replay #{paused_at}')")
+        page.wait_for_function("n => document.getElementById('frame-tag').dataset.index === String(n)", arg=paused_at)
 
         page.locator("#replay-scrub").fill(str(FRAMES - 1))  # scrub to the last frame
-        page.wait_for_function(f"document.getElementById('frame-tag').textContent.includes('replay #{FRAMES - 1}')")
+        page.wait_for_function("n => document.getElementById('frame-tag').dataset.index === String(n)", arg=FRAMES - 1)
         assert index() == FRAMES - 1 == shown_index()
 
         # a measurement on the replay keeps the frame's index in the recording (for `export --measurements`)
@@ -80,9 +81,14 @@ def test_replay_badge_and_frame_stepping(server):
         page.mouse.click(box["x"] + box["width"] * 0.6, box["y"] + box["height"] * 0.5)
         page.wait_for_function("document.getElementById('distance').dataset.metres")
         mid = page.get_attribute("#distance", "data-id")
-        assert httpx.get(f"{server}/api/measurements/{mid}").json()["frame_index"] == FRAMES - 1
+        stored = httpx.get(f"{server}/api/measurements/{mid}").json()
+        assert stored["frame_index"] == FRAMES - 1
+        # named after the replay and its recording, not after the simulator it was recorded from
+        assert (stored["source_kind"], stored["recording"], stored["recorded_source"]) == ("replay", "shelf-take-1", "sim")
+        assert stored["source"].startswith("replay:") and stored["source"].split("?")[0].endswith("shelf-take-1")
+        assert page.text_content("#replay-pos") == f"frame {FRAMES} of {FRAMES}"
 
         page.click("#replay-play")  # play again: goes live, the replay moves on
         page.wait_for_function("document.getElementById('replay-bar').dataset.paused === ''")
-        page.wait_for_function(f"!document.getElementById('frame-tag').textContent.includes('replay #{FRAMES - 1}')")
+        page.wait_for_function("n => document.getElementById('frame-tag').dataset.index !== String(n)", arg=FRAMES - 1)
         assert problems == [], "\n".join(problems)

@@ -204,7 +204,8 @@ def test_saved_frames_and_checks_beside_a_database_are_ignored_by_git():
     root = Path(__file__).resolve().parents[2]
     if shutil.which("git") is None or not (root / ".git").exists():
         pytest.skip("not a git checkout")
-    names = ["depthruler.db", "depthruler-frames/0a1b.frame", "depthruler-checks.jsonl", "data/station-frames/x.frame", "data/station-checks.jsonl"]
+    names = ["depthruler.db", "depthruler-frames/0a1b.frame", "depthruler-checks.jsonl", "depthruler-checks/0a1b.png",
+             "data/station-frames/x.frame", "data/station-checks.jsonl"]
     res = subprocess.run(["git", "-C", str(root), "check-ignore", "--no-index", *names], capture_output=True, text=True)
     assert res.stdout.split() == names
 

@@ -77,3 +77,21 @@ def test_measurements_stored_during_an_export_are_left_out(store):
     store.add(frame_id=99, frame_uid="u0", frame=wall_frame(0), source="sim", p1=(1, 2), p2=(3, 4), options={}, result=_result(1))
     ids = [r["id"] for r in first] + [r["id"] for b in batches for r in b]
     assert ids == [1, 2, 3, 5, 6, 7, 8, 9, 10]
+
+
+def test_csv_names_the_source_kind_and_recording_and_older_rows_stay_readable(tmp_path):
+    """A measurement on a replay says "replay" and the recording's folder; one stored before the service
+    kept them (an existing database: no such keys in its row) exports with those cells empty."""
+    s = Store(tmp_path / "k.db")
+    try:
+        frame = wall_frame(0)
+        s.add(frame_id=1, frame_uid="old", frame=frame, source="sim", p1=(1, 2), p2=(30, 4), options={}, result=_result(0))
+        s.add(frame_id=2, frame_uid="new", frame=frame, source="replay:rec/desk?loop=1", p1=(1, 2), p2=(30, 4), options={},
+              result=_result(1), context={"source_kind": "replay", "recording": "desk", "frame_index": 5, "recorded_source": "sim"})
+        rows = list(csv.DictReader(io.StringIO(s.csv(), newline="")))
+        got = [(r["source"], r["source_kind"], r["recording"], r["frame_index"]) for r in rows]
+        assert got == [("sim", "", "", ""), ("replay:rec/desk?loop=1", "replay", "desk", "5")]
+        assert CSV_COLUMNS.index("source_kind") == CSV_COLUMNS.index("source") + 1
+        assert s.get(2)["recorded_source"] == "sim" and "source_kind" not in s.get(1)
+    finally:
+        s.close()

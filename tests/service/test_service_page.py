@@ -216,4 +216,4 @@ def test_replay_pause_step_seek(tmp_path):
     with make_client(tmp_path / "live") as c:
         latest(c)
         r = c.post("/api/source/replay", json={"action": "pause"})
-        assert r.status_code == 409 and "not a replay" in r.json()["detail"]
+        assert r.status_code == 409 and "not a replay" in r.json()["detail"] and "bags and video files" in r.json()["detail"]
