@@ -45,14 +45,14 @@ def doctor(
     progress = (lambda _: None) if json_out else (lambda m: typer.echo(f"... {m}", err=True))
     report = run_doctor(source_spec(source), window_s=window_s, board=board, progress=progress)
     if json_out:
-        typer.echo(json.dumps(report.to_dict(), allow_nan=False, default=_finite))
+        typer.echo(json.dumps(report.to_dict(), allow_nan=False, default=_plain))
     else:
         typer.echo(summary(report))
     if report.status == "fail":
         raise typer.Exit(1)
 
 
-def _finite(x):  # numpy scalars in figures
+def _plain(x):  # numpy scalars in figures
     return x.item() if hasattr(x, "item") else str(x)
 
 

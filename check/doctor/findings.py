@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from collections.abc import Mapping, Sequence
+from collections.abc import Iterable, Mapping
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -26,8 +26,11 @@ class Finding:
             raise ValueError(f"status {self.status!r} is not one of {', '.join(STATUSES)}")
 
     def to_dict(self) -> dict[str, Any]:
+        """JSON-ready: NaN and infinities in ``figures`` become null."""
+        from check.record import finite
+
         return {"check": self.check, "status": self.status, "measured": self.measured, "fix": self.fix,
-                "figures": dict(self.figures)}
+                "figures": finite(dict(self.figures))}
 
 
 @dataclass(frozen=True)
@@ -40,8 +43,7 @@ class DoctorReport:
     @property
     def status(self) -> str:
         """The worst finding: "fail", else "warn", else "pass"."""
-        found = {f.status for f in self.findings}
-        return "fail" if "fail" in found else "warn" if "warn" in found else "pass"
+        return worst(f.status for f in self.findings)
 
     def get(self, check: str) -> Finding:
         """The finding of ``check``; KeyError naming the checks there are."""
@@ -54,6 +56,7 @@ class DoctorReport:
         return {"source": self.source, "status": self.status, "findings": [f.to_dict() for f in self.findings]}
 
 
-def worst(findings: Sequence[Finding]) -> str:
-    """The worst status of ``findings`` ("pass" when there are none)."""
-    return DoctorReport("", tuple(findings)).status
+def worst(statuses: Iterable[str]) -> str:
+    """The worst of ``statuses``: "fail", else "warn", else "pass" (a skip, or nothing, is no problem)."""
+    found = set(statuses)
+    return "fail" if "fail" in found else "warn" if "warn" in found else "pass"

@@ -109,7 +109,7 @@ def _speed(cams: Sequence[UsbCamera]) -> Finding:
             states.append("fail")
             fixes.append(f"{c.name}: a {c.speed_mbps:g} Mbit/s link cannot carry video: use another port or cable")
     figures = {"speed_mbps": [c.speed_mbps for c in cams], "usb_id": [c.usb_id for c in cams]}
-    return Finding("usb-speed", worst([Finding("x", s, "") for s in states]), "; ".join(parts), "; ".join(fixes), figures)
+    return Finding("usb-speed", worst(states), "; ".join(parts), "; ".join(fixes), figures)
 
 
 def _permission(cams: Sequence[UsbCamera], kind: str, video_root: Path, video_sys: Path) -> Finding:
@@ -160,7 +160,7 @@ def version_findings(kind: str) -> list[Finding]:
         if found[dist] is None and kind == needed:
             problems.append(("fail", f"a {needed} source needs {dist}: pip install {dist}"))
     measured = ", ".join(f"{k} {v or 'not installed'}" for k, v in found.items())
-    status = worst([Finding("x", s, "") for s, _ in problems])
+    status = worst(s for s, _ in problems)
     return [Finding("versions", status, measured, "; ".join(f for _, f in problems), found)]
 
 
@@ -179,6 +179,6 @@ def with_depthai_speed(found: Finding, said: str) -> Finding:
                                        "cable (no USB2 hub or extension)")
     measured = f"{found.measured}; DepthAI says {name} ({mbps:g} Mbit/s)"
     # without a sysfs reading (no /sys in a container) the open device's own word decides; with one, the worse
-    merged = status if "speed_mbps" not in found.figures else worst([found, Finding("x", status, "")])
+    merged = status if "speed_mbps" not in found.figures else worst((found.status, status))
     return Finding("usb-speed", merged, measured, "; ".join(x for x in (found.fix, fix) if x),
                    {**found.figures, "depthai_usb_speed": name})

@@ -99,6 +99,11 @@ def test_timestamps_backwards_fail_and_drops_warn():
     assert drops.status == "warn" and drops.figures["dropped"] == 4
     even = timestamps_finding(window([i / 30 for i in range(30)]))
     assert even.status == "pass" and even.figures["device_fps"] == pytest.approx(30.0)
+    free = Window(SourceInfo(kind="sim", name="sim", fps=0.0), (0, 1, 2, 3), (0.0, 0.1, 0.5, 0.6), None, (), 1.0)
+    assert timestamps_finding(free).figures["dropped"] == 0  # no rate stated: nothing was due, nothing dropped
+    from check.doctor import Finding
+
+    assert Finding("fill", "warn", "x", figures={"fov_deg": float("nan")}).to_dict()["figures"]["fov_deg"] is None
 
 
 def _usb_device(root, name, vid, pid, speed, bus=1, dev=2, uvc=False):
@@ -143,19 +148,24 @@ def _write_video(path, frames):
     return path
 
 
+def _opencv_yaml(path, k, t_x, size):
+    """A stereo calibration as OpenCV's stereo_calib sample writes it (M1, D1, M2, D2, R, T; T in the board's unit)."""
+    fs = cv2.FileStorage(str(path), cv2.FILE_STORAGE_WRITE)
+    for name, value in (("M1", k), ("D1", np.zeros((1, 5))), ("M2", k), ("D2", np.zeros((1, 5))), ("R", np.eye(3)),
+                        ("T", np.array([[-t_x], [0.0], [0.0]]))):
+        fs.write(name, np.asarray(value, np.float64))
+    fs.write("image_width", size[0])
+    fs.write("image_height", size[1])
+    fs.release()
+    return path
+
+
 def test_a_video_stereo_file_with_an_opencv_yaml(tmp_path):
     from factories import rendered_pair
 
     pair = rendered_pair("poster", 2.0)
     h, w = pair.left.shape[:2]
-    yaml = tmp_path / "stereo.yaml"
-    fs = cv2.FileStorage(str(yaml), cv2.FILE_STORAGE_WRITE)
-    for name, value in (("M1", pair.k), ("D1", np.zeros((1, 5))), ("M2", pair.k), ("D2", np.zeros((1, 5))), ("R", np.eye(3)),
-                        ("T", np.array([[-pair.baseline_m], [0.0], [0.0]]))):
-        fs.write(name, np.asarray(value, np.float64))
-    fs.write("image_width", w)
-    fs.write("image_height", h)
-    fs.release()
+    yaml = _opencv_yaml(tmp_path / "stereo.yaml", pair.k, pair.baseline_m, (w, h))
     video = _write_video(tmp_path / "pair.mkv", [np.hstack([pair.left, pair.right])] * 3)
     report = run_doctor(f"video:{video}?layout=side-by-side&calib={yaml}&ndisp={pair.ndisp}", window_s=5.0)
     assert [f.check for f in report.findings] == CHECKS
@@ -164,6 +174,12 @@ def test_a_video_stereo_file_with_an_opencv_yaml(tmp_path):
     assert report.get("baseline").figures["baseline_m"] == pytest.approx(pair.baseline_m)
     rect = report.get("rectification")
     assert rect.status == "warn" and "no RMS" in rect.measured  # OpenCV's sample files carry none
+    # OpenCV's stereo_calib sample with its default square size 1 and 25 mm squares writes T in squares (2.4 for 60 mm)
+    squares = _opencv_yaml(tmp_path / "squares.yaml", pair.k, pair.baseline_m / 0.025, (w, h))
+    bad = run_doctor(f"video:{video}?layout=side-by-side&calib={squares}&ndisp={pair.ndisp}", window_s=0.5)
+    failed = [f for f in bad.findings if f.status == "fail"]
+    assert bad.status == "fail" and failed[0].check in ("baseline", "open")  # read as 2.4 m, or refused when loaded
+    assert "squares" in failed[0].fix + failed[0].measured or "calib_units" in failed[0].fix + failed[0].measured
     # the project's JSON carries its RMS: 1.4 px is a calibration to redo
     from device.calibration.files import load_any
 
