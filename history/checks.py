@@ -7,6 +7,7 @@ the figures. The file is ``<db stem>-checks.jsonl`` beside the service database 
 ``depthruler-checks.jsonl``), where ``GET /api/checks`` reads it. Lines are appended whole and
 fsync'd; a reader skips a truncated or corrupt line (a crash mid-write) instead of failing.
 The check (``depthruler check``) writes it and the service reads it; both import this package.
+A check run from the page also keeps its picture, ``<db stem>-checks/<id>.png``, named by the record's ``id``.
 """
 
 from __future__ import annotations
@@ -103,3 +104,33 @@ def read_checks(path: str | Path, *, serial: str | None = None, limit: int | Non
                 out.append(record)
     out.reverse()
     return out[:limit] if limit is not None else out
+
+
+def pictures_dir(path: str | Path) -> Path:
+    """The folder of check pictures that belongs to checks file ``path`` (``x-checks.jsonl`` -> ``x-checks/``)."""
+    path = Path(path)
+    return path.with_name(path.stem)
+
+
+def picture_path(path: str | Path, check_id: str) -> Path:
+    """The picture of check ``check_id`` (hex digits, as :func:`save_picture` names them) beside checks file ``path``;
+    ValueError for any other id, so a path never leaves the folder."""
+    if not (check_id and len(check_id) <= 64 and all(c in "0123456789abcdef" for c in check_id)):
+        raise ValueError(f"{check_id!r} is not a check id (lowercase hex digits)")
+    return pictures_dir(path) / f"{check_id}.png"
+
+
+def save_picture(path: str | Path, check_id: str, png: bytes) -> Path:
+    """Write check ``check_id``'s picture beside checks file ``path`` (fsync'd), before its record is appended."""
+    out = picture_path(path, check_id)
+    try:
+        out.parent.mkdir(parents=True, exist_ok=True)
+        tmp = out.with_suffix(".tmp")
+        with open(tmp, "wb") as fh:
+            fh.write(png)
+            fh.flush()
+            os.fsync(fh.fileno())
+        os.replace(tmp, out)
+    except OSError as exc:
+        raise CheckHistoryError(f"cannot write the check picture {out}: {exc}; free space or fix the folder's permissions") from exc
+    return out

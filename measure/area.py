@@ -5,7 +5,8 @@ edges (``measure.height.region_plane``, Eq. 9-10); each corner where its click's
 that plane; the area of the 3D polygon, A = |sum_i (P_i x P_i+1) . n| / 2 (Eq. 13). One-sigma: the
 plane's covariance through its sigma points and each corner moved ``click_px`` along x and y, in
 quadrature, times ``AREA_SIGMA_SCALE``. The answer is "unreliable" when fewer than ``ONE_PLANE_SHARE``
-of the polygon's pixels lie on the plane (the polygon does not lie on one surface).
+of the polygon's pixels lie on the plane within the sensor's noise (``one_plane_share``): the polygon
+does not lie on one surface.
 """
 
 from __future__ import annotations
@@ -17,9 +18,9 @@ from collections.abc import Sequence
 import numpy as np
 
 from measure.height import region_plane
-from measure.planes import Plane, sigma_of
+from measure.planes import INLIER_SIGMAS, MIN_SIGMA_PX, Plane, sigma_of
 from measure.shape_types import ShapeMeasurement
-from measure.support import check_options, check_points, verdict
+from measure.support import check_options, check_points, cross2, polygon_mask, verdict
 from measure.types import Frame, MeasureError, MeasureOptions
 
 AREA_SIGMA_SCALE = 1.0
@@ -41,6 +42,25 @@ def _crosses(v: np.ndarray) -> bool:
     o1, o2 = orient(a[i], b[i], a[j]), orient(a[i], b[i], b[j])
     o3, o4 = orient(a[j], b[j], a[i]), orient(a[j], b[j], b[i])
     return bool(((o1 * o2 < 0) & (o3 * o4 < 0)).any())
+
+
+def one_plane_share(frame: Frame, plane: Plane, mask: np.ndarray) -> float:
+    """Share of the pixels with depth in ``mask`` within ``INLIER_SIGMAS`` noise scales of ``plane``.
+
+    The noise scale comes from differences of horizontally neighbouring pixels (1.4826 MAD / sqrt(2),
+    floored at 0.75 of the disparity quantum), not from the plane's own residuals: a plane fit across two
+    surfaces inflates its residual scale until most pixels look like inliers; neighbour differences
+    cancel the surfaces and keep the sensor's noise."""
+    d = frame.disparity
+    pair = mask[:, 1:] & mask[:, :-1]
+    diff = (d[:, 1:] - d[:, :-1])[pair]
+    diff = diff[np.isfinite(diff)]
+    noise = 1.4826 * float(np.median(np.abs(diff))) / math.sqrt(2.0) if diff.size else 0.0
+    noise = max(noise, 0.75 * plane.quantum, MIN_SIGMA_PX)
+    ys, xs = np.nonzero(mask)
+    r = d[ys, xs] - plane.disparity_at(xs, ys)
+    r = r[np.isfinite(r)]
+    return float(np.mean(np.abs(r) <= INLIER_SIGMAS * noise)) if r.size else 0.0
 
 
 def polygon_area(points: np.ndarray, normal: np.ndarray) -> np.ndarray:
@@ -79,13 +99,13 @@ def measure_area(frame: Frame, vertices: Sequence[tuple[float, float]], options:
     verts = check_points(frame, vertices, 3, "an area")
     if _crosses(verts):
         raise MeasureError("the polygon's edges cross; click its corners in order around it")
-    if abs(float(np.cross(verts - verts[0], np.roll(verts, -1, axis=0) - verts[0]).sum())) < 2 * 9.0:
+    if abs(float(cross2(verts - verts[0], np.roll(verts, -1, axis=0) - verts[0]).sum())) < 2 * 9.0:
         raise MeasureError("the polygon encloses almost no pixels; click corners farther apart")
     plane = region_plane(frame, verts, opts.seed, erode_px=ERODE_PX)
     area, sigma, corners = area_on(plane, verts, opts.click_px)
     sigma *= AREA_SIGMA_SCALE
     reasons: list[str] = []
-    share = plane.n_support / plane.n_points
+    share = one_plane_share(frame, plane, polygon_mask(frame.shape, verts))
     off_plane = share < ONE_PLANE_SHARE
     if off_plane:
         reasons.append(f"polygon does not lie on one plane ({100 * share:.0f} % of its pixels do)")

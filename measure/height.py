@@ -1,8 +1,9 @@
 """Height of a clicked point above a plane: the floor or a table, clicked as a region or found under the point.
 
 Steps (metres, px): the point is where the click's viewing ray meets the robust plane of the window
-around it (``measure.planes.fit_plane``, Eq. 9-10); the base is the robust plane of a clicked polygon,
-or the plane the clicked surface stands on (``measure.support.support_plane``); the height is the
+around it (``measure.planes.fit_plane``, Eq. 9-10); the base is the robust plane of a clicked polygon or grown from one click,
+or the plane the clicked surface stands on: the dense level parallel to it below it
+(``measure.support.parallel_support``), else the dominant plane around it (``support_plane``); the height is the
 signed distance n . P + o of the point from the base (Eq. 12). Its one-sigma adds in quadrature the
 two planes' covariances (propagated with their sigma points) and the click's ``click_px`` along x and
 y, times ``HEIGHT_SIGMA_SCALE`` (docs/decisions/shape-uncertainty.md).
@@ -19,10 +20,11 @@ import numpy as np
 from measure.planes import SEED_HALF_PX, Plane, fit_plane, grow_plane, sigma_of
 from measure.sampling import check_point
 from measure.shape_types import ShapeMeasurement
-from measure.support import check_options, check_points, polygon_mask, support_plane, verdict
+from measure.support import check_options, check_points, parallel_support, polygon_mask, support_plane, verdict
 from measure.types import Frame, MeasureError, MeasureOptions
 
 HEIGHT_SIGMA_SCALE = 1.0
+MIN_DROP_M = 0.02  # a level this close below the top is the top's own noise, not a base
 EDGE_SHARE = 0.6  # a click window with fewer of its pixels on its plane straddles an edge
 
 
@@ -70,16 +72,16 @@ def measure_height(frame: Frame, point: tuple[float, float], base: Sequence[tupl
 
     Args:
         frame: the frame; ``point`` a click on the object (its top, or any point of it).
-        base: three or more clicks (x, y px) around a region of the floor or table to measure from,
-            or None to take the plane the clicked surface stands on.
+        base: the floor or table to measure from: one click (x, y px) on it (its plane grown from
+            there), or three or more around a region of it; None: the plane the clicked surface stands on.
         options: ``click_px`` and ``seed`` are used.
 
     Returns:
         A :class:`ShapeMeasurement` of kind "height" whose ``points_m`` are the point and its foot.
 
     Raises:
-        MeasureError: a click outside the image or on no surface with depth, a base of fewer than three
-            clicks, or no plane found under the point.
+        MeasureError: a click outside the image or on no surface with depth, a base of two clicks, or no
+            plane found under the point.
     """
     t0 = time.perf_counter()
     opts = check_options(options)
@@ -89,12 +91,23 @@ def measure_height(frame: Frame, point: tuple[float, float], base: Sequence[tupl
     if top.n_support < EDGE_SHARE * top.n_points:
         reasons.append("point on a depth edge")
     if base is not None:
-        verts = check_points(frame, base, 3, "a base region")
-        floor = region_plane(frame, verts, opts.seed, erode_px=3)
+        verts = check_points(frame, base, 1, "a base")
+        if len(verts) == 1:  # one click on the base: the plane grown from it over its surface
+            floor = grow_plane(frame, tuple(verts[0]), opts.seed).plane
+        elif len(verts) == 2:
+            raise MeasureError("a base is one click on the floor or table, or at least 3 clicks around a region of it; "
+                               "got 2: add a click")
+        else:
+            floor = region_plane(frame, verts, opts.seed, erode_px=3)
         clicks = ((x, y), *(tuple(v) for v in verts))
     else:
         grown = grow_plane(frame, (x, y), opts.seed)
-        floor = support_plane(frame, grown.mask, top.points_at(x, y), seed=opts.seed)
+        # A level top (a box, a table) stands on a parallel level: the ring's dense level below it is the
+        # floor or table alone, where a plane fit on the whole ring can tilt across side faces and a
+        # second level (a box on a table). Other tops take the ring's dominant plane.
+        floor = parallel_support(frame, grown.mask, grown.plane, seed=opts.seed, min_drop_m=MIN_DROP_M)
+        if floor is None:
+            floor = support_plane(frame, grown.mask, top.points_at(x, y), seed=opts.seed)
         if floor is None:
             raise MeasureError("no plane found under the point; click three or more points around a region of "
                                "the floor or table to measure from")

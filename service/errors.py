@@ -11,6 +11,8 @@ from fastapi import FastAPI, Request
 from fastapi.exceptions import RequestValidationError
 from fastapi.responses import JSONResponse
 
+from check.errors import CheckError
+from history.checks import CheckHistoryError
 from history.errors import FrameDropped, FrameNotSaved, MeasurementUnknown, SavedFrameUnreadable, StoreError, StoreFull
 from measure import MeasureError
 
@@ -32,6 +34,8 @@ STATUS: dict[type[Exception], int] = {
     SavedFrameUnreadable: 500,
     StoreError: 500,  # nothing was stored
     StoreFull: 507,
+    CheckError: 422,  # no board in the frames, or a board that cannot be
+    CheckHistoryError: 500,  # the check ran but its record or picture could not be kept
     recorder.RecorderError: 409,
     recorder.RecordingUnavailable: 503,
     recorder.BadRecordingName: 422,

@@ -354,6 +354,8 @@ class Capture:
                 "width": info.width if info else 0,
                 "height": info.height if info else 0,
                 "fps": info.fps if info else 0.0,
+                # What the device does to depth before it arrives (the OAK's stereo post-processing).
+                "depth": dict(info.extra["depth"]) if info and isinstance(info.extra.get("depth"), dict) else None,
                 "measured_fps": round(fps, 2),
                 "frames": self._frames,
                 "retries": self._retries,

@@ -79,6 +79,27 @@ class MeasureIn(BaseModel):
     frames: Annotated[int, Strict(), Field(ge=1, le=MAX_FRAMES)] = 1
 
 
+class BoardIn(BaseModel):
+    """A printed ChArUco board: squares across and down, square and marker side in mm, ArUco dictionary."""
+
+    model_config = ConfigDict(extra="forbid")
+    squares_x: Annotated[int, Strict(), Field(ge=3, le=100)] = 11
+    squares_y: Annotated[int, Strict(), Field(ge=3, le=100)] = 8
+    square_mm: Annotated[float, Field(gt=0, le=3000, allow_inf_nan=False)] = 30.0
+    marker_mm: Annotated[float, Field(gt=0, le=3000, allow_inf_nan=False)] = 22.0
+    dictionary: Annotated[str, Strict(), Field(pattern=r"^DICT_[A-Z0-9_]{1,40}$")] = "DICT_5X5_100"
+
+
+class CheckIn(BaseModel):
+    """``POST /api/checks`` body: check the board on frame ``frame_id`` (and the ``frames - 1`` received
+    before it); ``board`` as printed, or none for the source's own board (the simulator's) or the default."""
+
+    model_config = ConfigDict(extra="forbid")
+    frame_id: Id
+    frames: Annotated[int, Strict(), Field(ge=1, le=MAX_FRAMES)] = 1
+    board: BoardIn | None = None
+
+
 class RecordingIn(BaseModel):
     """``POST /api/recordings``: start or stop; ``out`` names a folder inside the server's recordings root."""
 
@@ -272,6 +293,8 @@ class SourceStatusOut(_Out):
     width: int
     height: int
     fps: float
+    depth: dict[str, Any] | None = Field(None, description="the depth post-processing the device applies "
+                                         "(an OAK's stereo filters, confidence threshold, baseline); None where the source does not say")
     measured_fps: float
     frames: int
     retries: int
@@ -341,6 +364,21 @@ class ChecksOut(_Out):
     checks: list[dict[str, Any]]
     count: int
     file: str
+
+
+class CheckOut(_Out):
+    """``POST /api/checks``: the check's record as the checks log keeps it (status, figures, findings,
+    source, serial, calibration hashes) with ``id``, the frames used, the board and ``png_url``."""
+
+    model_config = ConfigDict(extra="allow")
+    id: str
+    status: str
+    figures: dict[str, Any]
+    findings: list[dict[str, Any]]
+    frame_id: int
+    frame_ids: list[int]
+    board: dict[str, Any]
+    png_url: str | None = None
 
 
 def json_doc(model: type[BaseModel] | object, csv: bool = False) -> dict[str, object]:

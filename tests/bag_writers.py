@@ -14,6 +14,8 @@ from rosbags.rosbag2 import StoragePlugin
 from rosbags.rosbag2 import Writer as Writer2
 from rosbags.typesys import Stores, get_typestore
 
+import cv2
+
 from device import open_source
 from device.formats.recording import EndOfRecording
 from device.sources.bag import Rigid
@@ -86,13 +88,15 @@ def depth_array(z_m: np.ndarray, encoding: str, unit_m: float = 0.001) -> np.nda
     return np.where(np.isfinite(z_m) & (code <= 65535), code, 0).astype(np.uint16)
 
 
-def info_msg(ts, ros1: bool, t_ns: int, frame_id: str, cam: PinholeCamera):
+def info_msg(ts, ros1: bool, t_ns: int, frame_id: str, cam: PinholeCamera, d=None, model: str = "plumb_bob"):
+    """A CameraInfo of ``cam``; ``d`` the distortion coefficients of ``model`` (default: none, 5 zeros)."""
     K = np.array([cam.fx, 0, cam.cx, 0, cam.fy, cam.cy, 0, 0, 1], float)
     P = np.array([cam.fx, 0, cam.cx, 0, 0, cam.fy, cam.cy, 0, 0, 0, 1, 0], float)
-    fields = dict(D=np.zeros(5), K=K, R=np.eye(3).ravel(), P=P) if ros1 else dict(d=np.zeros(5), k=K, r=np.eye(3).ravel(), p=P)
+    D = np.zeros(5) if d is None else np.asarray(d, float)
+    fields = dict(D=D, K=K, R=np.eye(3).ravel(), P=P) if ros1 else dict(d=D, k=K, r=np.eye(3).ravel(), p=P)
     roi = ts.types["sensor_msgs/msg/RegionOfInterest"](x_offset=0, y_offset=0, height=0, width=0, do_rectify=False)
     return ts.types["sensor_msgs/msg/CameraInfo"](
-        header=_header(ts, ros1, t_ns, frame_id), height=cam.height, width=cam.width, distortion_model="plumb_bob",
+        header=_header(ts, ros1, t_ns, frame_id), height=cam.height, width=cam.width, distortion_model=model,
         binning_x=0, binning_y=0, roi=roi, **fields,
     )
 
@@ -229,3 +233,106 @@ def read_all(spec: str) -> list:
         with pytest.raises(EndOfRecording):
             src.read()
     return frames
+
+
+# depthai-ros publishes the colour camera's distortion as "rational_polynomial" with 8 coefficients (OpenCV's
+# order: k1 k2 p1 p2 k3 k4 k5 k6); these are of a 70-degree lens.
+OAK_RATIONAL = (-0.28, 0.09, 0.0006, -0.0004, -0.012, 0.02, 0.0, 0.0)
+MARK_BGR = (255, 0, 255)  # magenta dots on the poster's measured end points, for a "user" to click
+
+
+@functools.cache
+def make_near_frame():
+    """One simulated poster frame at 1.2 m (end points far enough out for distortion to matter), with a
+    5x5 magenta dot drawn on each true end point of the poster width."""
+    params = SceneParams("poster", distance_m=1.2, width=W, height=H, standoff_m=1.0)
+    f, _ = simulate_frame(params, make_model("indoor", contention=0.3), np.random.default_rng([9, 0]), timestamp=T0 / 1e9)
+    image = f.image.copy()
+    for u, v in (f.meta["truth"].p1_px, f.meta["truth"].p2_px):
+        image[int(round(v)) - 2:int(round(v)) + 3, int(round(u)) - 2:int(round(u)) + 3] = MARK_BGR
+    return f, image
+
+
+def distort(image: np.ndarray, cam: PinholeCamera, coeffs, *, nearest: bool) -> np.ndarray:
+    """What a lens with ``coeffs`` (OpenCV model) shows of a pinhole ``image`` of ``cam``: each distorted
+    pixel samples the pinhole image where its undistorted position falls."""
+    k1, k2, p1, p2, k3, k4, k5, k6 = (list(coeffs) + [0.0] * 8)[:8]
+    u, v = np.meshgrid(np.arange(cam.width, dtype=np.float64), np.arange(cam.height, dtype=np.float64))
+    xd, yd = (u - cam.cx) / cam.fx, (v - cam.cy) / cam.fy
+    x, y = xd.copy(), yd.copy()
+    for _ in range(100):  # invert the forward model by fixed-point iteration
+        r2 = x * x + y * y
+        radial = (1 + k1 * r2 + k2 * r2**2 + k3 * r2**3) / (1 + k4 * r2 + k5 * r2**2 + k6 * r2**3)
+        x = (xd - (2 * p1 * x * y + p2 * (r2 + 2 * x * x))) / radial
+        y = (yd - (p1 * (r2 + 2 * y * y) + 2 * p2 * x * y)) / radial
+    und = np.stack([x * cam.fx + cam.cx, y * cam.fy + cam.cy], axis=-1)
+    mx, my = und[..., 0].astype(np.float32), und[..., 1].astype(np.float32)
+    if nearest:
+        return cv2.remap(image.astype(np.float32), mx, my, cv2.INTER_NEAREST, borderMode=cv2.BORDER_CONSTANT, borderValue=float("nan"))
+    return cv2.remap(image, mx, my, cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT, borderValue=0)
+
+
+def write_distorted_oak_bag(path: Path, coeffs=OAK_RATIONAL, model: str = "rational_polynomial") -> Path:
+    """depthai-ros topics (ROS 2, MCAP) holding :func:`make_near_frame` as an OAK records it: the colour
+    image distorted by the lens ``coeffs``, depth registered to that distorted image, both camera_info
+    with the same K and the distortion (``model``)."""
+    f, marked = make_near_frame()
+    cam = f.camera
+    out = BagOut(path, "mcap")
+    ts, fc = out.ts, "oak_rgb_camera_optical_frame"
+    image = distort(marked, cam, coeffs, nearest=False)
+    z = distort(f.depth(), cam, coeffs, nearest=True)
+    out.write("/oak/rgb/camera_info", T0, info_msg(ts, False, T0, fc, cam, coeffs, model))
+    out.write("/oak/rgb/image_raw", T0, image_msg(ts, False, T0, fc, image, "bgr8"))
+    out.write("/oak/stereo/camera_info", T0, info_msg(ts, False, T0, fc, cam, coeffs, model))
+    out.write("/oak/stereo/image_raw", T0 + 25_000_000, image_msg(ts, False, T0, fc, depth_array(z, "16UC1"), "16UC1"))
+    out.close()
+    return path
+
+
+# A librealsense colour stream's "Inverse Brown Conrady" (k1 k2 p1 p2 k3: distorted -> undistorted).
+RS_INVERSE = (0.3, -0.1, 0.0008, -0.0005, 0.02)
+
+
+def distort_inverse_brown_conrady(image: np.ndarray, cam: PinholeCamera, coeffs) -> np.ndarray:
+    """What a colour sensor with librealsense's inverse model shows of a pinhole ``image``: the model
+    gives each distorted pixel's undistorted position in closed form (``rs2_deproject_pixel_to_point``)."""
+    k1, k2, p1, p2, k3 = coeffs
+    u, v = np.meshgrid(np.arange(cam.width, dtype=np.float64), np.arange(cam.height, dtype=np.float64))
+    x, y = (u - cam.cx) / cam.fx, (v - cam.cy) / cam.fy
+    r2 = x * x + y * y
+    f = 1 + k1 * r2 + k2 * r2**2 + k3 * r2**3
+    ux = x * f + 2 * p1 * x * y + p2 * (r2 + 2 * x * x)
+    uy = y * f + 2 * p2 * x * y + p1 * (r2 + 2 * y * y)
+    mx, my = (ux * cam.fx + cam.cx).astype(np.float32), (uy * cam.fy + cam.cy).astype(np.float32)
+    return cv2.remap(image, mx, my, cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT, borderValue=0)
+
+
+def write_distorted_viewer_bag(path: Path, coeffs=RS_INVERSE) -> Path:
+    """The RealSense Viewer's layout holding :func:`make_near_frame`: rgb8 colour distorted by librealsense's
+    inverse model (camera_info "Inverse Brown Conrady"), Z16 depth from a rectified depth stream ("Brown
+    Conrady", zero coefficients) at the colour camera's pose and K (tf identity)."""
+    f, marked = make_near_frame()
+    cam = f.camera
+    out = BagOut(path, "ros1")
+    ts = out.ts
+    d, c = "/device_0/sensor_0/Depth_0", "/device_0/sensor_1/Color_0"
+    out.write("/device_0/sensor_0/option/Depth Units/value", T0, ts.types["std_msgs/msg/Float32"](data=0.0001))
+    out.write(f"{d}/info/camera_info", T0, info_msg(ts, True, 0, "", cam, np.zeros(5), "Brown Conrady"))
+    out.write(f"{c}/info/camera_info", T0, info_msg(ts, True, 0, "", cam, coeffs, "Inverse Brown Conrady"))
+    out.write(f"{d}/tf/0", T0, transform_msg(ts, Rigid()))
+    out.write(f"{c}/tf/0", T0, transform_msg(ts, Rigid()))
+    t = T0 + 1_000_000
+    image = distort_inverse_brown_conrady(marked, cam, coeffs)
+    out.write(f"{c}/image/data", t, image_msg(ts, True, t, "", image[:, :, ::-1], "rgb8"))
+    out.write(f"{d}/image/data", t + 2_000_000, image_msg(ts, True, t + 2_000_000, "", depth_array(f.depth(), "mono16", 0.0001), "mono16"))
+    out.close()
+    return path
+
+
+def find_marks(image: np.ndarray) -> list[tuple[float, float]]:
+    """The centres (px) of the magenta dots seen in ``image``, left to right: where a user clicks."""
+    diff = np.abs(image.astype(np.int32) - np.array(MARK_BGR)).max(axis=2)
+    n, _, stats, centres = cv2.connectedComponentsWithStats((diff < 90).astype(np.uint8))
+    blobs = [tuple(centres[i]) for i in range(1, n) if stats[i, cv2.CC_STAT_AREA] >= 4]
+    return sorted(blobs)

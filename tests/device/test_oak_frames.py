@@ -11,6 +11,7 @@ import pytest
 
 from device import SourceDisconnected, SourceError, SourceTimeout
 from device.sources.oak import (
+    DepthNotRegistered,
     baseline_m_from_calibration,
     camera_for_frame,
     depth_to_disparity,
@@ -66,7 +67,7 @@ def test_confidence_map_is_v3_scale_255_is_best():
     conf = img(np.array([[255, 200, 55, 0], [255, 255, 0, 0]], np.uint8), dai.ImgFrame.Type.RAW8)
     frame = frame_from_messages(rgb, depth, conf, cam, 0.075)
     assert frame.confidence[0].tolist() == pytest.approx([1.0, 200 / 255, 55 / 255, 0.0])
-    # The threshold keeps pixels above it: DepthAI's own default keeps 55 and more.
+    # The threshold keeps pixels above it; 55 is a bare config's value (the presets set their own).
     assert dai.StereoDepthConfig().getConfidenceThreshold() == 55
 
 
@@ -138,3 +139,22 @@ def test_depth_must_be_millimetres():
     cam = intrinsics_from_calibration(calib, 8, 8)
     with pytest.raises(SourceError, match="uint16"):
         frame_from_messages(rgb, img(np.zeros((8, 8), np.uint8), dai.ImgFrame.Type.RAW8), None, cam, 0.075)
+
+
+def test_depth_of_another_aspect_is_refused_not_stretched():
+    """Mono-sized depth (640x400, 16:10) under a 16:9 colour image covers another field of view:
+    stretching it put depth 1/10 of the height away from where it belongs."""
+    calib = dai.CalibrationHandler(str(FIXTURE))
+    cam = intrinsics_from_calibration(calib, 128, 72)
+    rgb = img(np.zeros((72, 128, 3), np.uint8), dai.ImgFrame.Type.BGR888i)
+    mono_sized = img(np.full((40, 64), 1500, np.uint16), dai.ImgFrame.Type.RAW16)
+    with pytest.raises(DepthNotRegistered, match=r"64x40 but the image is 128x72.*align=color.*size=115x72") as err:
+        frame_from_messages(rgb, mono_sized, None, cam, 0.075)
+    assert isinstance(err.value, SourceError)
+    # The same aspect (decimation, or depth output at half size) is still resized onto the image.
+    half = frame_from_messages(rgb, img(np.full((36, 64), 1500, np.uint16), dai.ImgFrame.Type.RAW16), None, cam, 0.075)
+    assert np.allclose(half.depth(), 1.5)
+    # A confidence map of another aspect is refused the same way.
+    with pytest.raises(DepthNotRegistered, match="confidence map is 64x40"):
+        frame_from_messages(rgb, img(np.full((72, 128), 1500, np.uint16), dai.ImgFrame.Type.RAW16),
+                            img(np.zeros((40, 64), np.uint8), dai.ImgFrame.Type.RAW8), cam, 0.075)

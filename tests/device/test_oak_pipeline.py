@@ -3,8 +3,6 @@ node wiring on both platforms (nodes mocked to the installed depthai classes).""
 
 from __future__ import annotations
 
-from unittest import mock
-
 import pytest
 
 from device import SourceError, SourceNotFound
@@ -15,12 +13,13 @@ from device.sources.oak import (
     Sockets,
     choose_sockets,
     configure_stereo,
+    depth_settings,
     preset_mode,
 )
 
 import depthai as dai  # noqa: E402  (device.sources.oak has set DEPTHAI_LEVEL / DEPTHAI_SEARCH_TIMEOUT)
 
-from oak_helpers import FIXTURE, A, B, C  # noqa: E402
+from oak_helpers import FIXTURE, A, B, C, Wiring, default_preset_config, features as _features  # noqa: E402
 
 
 def test_every_preset_maps_to_its_depthai_enum():
@@ -52,15 +51,6 @@ def test_unset_options_keep_what_the_preset_chose():
     assert out.getDepthUnit() == dai.LengthUnit.MILLIMETER
 
 
-def _features(*cams) -> list:
-    out = []
-    for socket, kind, sensor in cams:
-        f = dai.CameraFeatures()
-        f.socket, f.supportedTypes, f.sensorName = socket, [kind], sensor
-        out.append(f)
-    return out
-
-
 COLOR, MONO = dai.CameraSensorType.COLOR, dai.CameraSensorType.MONO
 D = dai.CameraBoardSocket.CAM_D
 
@@ -81,66 +71,6 @@ def test_sockets_come_from_the_device_and_its_calibration():
     assert choose_sockets(odd, dai.CalibrationHandler()) == Sockets(left=B, right=C, color=D)
     with pytest.raises(SourceNotFound, match="no stereo pair"):
         choose_sockets(_features((A, COLOR, "IMX378")), dai.CalibrationHandler())
-
-
-class Wiring:
-    """A dai.Pipeline whose nodes are mocks restricted to the installed classes' attributes.
-
-    ``create_autospec`` restricts methods; pybind properties (outputs, inputs, initialConfig) come
-    out unrestricted, so they are set here to spec'd mocks of their real types, after checking
-    that the real class has them. Every ``Output.link(Input)`` is recorded as (output, input) labels.
-    """
-
-    PROPS = {
-        dai.node.StereoDepth: {"depth": dai.Node.Output, "confidenceMap": dai.Node.Output,
-                               "rectifiedLeft": dai.Node.Output, "disparity": dai.Node.Output,
-                               "inputAlignTo": dai.Node.Input, "initialConfig": dai.StereoDepthConfig},
-        dai.node.ImageAlign: {"input": dai.Node.Input, "inputAlignTo": dai.Node.Input,
-                              "outputAligned": dai.Node.Output},
-        dai.node.Sync: {"out": dai.Node.Output},
-        dai.node.Camera: {},
-    }
-
-    def __init__(self) -> None:
-        self.links: list[tuple[str, str]] = []
-        self.nodes: dict[str, list] = {}
-        self.pipeline = mock.create_autospec(dai.Pipeline, instance=True)
-        self.pipeline.create.side_effect = self._create
-
-    def _output(self, label: str):
-        out = mock.create_autospec(dai.Node.Output, instance=True)
-        out.link.side_effect = lambda inp: self.links.append((label, inp._label))
-        return out
-
-    def _input(self, label: str):
-        inp = mock.create_autospec(dai.Node.Input, instance=True)
-        inp._label = label
-        return inp
-
-    def _create(self, cls):
-        assert cls in self.PROPS, f"unexpected node {cls}"
-        name = cls.__name__
-        label = f"{name}{len(self.nodes.get(name, []))}"
-        node = mock.create_autospec(cls, instance=True)
-        if hasattr(cls, "build"):
-            node.build.return_value = node
-        for prop, kind in self.PROPS[cls].items():
-            assert hasattr(cls, prop), f"{name}.{prop} does not exist in depthai {dai.__version__}"
-            if kind is dai.Node.Output:
-                setattr(node, prop, self._output(f"{label}.{prop}"))
-            elif kind is dai.Node.Input:
-                setattr(node, prop, self._input(f"{label}.{prop}"))
-            else:
-                setattr(node, prop, mock.create_autospec(kind, instance=True))
-        if cls is dai.node.Camera:
-            node.requestOutput.side_effect = lambda *a, **k: self._output(f"{label}.out")
-        if cls is dai.node.Sync:
-            node.inputs = {k: self._input(f"sync.{k}") for k in ("rgb", "depth", "conf")}
-        self.nodes.setdefault(name, []).append(node)
-        return node
-
-    def into(self, target: str) -> set[str]:
-        return {src for src, dst in self.links if dst == target}
 
 
 def _wire(platform, sockets: Sockets, config: OakConfig = OakConfig()) -> Wiring:
@@ -164,6 +94,10 @@ def test_wiring_colour_aligned(platform):
     stereo.initialConfig.setDepthUnit.assert_called_once_with(dai.LengthUnit.MILLIMETER)
     # 5: automatic calibration explicitly off
     w.pipeline.setAutoCalibrationMode.assert_called_once_with(dai.Pipeline.AutoCalibrationMode.OFF)
+    # The calibrated baseline both for depth and for aligning it to colour (DepthAI's alignment
+    # default is the board drawing's).
+    stereo.setDisparityToDepthUseSpecTranslation.assert_called_once_with(False)
+    stereo.setDepthAlignmentUseSpecTranslation.assert_called_once_with(False)
     # 8: newest wins
     w.nodes["Sync"][0].out.createOutputQueue.assert_called_once_with(maxSize=1, blocking=False)
     # 3: no confidence map is delivered when it cannot be registered to colour
@@ -202,3 +136,46 @@ def test_wiring_left_aligned_delivers_registered_confidence(platform):
 def test_pipeline_default_auto_calibration_is_on_start():
     """Why defect 5 needs the explicit call: DepthAI 3.12's own default would recalibrate at start."""
     assert dai.Pipeline(False).getAutoCalibrationMode() == dai.Pipeline.AutoCalibrationMode.ON_START
+
+
+MEDIAN = dai.StereoDepthConfig.MedianFilter
+
+
+@pytest.mark.parametrize("platform", [dai.Platform.RVC2, dai.Platform.RVC4])
+def test_measurement_filters_whatever_the_preset(platform):
+    """The DEFAULT preset's temporal filter, decimation, hole filling and spatial filter are off on
+    the real config the node carries; what removes rather than invents depth keeps the preset's value."""
+    preset = default_preset_config(platform)
+    if platform == dai.Platform.RVC2:  # what DEFAULT brings on RVC2: all four on
+        pp = preset.postProcessing
+        assert pp.temporalFilter.enable and pp.temporalFilter.alpha == pytest.approx(0.5)
+        assert pp.decimationFilter.decimationFactor == 2 and pp.holeFilling.enable and pp.spatialFilter.enable
+    w = Wiring(preset)
+    wired = build_pipeline(w.pipeline, platform, Sockets(left=B, right=C, color=A), OakConfig())
+    cfg = w.nodes["StereoDepth"][0].initialConfig
+    assert cfg is preset
+    pp = cfg.postProcessing
+    assert pp.temporalFilter.enable is False
+    assert pp.decimationFilter.decimationFactor == 1
+    assert pp.holeFilling.enable is False
+    assert pp.spatialFilter.enable is False
+    rvc2 = platform == dai.Platform.RVC2
+    assert cfg.getMedianFilter() == (MEDIAN.KERNEL_7x7 if rvc2 else MEDIAN.KERNEL_5x5)
+    assert cfg.getConfidenceThreshold() == (15 if rvc2 else 20)
+    assert pp.speckleFilter.enable is True and cfg.getDepthUnit() == dai.LengthUnit.MILLIMETER
+    assert wired.depth == {
+        "postprocessing": "measurement", "temporal_filter": False, "decimation": 1, "hole_filling": False,
+        "spatial_filter": False, "median": "KERNEL_7x7" if rvc2 else "KERNEL_5x5", "speckle_filter": True,
+        "confidence_threshold": 15 if rvc2 else 20, "lr_check": rvc2, "subpixel": True,
+        "extended_disparity": not rvc2, "baseline": "calibrated (depth and alignment)",
+    }
+    assert wired.queue is w.nodes["Sync"][0].out.createOutputQueue.return_value
+
+
+def test_bare_config_fills_holes_and_the_measurement_config_does_not():
+    """Even without a preset depthai's own config fills holes (and other presets turn on the rest)."""
+    bare = dai.StereoDepthConfig()
+    assert bare.postProcessing.holeFilling.enable is True
+    out = configure_stereo(bare, OakConfig(preset="HIGH_DETAIL", confidence_threshold=200))
+    assert out.postProcessing.holeFilling.enable is False and out.getConfidenceThreshold() == 200
+    assert depth_settings(out)["hole_filling"] is False

@@ -128,3 +128,56 @@ def test_oak_module_type_checks_against_depthai_stubs():
         capture_output=True, text=True, cwd=root, timeout=300,
     )
     assert result.returncode == 0, result.stdout + result.stderr
+
+
+def test_open_states_the_measurement_depth_settings_in_info_and_recording(monkeypatch, tmp_path):
+    """OakSource.open on a stand-in device (real calibration, real output queue): SourceInfo.extra
+    states the depth post-processing, frames say it, and a recording's manifest keeps it."""
+    import json
+    from unittest import mock
+
+    import device.sources.oak.source as oak_source
+    from device.formats.recording import RecordingWriter
+    from device.sources.oak import OakSource
+
+    from oak_helpers import FIXTURE, A, B, C, Wiring, default_preset_config, features, img
+
+    w = Wiring(default_preset_config(dai.Platform.RVC2))
+    queue = dai.MessageQueue("sync", 1, False)
+    real_create = w.pipeline.create.side_effect
+
+    def create(cls):
+        node = real_create(cls)
+        if cls is dai.node.Sync:
+            node.out.createOutputQueue.return_value = queue
+        return node
+
+    w.pipeline.create.side_effect = create
+    dev = mock.create_autospec(dai.Device, instance=True)
+    dev.readCalibration.return_value = dai.CalibrationHandler(str(FIXTURE))
+    dev.getConnectedCameraFeatures.return_value = features((A, dai.CameraSensorType.COLOR, "IMX378"),
+                                                           (B, dai.CameraSensorType.MONO, "OV9282"),
+                                                           (C, dai.CameraSensorType.MONO, "OV9282"))
+    dev.getPlatform.return_value = dai.Platform.RVC2
+    dev.getPlatformAsString.return_value = "RVC2"
+    dev.getDeviceName.return_value = "OAK-D"
+    dev.isClosed.return_value = False
+    monkeypatch.setattr(oak_source, "find_device", lambda mxid, timeout_ms: dai.DeviceInfo("1844301011B546F500"))
+    monkeypatch.setattr(dai, "Device", lambda info: dev)
+    monkeypatch.setattr(dai, "Pipeline", lambda device: w.pipeline)
+
+    group = dai.MessageGroup()
+    group["rgb"] = img(np.zeros((72, 128, 3), np.uint8), dai.ImgFrame.Type.BGR888i)
+    group["depth"] = img(np.full((72, 128), 1200, np.uint16), dai.ImgFrame.Type.RAW16)
+    queue.send(group)
+    with OakSource(OakConfig(width=128, height=72)) as src:
+        depth = src.info.extra["depth"]
+        frame = src.read(0.5)
+        with RecordingWriter(tmp_path / "rec", src.info) as rec:
+            rec.write(frame)
+    assert (depth["temporal_filter"], depth["decimation"], depth["hole_filling"], depth["spatial_filter"]) == (False, 1, False, False)
+    assert depth["median"] == "KERNEL_7x7" and depth["confidence_threshold"] == 15
+    assert frame.meta["depth_postprocessing"] == "measurement"
+    assert np.allclose(frame.depth(), 1.2)
+    manifest = json.loads((tmp_path / "rec" / "manifest.json").read_text())
+    assert manifest["source"]["extra"]["depth"] == depth

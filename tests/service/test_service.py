@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import csv
+import dataclasses
 import io
 import json
 import threading
@@ -330,3 +331,20 @@ def test_replay_without_loop_ends_instead_of_starting_over(tmp_path):
         f = latest(c)  # the last frame stays measurable
         r = measure(c, f["id"], (60.0, 120.0), (260.0, 150.0))
         assert r.status_code == 200 and r.json()["distance_m"] > 0
+
+
+def test_source_status_states_the_device_depth_processing(tmp_path):
+    """/api/source repeats what the source says it does to depth (an OAK's SourceInfo.extra["depth"])."""
+    depth = {"postprocessing": "measurement", "temporal_filter": False, "decimation": 1, "hole_filling": False}
+
+    def factory():
+        src = PlaneSource()
+        src.info = dataclasses.replace(src.info, extra={"depth": depth})
+        return src
+
+    with make_client(tmp_path, factory=factory) as c:
+        latest(c)
+        assert c.get("/api/source").json()["depth"] == depth
+    with make_client(tmp_path / "plain") as c:
+        latest(c)
+        assert c.get("/api/source").json()["depth"] is None

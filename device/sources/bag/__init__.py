@@ -7,8 +7,9 @@ name the topics of any other bag.
 
 Steps: ``storage`` opens the bag and reads message times from its index; ``reader`` pairs each colour
 message with the depth message nearest in time (within ``skew_ms``), reads the calibration and
-extrinsics, and decodes a frame only when it is asked for (``messages``); ``geometry`` registers depth
-to the colour camera (z-buffered footprint splatting); ``source`` plays the frames in order.
+extrinsics, and decodes a frame only when it is asked for (``messages``); ``undistort`` resamples a
+distorted colour image and its depth onto pinhole images (camera_info ``D``); ``geometry`` registers
+depth to the colour camera (z-buffered footprint splatting); ``source`` plays the frames in order.
 
 Units: depth in metres (16-bit depth in its depth unit, ROS: mm), times in ns, pixels. Frames carry
 disparity ``d = fx * B / Z`` with the colour camera's ``fx`` and the recorded stereo baseline, else
@@ -27,6 +28,7 @@ from device.sources.bag.messages import DEFAULT_ROS_DEPTH_UNIT_M, camera_from_in
 from device.sources.bag.reader import BagContents, BagReader, summarize_bag
 from device.sources.bag.source import BagSource, config_from_spec
 from device.sources.bag.storage import BAG_SUFFIXES, is_bag_path, topic_times
+from device.sources.bag.undistort import Distortion, distortion_from_info, undistort_maps
 
 __all__ = [
     "BAG_SUFFIXES",
@@ -40,6 +42,7 @@ __all__ = [
     "BagOptions",
     "BagReader",
     "BagSource",
+    "Distortion",
     "Layout",
     "Rigid",
     "align_depth_to_color",
@@ -48,8 +51,10 @@ __all__ = [
     "decode_color",
     "decode_depth",
     "detect_layout",
+    "distortion_from_info",
     "is_bag_path",
     "pair_by_time",
     "summarize_bag",
     "topic_times",
+    "undistort_maps",
 ]

@@ -2,7 +2,7 @@
 
 Depth encodings: ``16UC1``/``mono16`` in depth units (ROS: millimetres, REP 118) and ``32FC1`` in metres;
 0, NaN and negatives are no depth. Colour: rgb8/bgr8/rgba8/bgra8/mono8/yuv422 or a compressed image.
-Lens distortion in camera_info is ignored (RealSense and OAK depth is rectified).
+Lens distortion in camera_info is read and undone by ``undistort``.
 """
 
 from __future__ import annotations

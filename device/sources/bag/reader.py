@@ -2,10 +2,11 @@
 
 Steps at open: detect the layout, read the camera_info of both topics, the depth-to-colour extrinsics (the
 Viewer's ``tf`` topics or the ``/tf_static`` chain between the two ``frame_id``s), depth units and
-baseline, then each image topic's times from the index and its recording latency (bag time minus header
+baseline and the lens distortion of both cameras, then each image topic's times from the index and its recording latency (bag time minus header
 stamp, median of three messages) and pair colour with the nearest depth within ``skew_ms`` (default half
 the median colour period, 5-50 ms). A frame reads and decodes its two messages only when asked for,
-re-pairs by header stamp when they differ by more than the skew, registers depth to colour and returns
+re-pairs by header stamp when they differ by more than the skew, resamples a distorted colour image and
+its depth onto pinhole images of their K (``undistort``), registers depth to colour and returns
 disparity ``d = fx * B / Z`` (m, px). Why and how fast: docs/decisions/bag-source.md.
 """
 
@@ -28,6 +29,7 @@ from device.sources.bag.geometry import Rigid, align_depth_to_color, pair_by_tim
 from device.sources.bag.layout import Layout, detect_layout
 from device.sources.bag.messages import DEFAULT_ROS_DEPTH_UNIT_M, _stamp_ns, camera_from_info, decode_color, decode_depth
 from device.sources.bag.storage import _open_reader, _storage_name, topic_times
+from device.sources.bag.undistort import Distortion, distortion_from_info, remap, undistort_maps
 from device.sources.depth_folder import DEFAULT_BASELINE_M, depth_to_disparity
 
 
@@ -55,6 +57,8 @@ class BagContents:
     indexed: bool = True
     stamps_comparable: bool = False  # colour and depth header stamps share a clock: they decide the pairs
     latency_ns: tuple[int, int] = (0, 0)  # (colour, depth) bag time minus header stamp, taken off before pairing
+    color_distortion: Distortion = Distortion()  # the colour camera_info's; frames are undistorted by it
+    depth_distortion: Distortion = Distortion()  # the depth camera_info's (the colour's when depth has none)
 
     def __len__(self) -> int:
         return int(self.pairs[0].size)
@@ -76,6 +80,7 @@ class BagReader:
         self.config = config if isinstance(config, BagConfig) else BagConfig(Path(config), options)
         self.path = Path(self.config.path)
         self.options = self.config.options
+        self._undistort: dict[tuple[PinholeCamera, Distortion], tuple[np.ndarray, np.ndarray] | None] = {}
         self._reader = _open_reader(self.path)
         try:
             self.contents = self._index()
@@ -175,11 +180,13 @@ class BagReader:
                 f"({layout.color_info_topic or 'none found next to it'}); name it with color_info=TOPIC"
             )
         color_cam = camera_from_info(color_info, layout.color_info_topic or "")
+        color_dist = distortion_from_info(color_info, layout.color_info_topic or "")
         depth_info = self._first(layout.depth_info_topic)
         if depth_info is not None:
             depth_cam = camera_from_info(depth_info, layout.depth_info_topic or "")
+            depth_dist = distortion_from_info(depth_info, layout.depth_info_topic or "")
         elif layout.registered or opts.registered:
-            depth_cam = color_cam
+            depth_cam, depth_dist = color_cam, color_dist
         else:
             raise BagError(f"{self.path}: no camera_info for the depth topic {layout.depth_topic}; name it with depth_info=TOPIC, "
                            "or add registered=1 if the depth is registered to the colour image")
@@ -219,6 +226,8 @@ class BagReader:
             indexed=idx_c and idx_d,
             stamps_comparable=stamps,
             latency_ns=(int(lat_c), int(lat_d)),
+            color_distortion=color_dist,
+            depth_distortion=depth_dist,
         )
 
     def _extrinsics(self, layout: Layout, depth_info: Any, color_info: Any, depth_cam: PinholeCamera, color_cam: PinholeCamera) -> tuple[Rigid, str]:
@@ -316,6 +325,13 @@ class BagReader:
             gen.close()
         raise BagError(f"{self.path}: message {i} of {topic} (time {t} ns) listed in the index is missing; the bag is damaged")
 
+    def _maps(self, cam: PinholeCamera, dist: Distortion) -> tuple[np.ndarray, np.ndarray] | None:
+        """Undistortion maps of a camera, computed once per (camera, distortion)."""
+        key = (cam, dist)
+        if key not in self._undistort:
+            self._undistort[key] = undistort_maps(cam, dist)
+        return self._undistort[key]
+
     def frame(self, i: int) -> Frame:
         """Frame ``i`` (0-based among the colour/depth pairs): colour, registered disparity and meta."""
         if self._reader is None:
@@ -349,6 +365,10 @@ class BagReader:
         except MeasureError as exc:
             raise BagError(f"{self.path}: frame {i}'s images ({image.shape[1]}x{image.shape[0]} colour, {depth.shape[1]}x"
                            f"{depth.shape[0]} depth) do not fit their camera_info ({exc}); the messages are damaged") from exc
+        # Distorted images onto the pinhole images of their K: colour and its registered depth by the same
+        # map, so they stay registered; clicked pixels then back-project with K alone.
+        image = remap(image, self._maps(cam, c.color_distortion), nearest=False)
+        depth = remap(depth, self._maps(dcam, c.depth_distortion), nearest=True)
         z = align_depth_to_color(depth, dcam, cam, c.depth_to_color)
         skew = (sd - sc) / 1e9 if c.stamps_comparable else (depth_t - color_t) / 1e9
         meta = {
@@ -367,6 +387,8 @@ class BagReader:
             "depth_encoding": str(depth_msg.encoding),
             "disparity_from_depth": True,
             "baseline": c.baseline_from,
+            "color_distortion": "none" if c.color_distortion.is_none else c.color_distortion.model,
+            "undistorted": not (c.color_distortion.is_none and c.depth_distortion.is_none),
         }
         return Frame(
             image=image,
@@ -404,6 +426,8 @@ def summarize_bag(path: str | Path, options: BagOptions = BagOptions()) -> dict[
             "color_camera": dataclasses.asdict(c.color_camera),
             "depth_camera": dataclasses.asdict(c.depth_camera),
             "registered": c.registered,
+            "color_distortion": dataclasses.asdict(c.color_distortion),
+            "depth_distortion": dataclasses.asdict(c.depth_distortion),
             "extrinsics": c.extrinsics_from,
             "depth_to_color": {"R": [list(r) for r in c.depth_to_color.R], "t": list(c.depth_to_color.t)},
             "depth_encoding": c.depth_encoding,

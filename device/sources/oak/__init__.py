@@ -11,10 +11,14 @@ examples; verified without hardware only):
   calibration (``getStereoLeftCameraId``), not fixed CAM_A/B/C: a model without a colour camera
   delivers the rectified left image with depth aligned to it (:func:`choose_sockets`);
 - the confidence map is 255 = most confident and ``setConfidenceThreshold(t)`` keeps pixels whose
-  confidence is above ``t`` (default 55). It is delivered only when it is registered to the image:
-  aligned to the rectified left (``align=left``). DepthAI cannot align it to colour (RVC2 leaves it
-  in the rectified frame; RVC4's ImageAlign warps a RAW8 map without any depth-dependent shift);
-- ``StereoDepth.build(..., preset)`` applies the preset; only options the user set override it;
+  confidence is above ``t``. 55 is only a bare ``StereoDepthConfig``'s value: the presets set their
+  own (DEFAULT: 15 on RVC2, 20 on RVC4; ACCURACY: 55 and 97). The map is delivered only when it is
+  registered to the image: aligned to the rectified left (``align=left``). DepthAI cannot align it
+  to colour (RVC2 leaves it in the rectified frame; RVC4's ImageAlign warps a RAW8 map without any
+  depth-dependent shift);
+- ``StereoDepth.build(..., preset)`` applies the preset; only options the user set override it,
+  except the post-processing that would bias a measurement (temporal filter, decimation, hole
+  filling, spatial filter), which is off whatever the preset (:func:`measurement_filters`);
 - the pipeline's automatic calibration (ON_START by default in 3.12, may write a calibration to the
   device) is OFF unless ``auto_calibration=on_start|continuous`` is asked for;
 - the output queue holds one message and drops older ones (newest wins: no queued latency), and
@@ -39,37 +43,53 @@ os.environ.setdefault("DEPTHAI_SEARCH_TIMEOUT", "1000")
 from device.sources.oak.calibration import baseline_m_from_calibration, intrinsics_from_calibration, output_camera  # noqa: E402
 from device.sources.oak.config import ALIGNS, AUTO_CALIBRATION, COLOR_SOCKET, PRESETS, OakConfig, config_from_spec  # noqa: E402
 from device.sources.oak.frames import (  # noqa: E402
+    DepthNotRegistered,
     camera_for_frame,
+    check_registered,
     confidence_from_map,
     depth_to_disparity,
     frame_from_messages,
     read_group,
 )
-from device.sources.oak.pipeline import Sockets, build_pipeline, choose_sockets, configure_stereo, preset_mode  # noqa: E402
+from device.sources.oak.pipeline import (  # noqa: E402
+    OakPipeline,
+    Sockets,
+    build_pipeline,
+    choose_sockets,
+    configure_stereo,
+    depth_settings,
+    measurement_filters,
+    preset_mode,
+)
 from device.sources.oak.source import PLUG_IN_HINT, UDEV_HINT, UDEV_RULE, OakSource, find_device  # noqa: E402
 
 __all__ = [
     "ALIGNS",
     "AUTO_CALIBRATION",
     "COLOR_SOCKET",
+    "DepthNotRegistered",
     "PLUG_IN_HINT",
     "PRESETS",
     "UDEV_HINT",
     "UDEV_RULE",
     "OakConfig",
+    "OakPipeline",
     "OakSource",
     "Sockets",
     "baseline_m_from_calibration",
     "build_pipeline",
     "camera_for_frame",
+    "check_registered",
     "choose_sockets",
     "confidence_from_map",
     "config_from_spec",
     "configure_stereo",
+    "depth_settings",
     "depth_to_disparity",
     "find_device",
     "frame_from_messages",
     "intrinsics_from_calibration",
+    "measurement_filters",
     "output_camera",
     "preset_mode",
     "read_group",

@@ -38,7 +38,10 @@ class OakConfig:
     ``subpixel``, ``lr_check``, ``extended_disparity`` and ``confidence_threshold`` are None
     ("as the preset says") unless set. ``confidence_threshold`` has DepthAI v3's meaning: 0-255,
     pixels whose confidence (255 = best) is above it are kept, so a *higher* value keeps *fewer*
-    pixels (v2 had the opposite scale: a v2 value of 200-245 would drop most depth in v3).
+    pixels (v2 had the opposite scale: a v2 value of 200-245 would drop most depth in v3); the
+    DEFAULT preset keeps pixels above 15 on RVC2 and 20 on RVC4. Whatever the preset, the
+    temporal filter, decimation, hole filling and spatial filter are off
+    (:func:`device.sources.oak.pipeline.measurement_filters`).
     ``align``: "color" (depth on the colour image), "left" (the rectified left mono image, with the
     confidence map) or "auto" (colour when the device has a colour camera). ``auto_calibration``:
     DepthAI's automatic recalibration, "off" (default), "on_start" or "continuous" (may write a

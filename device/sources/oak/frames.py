@@ -11,7 +11,28 @@ import numpy as np
 
 from measure import Frame, PinholeCamera
 
-from device.errors import SourceDisconnected, SourceError, SourceTimeout
+from device.errors import CalibrationError, SourceDisconnected, SourceError, SourceTimeout
+
+# How far (relative) a depth frame's aspect ratio may be from the image's before it is refused: a
+# rounding of odd sizes (e.g. 1280x720 -> 639x360), not a different field of view.
+ASPECT_TOLERANCE = 0.01
+
+
+class DepthNotRegistered(CalibrationError):
+    """A depth (or confidence) frame does not cover the image it should be registered to."""
+
+
+def check_registered(what: str, shape: tuple[int, ...], width: int, height: int) -> None:
+    """Raise :class:`DepthNotRegistered` unless a ``shape`` (rows, cols) frame has the image's aspect
+    ratio, so that resizing it to ``width`` x ``height`` pixels maps the same field of view."""
+    h_d, w_d = int(shape[0]), int(shape[1])
+    if h_d <= 0 or w_d <= 0 or abs(w_d * height - width * h_d) > ASPECT_TOLERANCE * width * h_d:
+        raise DepthNotRegistered(
+            f"the OAK's {what} is {w_d}x{h_d} but the image is {width}x{height} (aspect {w_d / max(h_d, 1):.3f} "
+            f"against {width / height:.3f}): the {what} is not registered to the image and cannot be resized onto it. "
+            "Use align=color (depth aligned on the device to the colour camera), or align=left (the rectified "
+            f"left image at mono_size), or set size= to the aspect of mono_size (e.g. size={round(height * w_d / h_d)}x{height})"
+        )
 
 def depth_to_disparity(depth_mm: np.ndarray, fx: float, baseline_m: float) -> np.ndarray:
     """Disparity (float32 pixels, NaN invalid) at focal length ``fx`` (pixels) from depth in mm.
@@ -64,9 +85,10 @@ def frame_from_messages(
 ) -> Frame:
     """One :class:`Frame` from a synchronised colour frame and aligned depth (uint16 mm).
 
-    Depth aligned by the device normally has the colour size; if not (RVC2 pads or scales on some
-    configurations) it is resized with nearest neighbour so that no depth is invented between
-    surfaces. Confidence is 0 where depth is invalid.
+    Depth aligned by the device normally has the colour size; if not (RVC2 scales on some
+    configurations) a frame of the same aspect ratio is resized with nearest neighbour so that no
+    depth is invented between surfaces, and one of another aspect raises :class:`DepthNotRegistered`
+    (it covers another field of view). Confidence is 0 where depth is invalid.
     """
     image = rgb.getCvFrame()
     if image.ndim == 2:
@@ -78,12 +100,14 @@ def frame_from_messages(
     if depth_mm.dtype != np.uint16:
         raise SourceError(f"OAK depth must be uint16 millimetres (RAW16), got {depth_mm.dtype}")
     if depth_mm.shape != (h, w):
+        check_registered("depth", depth_mm.shape, w, h)
         depth_mm = cv2.resize(depth_mm, (w, h), interpolation=cv2.INTER_NEAREST)
     disparity = depth_to_disparity(depth_mm, cam.fx, baseline_m)
     confidence = None
     if conf is not None:
         c = conf.getFrame()
         if c.shape != (h, w):
+            check_registered("confidence map", c.shape, w, h)
             c = cv2.resize(c, (w, h), interpolation=cv2.INTER_NEAREST)
         confidence = confidence_from_map(c)
         confidence[np.isnan(disparity)] = 0.0

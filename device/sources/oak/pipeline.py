@@ -18,12 +18,54 @@ def preset_mode(name: str) -> dai.node.StereoDepth.PresetMode:
     return getattr(dai.node.StereoDepth.PresetMode, name)
 
 
+def measurement_filters(stereo_config: dai.StereoDepthConfig) -> dai.StereoDepthConfig:
+    """Turn off the post-processing that makes depth unfit for measuring, whatever the preset set.
+
+    - temporal filter off: it blends each frame with the previous ones (alpha 0.5 in the RVC2
+      presets), so frames pooled by "measure over N frames" would not be independent;
+    - decimation factor 1: decimation changes the depth size the intrinsics must match;
+    - hole filling off, and the spatial filter off (its ``holeFillingRadius`` fills too): both invent
+      depth in the gaps at object edges, exactly where people click.
+
+    Median, speckle and threshold filters, which remove or smooth but do not invent depth, keep the
+    preset's values. Returns the same (mutated) object. The presets' values and why:
+    docs/decisions/oak-depth-processing.md.
+    """
+    pp = stereo_config.postProcessing
+    pp.temporalFilter.enable = False
+    pp.decimationFilter.decimationFactor = 1
+    pp.holeFilling.enable = False
+    pp.spatialFilter.enable = False
+    return stereo_config
+
+
+def depth_settings(stereo_config: dai.StereoDepthConfig) -> dict[str, object]:
+    """What the device's stereo does to depth, as JSON-ready values, for ``SourceInfo.extra["depth"]``
+    (shown by ``/api/source`` and written to a recording's manifest)."""
+    pp = stereo_config.postProcessing
+    return {
+        "postprocessing": "measurement",
+        "temporal_filter": bool(pp.temporalFilter.enable),
+        "decimation": int(pp.decimationFilter.decimationFactor),
+        "hole_filling": bool(pp.holeFilling.enable),
+        "spatial_filter": bool(pp.spatialFilter.enable),
+        "median": stereo_config.getMedianFilter().name,
+        "speckle_filter": bool(pp.speckleFilter.enable),
+        "confidence_threshold": int(stereo_config.getConfidenceThreshold()),
+        "lr_check": bool(stereo_config.getLeftRightCheck()),
+        "subpixel": bool(stereo_config.getSubpixel()),
+        "extended_disparity": bool(stereo_config.getExtendedDisparity()),
+        "baseline": "calibrated (depth and alignment)",
+    }
+
+
 def configure_stereo(stereo_config: dai.StereoDepthConfig, config: OakConfig) -> dai.StereoDepthConfig:
     """Apply the stereo settings the user set to a ``StereoDepthConfig`` (a node's ``initialConfig``,
     which ``StereoDepth.build(..., preset)`` has already filled from the preset): an option left at
-    None keeps the preset's value. Depth unit is forced to millimetres because
-    :func:`depth_to_disparity` expects mm.
+    None keeps the preset's value. The :func:`measurement_filters` are applied whatever the preset.
+    Depth unit is forced to millimetres because :func:`depth_to_disparity` expects mm.
     """
+    measurement_filters(stereo_config)
     if config.lr_check is not None:
         stereo_config.setLeftRightCheck(config.lr_check)
     if config.subpixel is not None:
@@ -34,6 +76,15 @@ def configure_stereo(stereo_config: dai.StereoDepthConfig, config: OakConfig) ->
     if config.confidence_threshold is not None:
         stereo_config.setConfidenceThreshold(config.confidence_threshold)
     return stereo_config
+
+
+@dataclass(frozen=True)
+class OakPipeline:
+    """What :func:`build_pipeline` wired: the output queue and the stereo settings in force
+    (:func:`depth_settings` of the StereoDepth node's config after the preset and the options)."""
+
+    queue: dai.MessageQueue
+    depth: dict[str, object]
 
 
 @dataclass(frozen=True)
@@ -80,9 +131,9 @@ def choose_sockets(features: list[dai.CameraFeatures], calib: dai.CalibrationHan
     return Sockets(left=pair[0], right=pair[1], color=color)
 
 
-def build_pipeline(pipeline: dai.Pipeline, platform: dai.Platform, sockets: Sockets, cfg: OakConfig) -> dai.MessageQueue:
-    """Wire the nodes for ``sockets`` on ``pipeline`` and return its output queue (one synchronised group:
-    ``rgb``, ``depth`` and, aligned to the rectified left only, ``conf``)."""
+def build_pipeline(pipeline: dai.Pipeline, platform: dai.Platform, sockets: Sockets, cfg: OakConfig) -> OakPipeline:
+    """Wire the nodes for ``sockets`` on ``pipeline``; return its output queue (one synchronised group:
+    ``rgb``, ``depth`` and, aligned to the rectified left only, ``conf``) and the stereo settings."""
     pipeline.setAutoCalibrationMode(AUTO_CALIBRATION[cfg.auto_calibration])
     left = pipeline.create(dai.node.Camera).build(sockets.left)
     right = pipeline.create(dai.node.Camera).build(sockets.right)
@@ -90,7 +141,10 @@ def build_pipeline(pipeline: dai.Pipeline, platform: dai.Platform, sockets: Sock
     stereo = pipeline.create(dai.node.StereoDepth).build(
         left.requestOutput(mono, fps=cfg.fps), right.requestOutput(mono, fps=cfg.fps), preset_mode(cfg.preset)
     )
+    # The calibrated baseline, not the board drawing's, both for depth and for moving depth onto
+    # the colour camera (DepthAI's default for the alignment is the drawing's).
     stereo.setDisparityToDepthUseSpecTranslation(False)
+    stereo.setDepthAlignmentUseSpecTranslation(False)
     # Only what the user set, on the config build() filled from the preset (the node's own
     # setLeftRightCheck & co. write the same initialConfig).
     configure_stereo(stereo.initialConfig, cfg)
@@ -118,4 +172,5 @@ def build_pipeline(pipeline: dai.Pipeline, platform: dai.Platform, sockets: Sock
             stereo.depth.link(sync.inputs["depth"])
         # No confidence map here: it cannot be registered to colour on either platform (device/sources/oak/__init__.py).
     # One message, older ones dropped: the newest frame wins, no queued latency in live view.
-    return sync.out.createOutputQueue(maxSize=1, blocking=False)
+    return OakPipeline(queue=sync.out.createOutputQueue(maxSize=1, blocking=False),
+                       depth=depth_settings(stereo.initialConfig))

@@ -107,7 +107,8 @@ class OakSource(SourceBase):
             self._camera = output_camera(calib, sockets, cfg)
             self._baseline_m = baseline_m_from_calibration(calib)
             pipeline = self._pipeline = dai.Pipeline(device)
-            self._queue = build_pipeline(pipeline, device.getPlatform(), sockets, cfg)
+            wired = build_pipeline(pipeline, device.getPlatform(), sockets, cfg)
+            self._queue = wired.queue
             pipeline.start()
         except SourceError:
             self._release()
@@ -133,6 +134,7 @@ class OakSource(SourceBase):
                 "confidence": "delivered" if self._confidence_delivered(sockets) else
                               "not delivered (not registered to the colour image; use align=left)",
                 "auto_calibration": cfg.auto_calibration,
+                "depth": wired.depth,
             },
         )
         super().open()
@@ -151,7 +153,7 @@ class OakSource(SourceBase):
             raise SourceError("the OAK pipeline sent a group without image frames")
         return frame_from_messages(
             rgb, depth, conf if isinstance(conf, dai.ImgFrame) else None, self._camera, self._baseline_m,
-            {"serial": self.info.serial},
+            {"serial": self.info.serial, "depth_postprocessing": "measurement"},
         )
 
     def _release(self) -> None:

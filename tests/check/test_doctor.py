@@ -1,0 +1,192 @@
+"""`depthruler doctor` on the simulator, a recording made by `depthruler record`, a `video:` stereo file and a
+fake sysfs: every check reports, and the findings carry the numbers (fps, fill, baseline) they are judged on."""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+
+import cv2
+import numpy as np
+import pytest
+from typer.testing import CliRunner
+
+from check.doctor import NO_CAMERA, run_doctor
+from check.doctor.calib import baseline_finding, rectification_finding
+from check.doctor.host import usb_findings, with_depthai_speed
+from check.doctor.stream import Window, timestamps_finding
+from device.base import SourceInfo
+from device.calibration.files import CalibrationRef
+from device.formats.recording import RecordingWriter
+from factories import synthetic_frame
+
+runner = CliRunner()
+CHECKS = ["versions", "usb-speed", "usb-permission", "open", "frames", "timestamps", "registration", "fill", "baseline",
+          "intrinsics", "rectification", "board"]
+BOARD_SIM = "sim:charuco?distance=1.2&width=640&height=360&fps=10"
+
+
+def test_sim_reports_every_check_with_fps_fill_and_the_board():
+    report = run_doctor(BOARD_SIM, window_s=1.0)
+    assert [f.check for f in report.findings] == CHECKS
+    frames = report.get("frames")
+    # pass, or warn on a host too loaded to render 10 fps: never a fail, and the rate is a number
+    assert frames.status in ("pass", "warn") and frames.figures["frames"] >= 3 and frames.figures["fps"] > 0
+    fill = report.get("fill").figures
+    assert 0.5 < fill["fill_rate"] <= 1.0 and 0.5 < fill["centre_fill_rate"] <= 1.0
+    assert report.get("baseline").status == "pass" and report.get("baseline").figures["baseline_m"] == pytest.approx(0.06)
+    stamps = report.get("timestamps")
+    assert report.get("usb-speed").status == "skip" and stamps.status != "fail" and stamps.figures["backwards"] == 0
+    board = report.get("board")
+    assert board.status in ("pass", "warn") and board.figures["pairs"] >= 50  # the scene's own 7x5 board was found
+    assert abs(board.figures["bias_pct"]) < 2.0
+
+
+def test_a_wrong_board_in_view_is_a_warning_naming_the_options():
+    from device.calibration.board import BoardSpec
+
+    report = run_doctor(BOARD_SIM, window_s=0.2, board=BoardSpec(11, 8, 0.03, 0.022, "DICT_5X5_100"))
+    board = report.get("board")
+    assert board.status == "warn" and board.figures["markers"] > 0 and "--squares" in board.fix
+
+
+def _recording(path, frames, info):
+    with RecordingWriter(path, info) as w:
+        for f in frames:
+            w.write(f)
+    return path
+
+
+def test_a_recording_from_depthruler_record(tmp_path):
+    from cli.main import app
+
+    rec = tmp_path / "rec"
+    res = runner.invoke(app, ["record", "--source", "sim:poster?distance=2&width=320&height=180&fps=0", "--out", str(rec),
+                              "--frames", "4"])
+    assert res.exit_code == 0, res.output
+    res = runner.invoke(app, ["doctor", "--source", f"replay:{rec}", "--window", "5", "--json"])
+    out = json.loads(res.output.strip().splitlines()[-1])
+    by = {f["check"]: f for f in out["findings"]}
+    assert [f["check"] for f in out["findings"]] == CHECKS
+    assert by["frames"]["figures"]["frames"] == 4 and by["frames"]["figures"]["ended"] is True
+    assert by["frames"]["figures"]["fps"] > 0 and by["timestamps"]["status"] == "pass"
+    assert 0.3 < by["fill"]["figures"]["fill_rate"] <= 1.0
+    assert by["baseline"]["status"] == "pass" and by["board"]["status"] == "skip"
+    assert res.exit_code == 0 and out["status"] in ("pass", "warn")
+
+
+def test_a_baseline_in_board_squares_fails_naming_the_unit(tmp_path):
+    """A 60 mm pair calibrated with OpenCV's default square size 1 and 25 mm squares: T = 2.4 (squares), read as metres."""
+    frames = [dataclasses.replace(synthetic_frame(k), baseline_m=2.4) for k in range(3)]
+    rec = _recording(tmp_path / "rec", frames, SourceInfo(kind="v4l2", name="pair", serial="S", fps=30.0))
+    report = run_doctor(f"replay:{rec}", window_s=2.0)
+    base = report.get("baseline")
+    assert base.status == "fail" and report.status == "fail"
+    assert base.figures["baseline_m"] == pytest.approx(2.4) and "squares" in base.fix and "record again" in base.fix
+    in_mm = baseline_finding(dataclasses.replace(frames[0], baseline_m=60.0), "video", CalibrationRef(path="stereo.yaml"))
+    assert in_mm.status == "fail" and "calib_units=mm" in in_mm.fix and "60.0 mm" in in_mm.fix
+    assert baseline_finding(dataclasses.replace(frames[0], baseline_m=0.075), "oak", None).status == "pass"
+
+
+def test_timestamps_backwards_fail_and_drops_warn():
+    info = SourceInfo(kind="oak", name="OAK", fps=30.0)
+
+    def window(stamps):
+        return Window(info, tuple(range(len(stamps))), tuple(stamps), None, (), 1.0)
+
+    assert timestamps_finding(window([0.0, 0.033, 0.066, 0.05, 0.1])).status == "fail"
+    drops = timestamps_finding(window([i / 30 for i in range(10)] + [i / 30 for i in range(14, 24)]))
+    assert drops.status == "warn" and drops.figures["dropped"] == 4
+    even = timestamps_finding(window([i / 30 for i in range(30)]))
+    assert even.status == "pass" and even.figures["device_fps"] == pytest.approx(30.0)
+
+
+def _usb_device(root, name, vid, pid, speed, bus=1, dev=2, uvc=False):
+    d = root / name
+    d.mkdir(parents=True)
+    for k, v in {"idVendor": vid, "idProduct": pid, "speed": speed, "busnum": bus, "devnum": dev, "product": "cam"}.items():
+        (d / k).write_text(f"{v}\n")
+    intf = d / f"{name}:1.0"
+    intf.mkdir()
+    (intf / "bInterfaceClass").write_text("0e\n" if uvc else "ff\n")
+
+
+def test_usb_speed_and_permission_from_sysfs(tmp_path):
+    sys_root, dev_root = tmp_path / "sys", tmp_path / "dev"
+    _usb_device(sys_root, "2-1", "03e7", "f63b", 480, bus=2, dev=5)
+    (dev_root / "002").mkdir(parents=True)
+    (dev_root / "002" / "005").write_text("")
+    speed, perm = usb_findings("oak", sys_root, dev_root)
+    assert speed.status == "warn" and "USB2" in speed.measured and "USB3 port" in speed.fix and speed.figures["speed_mbps"] == [480.0]
+    assert perm.status == "pass"
+    (sys_root / "2-1" / "speed").write_text("5000\n")
+    (sys_root / "2-1" / "devnum").write_text("9\n")  # a node that is not there: this user cannot open it
+    speed, perm = usb_findings("oak", sys_root, dev_root)
+    assert speed.status == "pass" and perm.status == "fail" and "udev" in perm.fix
+    assert [f.status for f in usb_findings("oak", tmp_path / "empty-sys", dev_root)] == ["warn", "warn"]
+    (tmp_path / "bare").mkdir()
+    assert usb_findings("oak", tmp_path / "bare", dev_root)[0].status == "fail"  # no OAK on the bus
+    assert usb_findings("replay", sys_root, dev_root)[0].status == "skip"
+    # what DepthAI says of the open OAK (dai.UsbSpeed): a USB2 link warns even where sysfs is not visible
+    blind = usb_findings("oak", tmp_path / "empty-sys", dev_root)[0]
+    assert with_depthai_speed(blind, "UsbSpeed.HIGH").status == "warn" and with_depthai_speed(blind, "SUPER").status == "pass"
+    assert with_depthai_speed(speed, "HIGH").figures["depthai_usb_speed"] == "HIGH" and with_depthai_speed(speed, "HIGH").status == "warn"
+
+
+def _write_video(path, frames):
+    h, w = frames[0].shape[:2]
+    writer = cv2.VideoWriter(str(path), cv2.CAP_FFMPEG, cv2.VideoWriter.fourcc(*"FFV1"), 10.0, (w, h))
+    assert writer.isOpened()
+    for f in frames:
+        writer.write(f)
+    writer.release()
+    return path
+
+
+def test_a_video_stereo_file_with_an_opencv_yaml(tmp_path):
+    from factories import rendered_pair
+
+    pair = rendered_pair("poster", 2.0)
+    h, w = pair.left.shape[:2]
+    yaml = tmp_path / "stereo.yaml"
+    fs = cv2.FileStorage(str(yaml), cv2.FILE_STORAGE_WRITE)
+    for name, value in (("M1", pair.k), ("D1", np.zeros((1, 5))), ("M2", pair.k), ("D2", np.zeros((1, 5))), ("R", np.eye(3)),
+                        ("T", np.array([[-pair.baseline_m], [0.0], [0.0]]))):
+        fs.write(name, np.asarray(value, np.float64))
+    fs.write("image_width", w)
+    fs.write("image_height", h)
+    fs.release()
+    video = _write_video(tmp_path / "pair.mkv", [np.hstack([pair.left, pair.right])] * 3)
+    report = run_doctor(f"video:{video}?layout=side-by-side&calib={yaml}&ndisp={pair.ndisp}", window_s=5.0)
+    assert [f.check for f in report.findings] == CHECKS
+    assert report.get("open").status == "pass" and report.get("frames").figures["frames"] == 3
+    assert report.get("fill").figures["fill_rate"] > 0.3
+    assert report.get("baseline").figures["baseline_m"] == pytest.approx(pair.baseline_m)
+    rect = report.get("rectification")
+    assert rect.status == "warn" and "no RMS" in rect.measured  # OpenCV's sample files carry none
+    # the project's JSON carries its RMS: 1.4 px is a calibration to redo
+    from device.calibration.files import load_any
+
+    calib = dataclasses.replace(load_any(str(yaml)), rms=1.4)
+    calib.save(tmp_path / "c.json")
+    assert rectification_finding("video", CalibrationRef(path=str(tmp_path / "c.json"))).status == "fail"
+    calib = dataclasses.replace(calib, rms=0.21)
+    calib.save(tmp_path / "c.json")
+    good = rectification_finding("video", CalibrationRef(path=str(tmp_path / "c.json")))
+    assert good.status == "pass" and good.figures["rms_px"] == pytest.approx(0.21)
+
+
+def test_no_camera_says_so_in_one_line(monkeypatch):
+    import check.doctor.run as doctor_run
+    from cli.main import app
+
+    monkeypatch.setattr(doctor_run, "list_devices", lambda: [])
+    res = runner.invoke(app, ["doctor"])
+    assert res.exit_code == 1 and res.output.strip() == NO_CAMERA and "plug in an OAK" in NO_CAMERA
+
+
+def test_a_source_that_does_not_open_fails_and_skips_the_rest(tmp_path):
+    report = run_doctor(f"replay:{tmp_path / 'nothing'}", window_s=0.5)
+    assert report.get("open").status == "fail" and report.status == "fail"
+    assert [f.check for f in report.findings] == CHECKS
+    assert {f.status for f in report.findings[CHECKS.index("frames"):]} == {"skip"}
