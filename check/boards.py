@@ -51,3 +51,13 @@ def paper_board(paper: str, squares_x: int = 11, squares_y: int = 8, dictionary:
         raise CheckError(f"{squares_x}x{squares_y} squares leave {square} mm per square on {paper}; use fewer squares (e.g. 7x5)")
     board = BoardSpec(squares_x, squares_y, square / 1000.0, marker / 1000.0, dictionary)
     return PaperBoard(board, SHEET_MARGIN_MM, paper.strip().lower(), size)
+
+
+def papers_that_fit(width_mm: float, height_mm: float) -> list[str]:
+    """The papers of :data:`PAPERS_MM` a sheet of ``width_mm`` x ``height_mm`` (margins included) prints
+    on at 100 %, inside the printer's unprintable border, in either orientation."""
+    def fits(w: float, h: float, paper: tuple[float, float]) -> bool:
+        return w <= paper[0] - 2 * PRINTER_MARGIN_MM and h <= paper[1] - 2 * PRINTER_MARGIN_MM
+
+    return [name for name, size in PAPERS_MM.items()
+            if fits(width_mm, height_mm, size) or fits(height_mm, width_mm, size)]  # fmt: skip

@@ -26,7 +26,7 @@ def dictionary_option():  # noqa: ANN201
 
 
 def paper_option(help: str):  # noqa: ANN201, A002 — typer's keyword
-    return typer.Option(None, "--board", metavar="|".join(PAPERS), help=help)
+    return typer.Option(None, "--board", "--paper", metavar="|".join(PAPERS), help=help)
 
 
 def parse_squares(text: str) -> tuple[int, int]:

@@ -75,6 +75,7 @@ def calibrate(
             typer.echo(f"wrote {path}: {board.squares_x}x{board.squares_y} squares of {sq:g} mm, markers {board.marker_m * 1000:g} mm, "
                        f"{dictionary}; sheet {w_mm:.1f} x {h_mm:.1f} mm at {dpi:g} dpi{f', fits {paper}' if paper else ''}. "
                        f"Print at 100 % (actual size), glue it flat and measure a square: {then}.")
+            _warn_unless_it_fits(w_mm, h_mm)
             return
         if (images is None) == (live is None):
             raise typer.BadParameter("give exactly one of --images DIR or --live SPEC (or --board-png OUT)")
@@ -93,6 +94,16 @@ def calibrate(
     used = sum(v.used for v in calib.views)
     typer.echo(f"wrote {', '.join(map(str, written))}: {used}/{len(calib.views)} views used, RMS {calib.rms:.3f} px, "
                f"baseline {calib.baseline_m * 1000:.2f} mm")
+
+
+def _warn_unless_it_fits(width_mm: float, height_mm: float) -> None:
+    """Warn when a board sheet prints on neither A4 nor US Letter at 100 % (a printer would shrink it)."""
+    from check.boards import papers_that_fit
+
+    if not papers_that_fit(width_mm, height_mm):
+        typer.secho(f"warning: a {width_mm:.0f} x {height_mm:.0f} mm sheet fits neither A4 nor US Letter at 100 %; "
+                    "pass --board a4 or --board letter for the largest board that does (or fewer or smaller squares)",
+                    fg=typer.colors.YELLOW, err=True)  # fmt: skip
 
 
 def _grabber(spec: str):

@@ -3,13 +3,50 @@
 from __future__ import annotations
 
 import os
+import sys
+from typing import Any
 
 import typer
+from typer.core import TyperGroup
 
 # DepthAI prints a USB banner on import in containers; keep CLI output clean.
 os.environ.setdefault("DEPTHAI_LEVEL", "error")
 
+
+
+class OneLineErrors(TyperGroup):
+    """The root command: a usage error (a bad option value, a missing option) is one line on stderr,
+    ``depthruler CMD: MESSAGE (see depthruler CMD --help)``, where typer draws a panel that wraps a
+    long message over several lines. Exit codes stay click's (2 for usage errors)."""
+
+    def main(self, args: Any = None, prog_name: str | None = None, complete_var: str | None = None,
+             standalone_mode: bool = True, **extra: Any) -> Any:  # fmt: skip
+        from typer import rich_utils
+        from typer._click.exceptions import ClickException, NoArgsIsHelpError, UsageError
+        from typer.exceptions import Abort
+
+        if not standalone_mode:
+            return super().main(args, prog_name, complete_var, standalone_mode=False, **extra)
+        try:
+            code = super().main(args, prog_name, complete_var, standalone_mode=False, **extra)
+        except NoArgsIsHelpError as exc:  # the help itself, as typer shows it
+            rich_utils.rich_format_error(exc)
+            sys.exit(exc.exit_code)
+        except UsageError as exc:
+            where = exc.ctx.command_path if exc.ctx is not None else (prog_name or "depthruler")
+            typer.echo(f"{where}: {' '.join(exc.format_message().split())} (see {where} --help)", err=True)
+            sys.exit(exc.exit_code)
+        except ClickException as exc:
+            typer.echo(f"depthruler: {' '.join(exc.format_message().split())}", err=True)
+            sys.exit(exc.exit_code)
+        except Abort:
+            typer.echo("Aborted!", err=True)
+            sys.exit(1)
+        sys.exit(code if isinstance(code, int) else 0)
+
+
 app = typer.Typer(
+    cls=OneLineErrors,
     name="depthruler",
     help="Measure real objects with depth cameras: click two points, get a robust 3D length.",
     no_args_is_help=True,

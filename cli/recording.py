@@ -28,7 +28,7 @@ def _human_bytes(n: float) -> str:
 
 
 def record(
-    source: str = typer.Option(..., "--source", "-s", help="Source spec, e.g. sim:poster, oak, v4l2:/dev/video0, middlebury:DIR"),
+    source: str = typer.Option(..., "--source", "-s", help="Source spec, e.g. sim:poster, oak, v4l2:/dev/video0, middlebury:DIR, or a recording folder, bag or video file"),
     out: Path = typer.Option(..., "--out", "-o", help="Recording directory to create"),
     frames: Optional[int] = typer.Option(None, "--frames", "-n", min=1, help="Stop after this many frames"),
     seconds: Optional[float] = typer.Option(None, "--seconds", min=0.0, help="Stop after this many seconds"),
@@ -55,8 +55,10 @@ def record(
 
     reason = "done"
     timeouts = 0
+    from cli.specs import source_spec
+
     try:
-        src = make_source(source)
+        src = make_source(source_spec(source))
         src.open()
     except SourceError as exc:
         raise _fail(str(exc)) from exc
@@ -225,21 +227,16 @@ def export(
 
 
 def placement_warnings(recording: Path, measurements: list[dict]) -> list[str]:
-    """Why measurements may be drawn on the wrong picture: those that name no frame (drawn on frame 0)
-    and those whose ``source`` names another recording folder than ``recording``."""
-    from cli.specs import source_spec
-
-    here = recording.resolve()
+    """Why measurements may be drawn on the wrong picture: those whose ``source`` is not this recording
+    (another recording, a bag, a video, a live camera: their frame_index counts another stream's frames)
+    and, of the others, those that name no frame (drawn on frame 0)."""
     unplaced, elsewhere = [], {}
     for k, m in enumerate(measurements):
-        if m.get("frame_index", m.get("frame")) is None:
-            unplaced.append(k)
         source = m.get("source")
-        if isinstance(source, str) and source.strip():
-            spec = source_spec(source)
-            kind, _, target = spec.partition("?")[0].partition(":")
-            if kind == "replay" and target and Path(target).expanduser().resolve() != here:
-                elsewhere.setdefault(source, []).append(k)
+        if isinstance(source, str) and source.strip() and not _is_recording(source, recording):
+            elsewhere.setdefault(source.strip(), []).append(k)
+        elif m.get("frame_index", m.get("frame")) is None:
+            unplaced.append(k)
 
     def which(ks: list[int]) -> str:
         return ", ".join(map(str, ks[:10])) + (f" and {len(ks) - 10} more" if len(ks) > 10 else "")
@@ -249,6 +246,19 @@ def placement_warnings(recording: Path, measurements: list[dict]) -> list[str]:
         out.append(f"{len(unplaced)} measurement(s) ({which(unplaced)}) name no frame_index: they are drawn on frame 0 "
                    "of the recording; give each its frame_index")
     for source, ks in elsewhere.items():
-        out.append(f"{len(ks)} measurement(s) ({which(ks)}) were made on {source}, not on {recording}: "
-                   "their frame_index points at another recording's pictures")
+        out.append(f"{len(ks)} measurement(s) ({which(ks)}) were made on {source}, not on {recording}: they are drawn on this "
+                   f"recording's frame of their frame_index (0 without one); pass only measurements made on replay:{recording}")
     return out
+
+
+def _is_recording(source: str, recording: Path) -> bool:
+    """Whether the spec ``source`` (``replay:DIR?...`` or a bare folder) names the recording folder ``recording``."""
+    from cli.specs import source_spec
+    from device.errors import SourceError
+
+    try:
+        spec = source_spec(source)
+    except SourceError:  # a path that is no source (moved, or another machine's): not this recording
+        return False
+    kind, _, target = spec.partition("?")[0].partition(":")
+    return kind == "replay" and bool(target) and Path(target).expanduser().resolve() == recording.resolve()

@@ -54,6 +54,32 @@ def auto_source() -> str:
     return "sim"
 
 
+def setting(field: str, whole: bool):  # noqa: ANN201 — a typer parser
+    """The parser of the flag for the :class:`service.config.ServerConfig` number ``field``: a value that
+    is no number, or out of the field's bounds, is refused on one line naming the range it allows."""
+
+    def parse(text: str) -> int | float:
+        from service.config import ServerConfig, allowed_range
+
+        word = "a whole number" if whole else "a number"
+        try:
+            value = int(text) if whole else float(text)
+        except (TypeError, ValueError):
+            raise typer.BadParameter(f"{text!r} is not {word}; give {word} {allowed_range(field)}") from None
+        try:
+            ServerConfig.model_validate({field: value})
+        except ValueError:
+            raise typer.BadParameter(f"{text} is out of range; give {word} {allowed_range(field)}") from None
+        return value
+
+    return parse
+
+
+FLAGS = {"port": "--port", "ring_size": "--ring-size", "header_timeout_s": "--header-timeout",
+         "body_timeout_s": "--body-timeout", "keep_alive_s": "--keep-alive", "max_connections": "--max-connections",
+         "history_max_gb": "--history-max-gb", "host": "--host", "token": "--token", "db": "--db"}  # fmt: skip
+
+
 class DefaultsInHelp(TyperCommand):
     """Fills the ``{name}`` fields of the options' help when the help is shown: the service's with
     ServerConfig's defaults, ``measure``'s with the method names and the frame limit. Imported only
@@ -72,25 +98,27 @@ class DefaultsInHelp(TyperCommand):
 
 
 def serve(
-    source: Optional[str] = typer.Option(None, "--source", "-s", help="Source spec, e.g. sim:poster?distance=3, oak, replay:DIR. Left out: the config's source, else an attached OAK, else the simulator."),
+    source: Optional[str] = typer.Option(None, "--source", "-s", help="Source spec, e.g. sim:poster?distance=3, oak, replay:DIR, or a recording folder, bag or video file. Left out: the config's source, else an attached OAK, else the simulator."),
     config: Optional[Path] = typer.Option(None, "--config", "-c", help="TOML config (see configs/*.toml); flags override it."),
     host: Optional[str] = typer.Option(None, help="Address to bind; left out, the config's or {host}. 0.0.0.0 exposes the service: set a token."),
-    port: Optional[int] = typer.Option(None, help="TCP port; left out, the config's or {port}."),
+    port: Optional[int] = typer.Option(None, parser=setting("port", True), metavar="INTEGER", help="TCP port; left out, the config's or {port}."),
     token: Optional[str] = typer.Option(None, envvar="DEPTHRULER_TOKEN", help="Require this token on /api (Bearer header or ?token=)."),
-    db: Optional[Path] = typer.Option(None, help="SQLite history file; left out, the config's or {db}. Frames go to <db>-frames/."),
+    db: Optional[Path] = typer.Option(None, help="SQLite history file; left out, the config's or {db}. Saved frames go to <db stem>-frames/ beside it."),
     recordings: Optional[Path] = typer.Option(None, help="The only folder recordings started from the API go into; left out, recordings/ next to the --db file."),
-    history_max_gb: Optional[float] = typer.Option(None, "--history-max-gb", help="Keep the saved frames under this many GB: the oldest unpinned frames are deleted first (their measurements stay). Left out: no cap."),
+    history_max_gb: Optional[float] = typer.Option(None, "--history-max-gb", parser=setting("history_max_gb", False), metavar="FLOAT", help="Keep the saved frames under this many GB: the oldest unpinned frames are deleted first (their measurements stay). Left out: no cap."),
     insecure_no_token: bool = typer.Option(False, "--insecure-no-token", help="Serve on a non-loopback --host without a token: anyone who reaches the port can use the API."),
     allowed_host: Optional[list[str]] = typer.Option(None, "--allowed-host", help="Another Host name to answer (a DNS name of this machine); repeatable."),
-    ring_size: Optional[int] = typer.Option(None, help="Frames kept in the ring buffer; left out, the config's or {ring_size}."),
-    header_timeout: Optional[float] = typer.Option(None, "--header-timeout", help="Seconds a connection has to send a request's headers, from its opening or the previous answer; left out, the config's or {header_timeout_s}. Then 408 and close."),
-    body_timeout: Optional[float] = typer.Option(None, "--body-timeout", help="Seconds a request has to send its body after its headers; left out, the config's or {body_timeout_s}. Then 408 and close."),
-    keep_alive: Optional[float] = typer.Option(None, "--keep-alive", help="Seconds an idle keep-alive connection stays open; left out, the config's or {keep_alive_s}."),
-    max_connections: Optional[int] = typer.Option(None, "--max-connections", help="Connections at once; left out, the config's or {max_connections} (fewer when the open-files limit is lower). Beyond it 503."),
+    ring_size: Optional[int] = typer.Option(None, parser=setting("ring_size", True), metavar="INTEGER", help="Frames kept in the ring buffer; left out, the config's or {ring_size}."),
+    header_timeout: Optional[float] = typer.Option(None, "--header-timeout", parser=setting("header_timeout_s", False), metavar="SECONDS", help="Seconds a connection has to send a request's headers, from its opening or the previous answer; left out, the config's or {header_timeout_s}. Then 408 and close."),
+    body_timeout: Optional[float] = typer.Option(None, "--body-timeout", parser=setting("body_timeout_s", False), metavar="SECONDS", help="Seconds a request has to send its body after its headers; left out, the config's or {body_timeout_s}. Then 408 and close."),
+    keep_alive: Optional[float] = typer.Option(None, "--keep-alive", parser=setting("keep_alive_s", False), metavar="SECONDS", help="Seconds an idle keep-alive connection stays open; left out, the config's or {keep_alive_s}."),
+    max_connections: Optional[int] = typer.Option(None, "--max-connections", parser=setting("max_connections", True), metavar="INTEGER", help="Connections at once; left out, the config's or {max_connections} (fewer when the open-files limit is lower). Beyond it 503."),
 ) -> None:
     """Serve the measuring web page and HTTP API on a live source."""
     from service.app import create_app
-    from service.config import ConfigError, ServeConfig, ServerConfig, load_config
+    from pydantic import ValidationError
+
+    from service.config import ConfigError, ServeConfig, ServerConfig, describe_validation, load_config
     from service.connections import serve as serve_app
 
     try:
@@ -113,8 +141,8 @@ def serve(
         server = ServerConfig.model_validate({**cfg.server.model_dump(), **overrides})
     except ConfigError as exc:
         _fail(str(exc))
-    except ValueError as exc:  # a flag out of range (pydantic)
-        _fail(f"bad option: {exc}")
+    except ValidationError as exc:  # the flags' parsers check each bound; this is the last word
+        _fail(f"bad option: {describe_validation(exc, FLAGS)}")
     if server.host not in LOOPBACK and not server.token:
         if not server.insecure_no_token:
             _fail(
@@ -127,8 +155,10 @@ def serve(
             err=True,
         )
     check_listen(server.host, server.port)  # after the token rule: a refused start never depends on the port
-    spec = source or cfg.source or auto_source()
+    from cli.specs import source_spec
+
     try:
+        spec = source_spec(source) if source else (cfg.source or auto_source())
         app = create_app(spec, server)
     except Exception as exc:  # noqa: BLE001 — StoreError etc.: say what, don't dump a trace
         _fail(str(exc))
@@ -148,7 +178,7 @@ def _point(text: str, name: str) -> tuple[float, float]:
 
 
 def measure(
-    source: str = typer.Argument(..., help="Source spec: sim:poster?seed=1, replay:DIR, middlebury:DIR, oak, ..."),
+    source: str = typer.Argument(..., help="Source spec (sim:poster?seed=1, replay:DIR, middlebury:DIR, oak, ...), or a recording folder, bag, video file or Middlebury scene folder."),
     p1: Optional[str] = typer.Option(None, "--p1", help="First point X,Y (pixels of the colour image) of a segment."),
     p2: Optional[str] = typer.Option(None, "--p2", help="Second point X,Y of the segment."),
     box: Optional[str] = typer.Option(None, "--box", help="Instead of a segment: a box's dimensions from a click X,Y on its top face."),

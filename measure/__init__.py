@@ -4,9 +4,13 @@ Pure numpy/scipy; imports nothing else of ours, does no I/O, prints nothing. ``_
 public API (docs/api/measure.md); the submodules are internal and may change without notice.
 """
 
+from measure.area import measure_area
+from measure.box import measure_box
 from measure.distance import measure_distance
 from measure.fields import Opt, OptionField, check as check_options, describe as describe_options, option, options_of
+from measure.height import measure_height
 from measure.metrics import accuracy, signed_error_pct
+from measure.path import measure_path
 from measure.robust import robust_with_terms
 from measure.sampling import ray
 from measure.sequence import MAX_FRAMES, measure_sequence
@@ -28,7 +32,11 @@ __all__ = [
     "accuracy",
     "check_options",
     "describe_options",
+    "measure_area",
+    "measure_box",
     "measure_distance",
+    "measure_height",
+    "measure_path",
     "measure_sequence",
     "measure_z_only",
     "option",

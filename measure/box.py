@@ -14,9 +14,11 @@ Steps (docs/method.md Eq. 9-15):
 4. The height: the top's centre above the supporting plane (``measure.height.height_above``, Eq. 12).
 5. One-sigma per dimension: both sides' median errors (MAD / sqrt(n / ``CORRELATED_PX``)), a
    pixel's footprint over sqrt(3) each, ``BLEED_PX`` footprints for a side against the background
-   (edge fattening of unknown width), and the plane's depth scale; times ``BOX_SIGMA_SCALE``
+   (edge fattening of unknown width), the plane's depth scale, and half the difference between the
+   outline's and the creases' sides (two models of one edge); times ``BOX_SIGMA_SCALE``
    (docs/decisions/box-edges.md). The verdict says "check" for a box cut by the image border, a face
-   partly hidden by something in front, a top that is not rectangular or not parallel to its floor.
+   partly hidden by something in front, a top that is not rectangular or not parallel to its floor,
+   or edge models that differ by more than ``EDGE_DISAGREE`` of a side.
 """
 
 from __future__ import annotations
@@ -49,6 +51,7 @@ CREASE_BAND_PX = 14
 CREASE_RESIDUAL = 4.0
 CREASE_GAIN = 25.0
 CREASE_BINS = 5
+EDGE_DISAGREE = 0.05
 
 
 def _outline(mask: np.ndarray) -> np.ndarray:
@@ -138,8 +141,9 @@ def _rectangle(top: Plane, grown: GrownPlane, frame: Frame) -> dict:
             sig[k] = max(float(half[across]) * 0.1, f)
         sig[k] = math.hypot(sig[k], BLEED_PX * float(np.median(foot[side == k])) if (side == k).any() else 0.0)
     creases = _creases(frame, top, grown.mask, pc, u, v, np.array([ra, rb]), e, pos, half, seen)
+    outline_pos = pos.copy()
     pos = np.where(np.isfinite(creases), creases, pos)
-    return {"pc": pc, "u": u, "v": v, "e": e, "pos": pos, "sig": sig, "seen": seen, "outward": outward,
+    return {"pc": pc, "u": u, "v": v, "e": e, "pos": pos, "outline_pos": outline_pos, "sig": sig, "seen": seen, "outward": outward,
             "line": line, "side": side, "inner": inner, "centre_px": centre_px, "ra_rb": np.array([ra, rb])}
 
 
@@ -255,8 +259,16 @@ def measure_box(frame: Frame, click_px: tuple[float, float], options: MeasureOpt
     dims = [pos[0] + pos[1], pos[2] + pos[3]]
     sig_dims = [math.sqrt(sig[0] ** 2 + sig[1] ** 2 + (dims[0] * rel_scale) ** 2),
                 math.sqrt(sig[2] ** 2 + sig[3] ** 2 + (dims[1] * rel_scale) ** 2)]
+    # The two edge models, the outline's depth step and the crease's hinge, bracket each side: their
+    # difference is an uncertainty of the model, and a large one a reason to check the answer.
+    outline = rect["outline_pos"]
+    spread = [abs(dims[0] - outline[0] - outline[1]), abs(dims[1] - outline[2] - outline[3])]
+    sig_dims = [math.hypot(s, d / 2.0) for s, d in zip(sig_dims, spread)]
     height, s_h, _, _ = height_above(top, floor, cx, cy, 0.0)
     reasons: list[str] = []
+    worst = max(d / v for d, v in zip(spread, dims)) if min(dims) > 0 else math.inf
+    if worst > EDGE_DISAGREE:
+        reasons.append(f"top face's edges uncertain (outline and creases differ by {100 * worst:.0f} %)")
     if grown.touches_border or not rect["seen"].all():
         reasons.append("box cut by the image border" if grown.touches_border else "an edge of the top face is not seen")
     hidden = _hidden_sides(frame, top, rect)

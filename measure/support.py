@@ -47,8 +47,8 @@ def angle_deg(a: Plane, b: Plane) -> float:
 
 def parallel_support(frame: Frame, mask: np.ndarray, top: Plane, seed: int = 0, min_drop_m: float = 0.0) -> Plane | None:
     """The plane a box with top plane ``top`` stands on: among the ring's pixels, the nearest dense
-    level below the top along its normal (a histogram of n . P + o in ``LEVEL_BIN_M`` bins holding at
-    least ``LEVEL_SHARE`` of the ring; side faces spread over all levels, a floor or table is one),
+    level below the top along its normal (a histogram of n . P + o in bins of ``LEVEL_BIN_M`` or two
+    depth-noise scales, whichever is wider, holding at least ``LEVEL_SHARE`` of the ring; side faces spread over all levels, a floor or table is one),
     then a robust plane of that level's pixels, parallel to the top within ``PARALLEL_DEG``."""
     area = int(mask.sum())
     width = max(RING_MIN_PX, int(0.6 * math.sqrt(max(area, 1))))
@@ -66,13 +66,17 @@ def parallel_support(frame: Frame, mask: np.ndarray, top: Plane, seed: int = 0, 
     sel = below > lo
     if sel.sum() < MIN_PLANE_PIXELS * 4:
         return None
-    bins = np.arange(lo, float(below[sel].max()) + 2 * LEVEL_BIN_M, LEVEL_BIN_M)
+    # A level's spread along the normal is the ring's depth noise, Z² / fB times the disparity noise the
+    # top shows (or the quantum's rounding): a coarse sensor's floor spans several centimetres.
+    z_med = float(np.median(z))
+    bin_m = max(LEVEL_BIN_M, 2.0 * z_med * z_med / top.fb * max(top.sigma_px, top.quantum / math.sqrt(12.0)))
+    bins = np.arange(lo, float(below[sel].max()) + 2 * bin_m, bin_m)
     hist, edges = np.histogram(below[sel], bins=bins)
     # Two neighbouring bins together: a level straddling a bin edge still counts once.
     pair = hist[:-1] + hist[1:] if len(hist) > 1 else hist
     dense = np.flatnonzero(pair >= LEVEL_SHARE * len(xs))
     for k in dense[np.argsort(-pair[dense], kind="stable")][:MAX_CANDIDATES]:  # densest level first
-        level = (below >= edges[k] - LEVEL_BIN_M) & (below <= edges[k] + 3 * LEVEL_BIN_M)
+        level = (below >= edges[k] - bin_m) & (below <= edges[k] + 3 * bin_m)
         try:
             plane = fit_plane(frame, xs[level], ys[level], seed)
             # Refit on the whole ring from there: inliers chosen by their residual to the plane, not by

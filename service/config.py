@@ -90,6 +90,46 @@ def _describe(error: Any) -> str:
     return f"{key} = {error.get('input')!r}: {error['msg']}"
 
 
+def _number(x: float) -> str:
+    return str(int(x)) if float(x).is_integer() else f"{x:g}"
+
+
+def allowed_range(field: str) -> str:
+    """The values :class:`ServerConfig` takes for the number ``field`` in words, from its Field bounds:
+    ``"from 1 to 65535"``, ``"above 0, at most 3600"``, ``"at least 2"``."""
+    import annotated_types as at
+
+    lo = hi = None
+    for m in ServerConfig.model_fields[field].metadata:
+        if isinstance(m, at.Ge):
+            lo = ("from", m.ge)
+        elif isinstance(m, at.Gt):
+            lo = ("above", m.gt)
+        elif isinstance(m, at.Le):
+            hi = ("at most", m.le)
+        elif isinstance(m, at.Lt):
+            hi = ("below", m.lt)
+    if lo and hi and lo[0] == "from" and hi[0] == "at most":
+        return f"from {_number(lo[1])} to {_number(hi[1])}"
+    if lo and lo[0] == "from":
+        lo = ("at least", lo[1])
+    return ", ".join(f"{word} {_number(v)}" for word, v in (b for b in (lo, hi) if b)) or "of any size"
+
+
+def describe_validation(exc: ValidationError, names: dict[str, str] | None = None) -> str:
+    """One line for a :class:`ServerConfig` ValidationError: each bad key (spelt as ``names`` maps it,
+    e.g. to its command-line flag), the value given and what is allowed."""
+    parts = []
+    for e in exc.errors():
+        key = ".".join(str(p) for p in e["loc"])
+        shown = (names or {}).get(key, key)
+        if key in ServerConfig.model_fields and e["type"].startswith(("greater_than", "less_than")):
+            parts.append(f"{shown} {e.get('input')!r} is out of range; give a value {allowed_range(key)}")
+        else:
+            parts.append(f"{shown} {e.get('input')!r}: {e['msg']}")
+    return "; ".join(parts)
+
+
 def source_table_spec(table: object, origin: str = "<config>") -> str:
     """The spec string of a ``[source]`` table, after the kind's parser accepted it (ConfigError names
     ``origin``, the kind and what is allowed)."""

@@ -16,7 +16,7 @@ from history.checks import CheckHistoryError
 from history.errors import FrameDropped, FrameNotSaved, MeasurementUnknown, SavedFrameUnreadable, StoreError, StoreFull
 from measure import MeasureError
 
-from service import recorder
+from service import playback, recorder
 from service.frames import FrameGone, FrameUnknown, NotAReplay, SeekOutOfRange, TooManyWaiters
 from service.workers import Busy
 
@@ -40,6 +40,7 @@ STATUS: dict[type[Exception], int] = {
     recorder.RecordingUnavailable: 503,
     recorder.BadRecordingName: 422,
     recorder.CannotRecord: 400,
+    playback.NoSuchRecording: 404,
 }
 HEADERS: dict[type[Exception], dict[str, str]] = {TooManyWaiters: {"Retry-After": "1"}, Busy: {"Retry-After": "1"}}
 

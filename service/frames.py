@@ -22,31 +22,11 @@ from typing import Any
 from device import CalibrationError, Source, SourceEnded, SourceInfo, SourceTimeout
 from measure import Frame
 
+from service.frame_errors import FrameGone, FrameUnknown, NotAReplay, ReplayControlError, SeekOutOfRange, TooManyWaiters
 from service.provenance import RECORDED_KINDS, recorded_index
 
-
-class FrameGone(KeyError):
-    """The frame id was evicted from the ring buffer (HTTP 410)."""
-
-
-class FrameUnknown(KeyError):
-    """The frame id was never issued (HTTP 404)."""
-
-
-class ReplayControlError(ValueError):
-    """Pause, play, step or seek cannot be done."""
-
-
-class NotAReplay(ReplayControlError):
-    """Pause, play, step or seek asked of a source that is no replay (HTTP 409)."""
-
-
-class SeekOutOfRange(ReplayControlError):
-    """A seek to an index outside the replay (HTTP 422)."""
-
-
-class TooManyWaiters(RuntimeError):
-    """More long-polls are waiting than the ring allows (HTTP 429)."""
+__all__ = ["Capture", "FrameGone", "FrameRing", "FrameUnknown", "NotAReplay", "ReplayControlError", "RingFrame",
+           "SeekOutOfRange", "TooManyWaiters"]  # the errors live in service.frame_errors; named here as before
 
 
 @dataclass
@@ -317,23 +297,31 @@ class Capture:
         self.read_timeout_s = read_timeout_s
         self.sinks: list[FrameSink] = []
         self._lock = threading.Lock()
-        self._stop = threading.Event()
         self._thread: threading.Thread | None = None
-        self._state = "connecting"
-        self._message = ""
-        self._info: SourceInfo | None = None
-        self._frames = 0
-        self._retries = 0
+        self._wake = threading.Event()
+        self._reset()
+
+    def _reset(self) -> None:
+        """The state of a capture that has not read yet (at construction, and on :meth:`switch`)."""
+        self._stop = threading.Event()
+        self._state, self._message, self._info = "connecting", "", None
+        self._frames, self._retries, self._timeouts = 0, 0, 0
         self._next_retry: float | None = None
         self._times: list[float] = []
+        self._warnings: list[str] = []
         # replay control: paused, frames to deliver while paused, position to jump to, last index shown
-        self._paused = False
-        self._steps = 0
+        self._paused, self._steps = False, 0
         self._seek: int | None = None
         self._replay_index: int | None = None
-        self._wake = threading.Event()
-        self._timeouts = 0
-        self._warnings: list[str] = []
+
+    def switch(self, factory: SourceFactory, spec: str) -> None:
+        """Read from another source from now on: the thread stops (closing the source) and starts again
+        on ``factory``. Frames already in the ring, frozen ones included, stay."""
+        self.stop()
+        with self._lock:
+            self.factory, self.spec = factory, spec
+            self._reset()
+        self.start()
 
     def start(self) -> None:
         self._thread = threading.Thread(target=self._run, name="depthruler-capture", daemon=True)

@@ -126,6 +126,14 @@ class ReplayIn(BaseModel):
     index: Annotated[int, Strict(), Field(ge=0, le=10_000_000)] | None = None
 
 
+class SourceOpenIn(BaseModel):
+    """``POST /api/source``: play ``recording`` (a folder of the server's recordings root) in place of
+    the server's source; ``null`` goes back to that source."""
+
+    model_config = ConfigDict(extra="forbid")
+    recording: Annotated[str, Field(min_length=1, max_length=200)] | None
+
+
 class AnnotationIn(BaseModel):
     """``PATCH /api/measurements/{id}``: a name and a note for a measurement (omitted = unchanged)."""
 
@@ -292,6 +300,7 @@ class SourceStatusOut(_Out):
     retries: int
     retry_in_s: float | None
     replay: ReplayStatusOut | None
+    home: str  # the server's own source while one of its recordings plays in its place; "" otherwise
     timeouts: int
     warnings: list[str]
     recording: RecordingStatusOut

@@ -8,8 +8,10 @@ dependencies of :mod:`service.deps`, so a route names what it uses instead of re
 from __future__ import annotations
 
 import time
+from collections.abc import Callable
 from dataclasses import dataclass, field
 
+from device import Source
 from history.store import Store
 
 from service.frames import Capture, FrameRing
@@ -25,3 +27,4 @@ class ServiceState:
     recorder: Recorder
     measures: MeasurePool = field(default_factory=MeasurePool)
     started: float = field(default_factory=time.time)
+    home: tuple[Callable[[], Source], str] | None = None  # the server's own source (factory, spec)

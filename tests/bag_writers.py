@@ -290,6 +290,46 @@ def write_distorted_oak_bag(path: Path, coeffs=OAK_RATIONAL, model: str = "ratio
     return path
 
 
+# A librealsense colour stream's "Inverse Brown Conrady" (k1 k2 p1 p2 k3: distorted -> undistorted).
+RS_INVERSE = (0.3, -0.1, 0.0008, -0.0005, 0.02)
+
+
+def distort_inverse_brown_conrady(image: np.ndarray, cam: PinholeCamera, coeffs) -> np.ndarray:
+    """What a colour sensor with librealsense's inverse model shows of a pinhole ``image``: the model
+    gives each distorted pixel's undistorted position in closed form (``rs2_deproject_pixel_to_point``)."""
+    k1, k2, p1, p2, k3 = coeffs
+    u, v = np.meshgrid(np.arange(cam.width, dtype=np.float64), np.arange(cam.height, dtype=np.float64))
+    x, y = (u - cam.cx) / cam.fx, (v - cam.cy) / cam.fy
+    r2 = x * x + y * y
+    f = 1 + k1 * r2 + k2 * r2**2 + k3 * r2**3
+    ux = x * f + 2 * p1 * x * y + p2 * (r2 + 2 * x * x)
+    uy = y * f + 2 * p2 * x * y + p1 * (r2 + 2 * y * y)
+    mx, my = (ux * cam.fx + cam.cx).astype(np.float32), (uy * cam.fy + cam.cy).astype(np.float32)
+    return cv2.remap(image, mx, my, cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT, borderValue=0)
+
+
+def write_distorted_viewer_bag(path: Path, coeffs=RS_INVERSE) -> Path:
+    """The RealSense Viewer's layout holding :func:`make_near_frame`: rgb8 colour distorted by librealsense's
+    inverse model (camera_info "Inverse Brown Conrady"), Z16 depth from a rectified depth stream ("Brown
+    Conrady", zero coefficients) at the colour camera's pose and K (tf identity)."""
+    f, marked = make_near_frame()
+    cam = f.camera
+    out = BagOut(path, "ros1")
+    ts = out.ts
+    d, c = "/device_0/sensor_0/Depth_0", "/device_0/sensor_1/Color_0"
+    out.write("/device_0/sensor_0/option/Depth Units/value", T0, ts.types["std_msgs/msg/Float32"](data=0.0001))
+    out.write(f"{d}/info/camera_info", T0, info_msg(ts, True, 0, "", cam, np.zeros(5), "Brown Conrady"))
+    out.write(f"{c}/info/camera_info", T0, info_msg(ts, True, 0, "", cam, coeffs, "Inverse Brown Conrady"))
+    out.write(f"{d}/tf/0", T0, transform_msg(ts, Rigid()))
+    out.write(f"{c}/tf/0", T0, transform_msg(ts, Rigid()))
+    t = T0 + 1_000_000
+    image = distort_inverse_brown_conrady(marked, cam, coeffs)
+    out.write(f"{c}/image/data", t, image_msg(ts, True, t, "", image[:, :, ::-1], "rgb8"))
+    out.write(f"{d}/image/data", t + 2_000_000, image_msg(ts, True, t + 2_000_000, "", depth_array(f.depth(), "mono16", 0.0001), "mono16"))
+    out.close()
+    return path
+
+
 def find_marks(image: np.ndarray) -> list[tuple[float, float]]:
     """The centres (px) of the magenta dots seen in ``image``, left to right: where a user clicks."""
     diff = np.abs(image.astype(np.int32) - np.array(MARK_BGR)).max(axis=2)

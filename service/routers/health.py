@@ -9,7 +9,8 @@ from fastapi import APIRouter
 from starlette.concurrency import run_in_threadpool
 
 from service.deps import State
-from service.schemas import HealthOut, ReplayIn, ReplayStatusOut, SourceStatusOut, json_doc
+from service.playback import home_spec, play_home, play_recording
+from service.schemas import HealthOut, ReplayIn, ReplayStatusOut, SourceOpenIn, SourceStatusOut, json_doc
 
 router = APIRouter(prefix="/api", tags=["health"])
 SOURCE_DOWN = ("disconnected", "reconnecting", "failed")
@@ -44,7 +45,19 @@ async def health(state: State) -> dict[str, Any]:
 
 @router.get("/source", **json_doc(SourceStatusOut))
 def source_status(state: State) -> dict[str, Any]:
-    return {**state.capture.status(), "recording": state.recorder.status()}
+    return {**state.capture.status(), "recording": state.recorder.status(), "home": home_spec(state)}
+
+
+@router.post("/source", **json_doc(SourceStatusOut))
+def open_source(state: State, body: SourceOpenIn) -> dict[str, Any]:
+    """Play ``recording``, a folder of the recordings root, in place of the server's source (an active
+    recording stops first); ``recording: null`` goes back to the server's source. 404 when the folder
+    is no recording, 422 for a name that is not a plain folder inside the root."""
+    if body.recording is None:
+        play_home(state)
+    else:
+        play_recording(state, body.recording)
+    return source_status(state)
 
 
 @router.post("/source/replay", **json_doc(ReplayStatusOut))

@@ -353,12 +353,13 @@ function drawColorbar() {
   $("colorbar-ramp").style.background = `linear-gradient(to right, ${s.colors.join(", ")})`;
   const ticks = $("colorbar-ticks");
   const pos = (z) => ((s.fx_baseline / z - s.doffs - lo) / Math.max(hi - lo, 1e-9)) * 100; // far left, near right
-  const labels = [];
-  for (const z of niceDepths(far, near)) {
+  const labels = depthTicks(s).map((z) => {
     const x = pos(z);
-    if (x < 0 || x > 100) continue;
-    labels.push(Object.assign(document.createElement("span"), { textContent: fmt(z), style: `left:${x.toFixed(1)}%` }));
-  }
+    const el = Object.assign(document.createElement("span"), { textContent: fmtTick(z), style: `left:${x.toFixed(2)}%` });
+    el.dataset.m = String(z);
+    el.dataset.x = String(x);
+    return el;
+  });
   ticks.replaceChildren(...labels);
   bar.dataset.near = String(near);
   bar.dataset.far = String(far);
@@ -366,13 +367,42 @@ function drawColorbar() {
   $("colorbar-range").textContent = `${fmt(near)} – ${fmt(far)}`;
 }
 
-function niceDepths(far, near) {
-  if (!(far > 0 && near > 0)) return [];
-  const span = Math.abs(far - near);
-  const step = [0.01, 0.02, 0.05, 0.1, 0.2, 0.25, 0.5, 1, 2, 5, 10].find((st) => span / st <= 4) || 20;
-  const out = [];
-  for (let z = Math.ceil(Math.min(near, far) / step) * step; z <= Math.max(near, far) + 1e-9; z += step) out.push(+z.toFixed(4));
-  return out;
+// 4 to 6 round depths for the colour bar, spread evenly along it. The colours run linearly in
+// disparity, so evenly spaced depths would crowd at the far end: the ticks are taken at even steps of
+// the bar and each rounded (in the page's unit) to the nearest 1, 1.5, 2, 2.5, 3, 4, 5, 6 or 8 times a
+// power of ten; a rounding that lands two ticks on one value, or off the bar, drops one.
+const ROUND_STEPS = [1, 1.5, 2, 2.5, 3, 4, 5, 6, 8, 10];
+
+function roundNice(v) {
+  const mag = 10 ** Math.floor(Math.log10(v));
+  const m = v / mag;
+  const best = ROUND_STEPS.reduce((a, b) => (Math.abs(b - m) < Math.abs(a - m) ? b : a));
+  return +(best * mag).toPrecision(3);
+}
+
+function depthTicks(s) {
+  const [lo, hi] = s.disparity_px;
+  const k = UNITS[state.units][0];
+  if (!(hi > lo) || !(s.fx_baseline > 0)) return [];
+  const depthAt = (x) => s.fx_baseline / (lo + x * (hi - lo) + s.doffs); // bar position 0..1 -> metres
+  const inside = (z) => { const d = s.fx_baseline / z - s.doffs; return d >= lo - 1e-9 && d <= hi + 1e-9; };
+  for (const n of [5, 6, 7, 8]) { // more candidates when rounding merges some
+    const out = [];
+    for (let i = 0; i < n; i++) {
+      const z = depthAt(0.04 + (0.92 * i) / (n - 1));
+      if (!(z > 0 && isFinite(z))) continue;
+      const r = roundNice(z * k) / k;
+      if (inside(r) && !out.includes(r)) out.push(r);
+    }
+    if (out.length >= 4) return out.slice(0, 6);
+  }
+  return [depthAt(0.04), depthAt(0.5), depthAt(0.96)].filter((z) => z > 0 && isFinite(z)); // a very narrow span
+}
+
+// A tick's label: the round value as it is ("2.5 m", "400 mm"), without the trailing zeros of fmt().
+function fmtTick(metres) {
+  const v = metres * UNITS[state.units][0];
+  return `${+v.toPrecision(3)} ${state.units}`;
 }
 
 // ---- drawing ------------------------------------------------------------------------------------
@@ -1285,6 +1315,8 @@ async function pollSource() {
     pill.title = s.message || s.spec;
     setRecording(s.recording);
     showReplay(s.replay);
+    $("replay-home").classList.toggle("hidden", !s.home);
+    $("replay-home").title = s.home ? `Stop the replay and go back to ${s.home}` : "";
   } catch (e) {
     pill.className = "pill pill-bad";
     pill.textContent = "service unreachable";
@@ -1343,10 +1375,50 @@ function setRecording(rec) {
 }
 
 async function toggleRecording() {
+  const stopping = state.recording;
   try {
-    setRecording(await api("api/recordings", { method: "POST", body: { action: state.recording ? "stop" : "start" } }));
+    const rec = await api("api/recordings", { method: "POST", body: { action: stopping ? "stop" : "start" } });
+    setRecording(rec);
+    if (stopping && rec.path) recordingToast(rec);
   } catch (e) {
     showError(e.message);
+  }
+}
+
+// Where the recording went, said when it stops: its folder (copyable) and how to play it back.
+function recordingToast(rec) {
+  const toast = $("toast");
+  const command = `depthruler serve --source replay:${rec.path}`;
+  toast.dataset.path = rec.path;
+  $("toast-text").textContent = `Recorded ${rec.frames} frame${rec.frames === 1 ? "" : "s"} to`;
+  $("toast-path").textContent = rec.path;
+  const open = $("toast-open");
+  open.dataset.name = rec.path.split("/").pop();
+  open.title = `Play it back here, in place of the live source until "Back to live source"; or run: ${command}`;
+  toast.classList.remove("hidden");
+  clearTimeout(state.toastTimer);
+  state.toastTimer = setTimeout(() => toast.classList.add("hidden"), 20000);
+}
+
+// Play a recording of the server's recordings root in its source's place (null: back to that source).
+async function openSource(recording) {
+  try {
+    goLive();
+    const s = await api("api/source", { method: "POST", body: { recording } });
+    $("toast").classList.add("hidden");
+    state.source = s;
+    pollSource();
+  } catch (e) {
+    showError(e.message);
+  }
+}
+
+async function copyPath() {
+  const path = $("toast").dataset.path || "";
+  try { await navigator.clipboard.writeText(path); $("toast-copy").textContent = "Copied"; } catch (e) {
+    // no clipboard (plain http on another host): select the text so the person can copy it
+    const r = document.createRange(); r.selectNodeContents($("toast-path"));
+    const sel = window.getSelection(); sel.removeAllRanges(); sel.addRange(r);
   }
 }
 
@@ -1387,6 +1459,10 @@ $("zoom-reset").addEventListener("click", () => { resetZoom(); draw(); });
 $("record").addEventListener("click", toggleRecording);
 $("save-png").addEventListener("click", savePng);
 $("undo-btn").addEventListener("click", undoDelete);
+$("toast-open").addEventListener("click", () => openSource($("toast-open").dataset.name));
+$("toast-copy").addEventListener("click", copyPath);
+$("toast-close").addEventListener("click", () => $("toast").classList.add("hidden"));
+$("replay-home").addEventListener("click", () => openSource(null));
 $("history-filter").addEventListener("change", (e) => { state.filter = e.target.value; renderHistory(); });
 $("replay-play").addEventListener("click", () => replay(state.source && state.source.replay && state.source.replay.paused ? "play" : "pause"));
 $("replay-step").addEventListener("click", () => replayStep(1));

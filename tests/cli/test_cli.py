@@ -157,7 +157,7 @@ def test_measure_takes_a_bare_recording_folder(recording):
     looped = CliRunner().invoke(app, ["measure", f"{recording}?loop=1", *args])  # options stay the replay's
     assert looped.exit_code == 0 and json.loads(looped.stdout)["frame"] == 1
     missing = CliRunner().invoke(app, ["measure", str(recording / "nope"), *args])
-    assert missing.exit_code == 1 and "unknown source kind" in missing.output
+    assert missing.exit_code == 1 and "is no source kind and no existing file or folder" in missing.output
 
 
 def test_measure_refuses_a_negative_timeout(recording):
@@ -182,7 +182,7 @@ def test_measure_text_says_when_there_is_no_basic_estimate(tmp_path):
 def test_export_warns_about_measurements_it_cannot_place(recording, tmp_path):
     base = {"distance_m": 1.0, "p1": [40, 30], "p2": [280, 200]}
     meas = [{**base, "frame_index": 1, "source": f"replay:{recording}"},  # on this recording: no warning
-            {**base, "source": "oak"},  # a live camera: no frame of this recording
+            {**base},  # no source, no frame: drawn on frame 0
             {**base, "frame_index": 2, "source": str(tmp_path / "other-rec")}]  # fmt: skip
     (tmp_path / "other-rec").mkdir()
     (tmp_path / "other-rec" / "manifest.json").write_text("{}")

@@ -8,7 +8,7 @@ from types import SimpleNamespace
 import numpy as np
 import pytest
 
-from bag_writers import OAK_RATIONAL, find_marks, make_near_frame, write_distorted_oak_bag
+from bag_writers import OAK_RATIONAL, find_marks, make_near_frame, write_distorted_oak_bag, write_distorted_viewer_bag
 from device import open_source
 from device.sources.bag import BagError, Distortion, distortion_from_info, undistort_maps
 from measure import MeasureOptions, PinholeCamera, measure_distance
@@ -26,7 +26,9 @@ def test_poster_width_measured_where_the_user_clicks_on_a_distorted_bag(tmp_path
     path = write_distorted_oak_bag(tmp_path / "oak", coeffs, model)
     with open_source(f"bag:{path}") as src:
         frame = src.read()
+        info = src.info
     assert frame.meta["color_distortion"] == model and frame.meta["undistorted"] is True
+    assert (info.extra["color_distortion"], info.extra["depth_distortion"]) == (model, model)
     clicks = find_marks(frame.image)
     assert len(clicks) == 2
     # The dots are back where a pinhole camera of the frame's K sees them.
@@ -38,6 +40,20 @@ def test_poster_width_measured_where_the_user_clicks_on_a_distorted_bag(tmp_path
     ok = np.isfinite(frame.depth()[inner]) & np.isfinite(truth_frame.depth()[inner])
     assert ok.mean() > 0.6
     assert np.median(np.abs(frame.depth()[inner][ok] - truth_frame.depth()[inner][ok])) < 0.002
+
+
+def test_viewer_bag_distorted_colour_over_rectified_depth(tmp_path):
+    """librealsense records the colour stream distorted (its inverse model) and depth rectified: the colour
+    is undistorted onto the depth's pinhole geometry before the clicks back-project."""
+    truth_frame, _ = make_near_frame()
+    truth = truth_frame.meta["truth"]
+    with open_source(f"bag:{write_distorted_viewer_bag(tmp_path / 'viewer.bag')}") as src:
+        frame = src.read()
+    assert frame.meta["layout"] == "realsense-viewer" and frame.meta["color_distortion"] == "inverse_brown_conrady"
+    clicks = find_marks(frame.image)
+    assert np.allclose(clicks, [truth.p1_px, truth.p2_px], atol=0.5)
+    m = measure_distance(frame, clicks[0], clicks[1], MeasureOptions(method="robust"))
+    assert m.distance_m == pytest.approx(truth.length_m, abs=0.005)
 
 
 def _info(model, d):

@@ -3,8 +3,6 @@ node wiring on both platforms (nodes mocked to the installed depthai classes).""
 
 from __future__ import annotations
 
-from unittest import mock
-
 import pytest
 
 from device import SourceError, SourceNotFound
@@ -21,7 +19,7 @@ from device.sources.oak import (
 
 import depthai as dai  # noqa: E402  (device.sources.oak has set DEPTHAI_LEVEL / DEPTHAI_SEARCH_TIMEOUT)
 
-from oak_helpers import FIXTURE, A, B, C, default_preset_config  # noqa: E402
+from oak_helpers import FIXTURE, A, B, C, Wiring, default_preset_config, features as _features  # noqa: E402
 
 
 def test_every_preset_maps_to_its_depthai_enum():
@@ -53,15 +51,6 @@ def test_unset_options_keep_what_the_preset_chose():
     assert out.getDepthUnit() == dai.LengthUnit.MILLIMETER
 
 
-def _features(*cams) -> list:
-    out = []
-    for socket, kind, sensor in cams:
-        f = dai.CameraFeatures()
-        f.socket, f.supportedTypes, f.sensorName = socket, [kind], sensor
-        out.append(f)
-    return out
-
-
 COLOR, MONO = dai.CameraSensorType.COLOR, dai.CameraSensorType.MONO
 D = dai.CameraBoardSocket.CAM_D
 
@@ -82,70 +71,6 @@ def test_sockets_come_from_the_device_and_its_calibration():
     assert choose_sockets(odd, dai.CalibrationHandler()) == Sockets(left=B, right=C, color=D)
     with pytest.raises(SourceNotFound, match="no stereo pair"):
         choose_sockets(_features((A, COLOR, "IMX378")), dai.CalibrationHandler())
-
-
-class Wiring:
-    """A dai.Pipeline whose nodes are mocks restricted to the installed classes' attributes.
-
-    ``create_autospec`` restricts methods; pybind properties (outputs, inputs, initialConfig) come
-    out unrestricted, so they are set here to spec'd mocks of their real types, after checking
-    that the real class has them; ``initial_config`` (a real ``dai.StereoDepthConfig``) replaces the
-    StereoDepth node's mock config. Every ``Output.link(Input)`` is recorded as (output, input) labels.
-    """
-
-    PROPS = {
-        dai.node.StereoDepth: {"depth": dai.Node.Output, "confidenceMap": dai.Node.Output,
-                               "rectifiedLeft": dai.Node.Output, "disparity": dai.Node.Output,
-                               "inputAlignTo": dai.Node.Input, "initialConfig": dai.StereoDepthConfig},
-        dai.node.ImageAlign: {"input": dai.Node.Input, "inputAlignTo": dai.Node.Input,
-                              "outputAligned": dai.Node.Output},
-        dai.node.Sync: {"out": dai.Node.Output},
-        dai.node.Camera: {},
-    }
-
-    def __init__(self, initial_config: dai.StereoDepthConfig | None = None) -> None:
-        self.initial_config = initial_config
-        self.links: list[tuple[str, str]] = []
-        self.nodes: dict[str, list] = {}
-        self.pipeline = mock.create_autospec(dai.Pipeline, instance=True)
-        self.pipeline.create.side_effect = self._create
-
-    def _output(self, label: str):
-        out = mock.create_autospec(dai.Node.Output, instance=True)
-        out.link.side_effect = lambda inp: self.links.append((label, inp._label))
-        return out
-
-    def _input(self, label: str):
-        inp = mock.create_autospec(dai.Node.Input, instance=True)
-        inp._label = label
-        return inp
-
-    def _create(self, cls):
-        assert cls in self.PROPS, f"unexpected node {cls}"
-        name = cls.__name__
-        label = f"{name}{len(self.nodes.get(name, []))}"
-        node = mock.create_autospec(cls, instance=True)
-        if hasattr(cls, "build"):
-            node.build.return_value = node
-        for prop, kind in self.PROPS[cls].items():
-            assert hasattr(cls, prop), f"{name}.{prop} does not exist in depthai {dai.__version__}"
-            if kind is dai.Node.Output:
-                setattr(node, prop, self._output(f"{label}.{prop}"))
-            elif kind is dai.Node.Input:
-                setattr(node, prop, self._input(f"{label}.{prop}"))
-            else:
-                setattr(node, prop, mock.create_autospec(kind, instance=True))
-        if cls is dai.node.StereoDepth and self.initial_config is not None:
-            node.initialConfig = self.initial_config
-        if cls is dai.node.Camera:
-            node.requestOutput.side_effect = lambda *a, **k: self._output(f"{label}.out")
-        if cls is dai.node.Sync:
-            node.inputs = {k: self._input(f"sync.{k}") for k in ("rgb", "depth", "conf")}
-        self.nodes.setdefault(name, []).append(node)
-        return node
-
-    def into(self, target: str) -> set[str]:
-        return {src for src, dst in self.links if dst == target}
 
 
 def _wire(platform, sockets: Sockets, config: OakConfig = OakConfig()) -> Wiring:

@@ -140,8 +140,7 @@ def test_open_states_the_measurement_depth_settings_in_info_and_recording(monkey
     from device.formats.recording import RecordingWriter
     from device.sources.oak import OakSource
 
-    from oak_helpers import FIXTURE, A, B, C, default_preset_config, img
-    from test_oak_pipeline import Wiring, _features
+    from oak_helpers import FIXTURE, A, B, C, Wiring, default_preset_config, features, img
 
     w = Wiring(default_preset_config(dai.Platform.RVC2))
     queue = dai.MessageQueue("sync", 1, False)
@@ -156,9 +155,9 @@ def test_open_states_the_measurement_depth_settings_in_info_and_recording(monkey
     w.pipeline.create.side_effect = create
     dev = mock.create_autospec(dai.Device, instance=True)
     dev.readCalibration.return_value = dai.CalibrationHandler(str(FIXTURE))
-    dev.getConnectedCameraFeatures.return_value = _features((A, dai.CameraSensorType.COLOR, "IMX378"),
-                                                            (B, dai.CameraSensorType.MONO, "OV9282"),
-                                                            (C, dai.CameraSensorType.MONO, "OV9282"))
+    dev.getConnectedCameraFeatures.return_value = features((A, dai.CameraSensorType.COLOR, "IMX378"),
+                                                           (B, dai.CameraSensorType.MONO, "OV9282"),
+                                                           (C, dai.CameraSensorType.MONO, "OV9282"))
     dev.getPlatform.return_value = dai.Platform.RVC2
     dev.getPlatformAsString.return_value = "RVC2"
     dev.getDeviceName.return_value = "OAK-D"

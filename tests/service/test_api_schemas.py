@@ -94,8 +94,10 @@ def test_real_answers_validate_against_the_documented_models(client):
     json_routes = {(m, p) for m, p, op in _operations(spec) if "application/json" in op["responses"]["200"]["content"]}
     # POST /api/recordings writes a recording and /api/source/replay needs a replay: their models are
     # RecordingStatusOut (checked through GET /api/recordings) and ReplayStatusOut (in /api/source);
+    # POST /api/source, which switches the source, answers SourceStatusOut like GET /api/source;
     # POST /api/checks needs a board in view: CheckOut is checked in tests/service/test_service_checks.py
-    assert json_routes - checked == {("POST", "/api/recordings"), ("POST", "/api/source/replay"), ("POST", "/api/checks")}
+    assert json_routes - checked == {("POST", "/api/recordings"), ("POST", "/api/source/replay"), ("POST", "/api/source"),
+                                     ("POST", "/api/checks")}
 
 
 def test_extra_fields_in_a_frame_answer_are_caught():

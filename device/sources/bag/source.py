@@ -57,7 +57,10 @@ class BagSource(SourceBase):
             height=c.color_camera.height,
             fps=fps,
             extra={"path": str(self.path), "frames": len(c), "layout": c.layout.name, "storage": c.storage,
-                   "baseline_m": c.baseline_m, "depth_unit_m": c.depth_unit_m},
+                   "baseline_m": c.baseline_m, "depth_unit_m": c.depth_unit_m,
+                   # Frames are undistorted by these (colour and depth camera_info).
+                   "color_distortion": c.color_distortion.model if not c.color_distortion.is_none else "none",
+                   "depth_distortion": c.depth_distortion.model if not c.depth_distortion.is_none else "none"},
         )
         super().open()
 

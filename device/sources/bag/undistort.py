@@ -17,7 +17,6 @@ from __future__ import annotations
 from dataclasses import dataclass
 from typing import Any
 
-import cv2
 import numpy as np
 
 from measure import PinholeCamera
@@ -102,6 +101,8 @@ def undistort_maps(cam: PinholeCamera, dist: Distortion) -> tuple[np.ndarray, np
     image (two H x W float32 maps, pixels); None when there is no distortion."""
     if dist.is_none:
         return None
+    import cv2  # lazily, as the rest of the bag package: `import device` stays fast
+
     if dist.model in INVERSE_MODELS:
         return _inverse_brown_conrady(cam, dist.coeffs)
     if dist.model == "modified_brown_conrady":
@@ -115,6 +116,8 @@ def remap(image: np.ndarray, maps: tuple[np.ndarray, np.ndarray] | None, *, near
     depth in metres (NaN outside); ``image`` itself when ``maps`` is None."""
     if maps is None:
         return image
+    import cv2
+
     if nearest:
         return cv2.remap(np.asarray(image, dtype=np.float64), maps[0], maps[1], cv2.INTER_NEAREST,
                          borderMode=cv2.BORDER_CONSTANT, borderValue=float("nan"))
