@@ -162,6 +162,7 @@ def test_open_states_the_measurement_depth_settings_in_info_and_recording(monkey
     dev.getPlatformAsString.return_value = "RVC2"
     dev.getDeviceName.return_value = "OAK-D"
     dev.isClosed.return_value = False
+    dev.getUsbSpeed.return_value = dai.UsbSpeed.HIGH
     monkeypatch.setattr(oak_source, "find_device", lambda mxid, timeout_ms: dai.DeviceInfo("1844301011B546F500"))
     monkeypatch.setattr(dai, "Device", lambda info: dev)
     monkeypatch.setattr(dai, "Pipeline", lambda device: w.pipeline)
@@ -181,3 +182,4 @@ def test_open_states_the_measurement_depth_settings_in_info_and_recording(monkey
     assert np.allclose(frame.depth(), 1.2)
     manifest = json.loads((tmp_path / "rec" / "manifest.json").read_text())
     assert manifest["source"]["extra"]["depth"] == depth
+    assert src.info.extra["usb_speed"] == "HIGH"  # what `depthruler doctor` judges the link by (HIGH = USB2)

@@ -135,6 +135,8 @@ class OakSource(SourceBase):
                               "not delivered (not registered to the colour image; use align=left)",
                 "auto_calibration": cfg.auto_calibration,
                 "depth": wired.depth,
+                # the link after boot: an OAK on a USB2 port or cable streams, but at a fraction of the rate
+                "usb_speed": str(device.getUsbSpeed().name),
             },
         )
         super().open()
