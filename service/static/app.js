@@ -1104,7 +1104,7 @@ function annotatedCanvas(img) {
   drawLabel(c, pts, s, fmtInterval(res), verdictColor(res.quality), sub);
   c.font = `${Math.round(12 * s)}px system-ui, sans-serif`;
   c.textAlign = "left"; c.textBaseline = "bottom";
-  const footer = `depthruler · measurement ${res.id} · ${res.source || ""} · frame ${res.frame_id} · ${new Date(res.created * 1000).toISOString()}`;
+  const footer = `depthruler · measurement ${res.id} · ${sourceLabel(res)} · frame id ${res.frame_id} · ${new Date(res.created * 1000).toISOString()}`;
   c.fillStyle = "rgba(0,0,0,.6)"; c.fillRect(0, out.height - 20 * s, out.width, 20 * s);
   c.fillStyle = "#e6e9ee"; c.fillText(footer, 6 * s, out.height - 4 * s);
   return out;

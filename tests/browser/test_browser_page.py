@@ -68,8 +68,9 @@ def test_recording_toast_opens_the_replay_and_phone_targets_are_44px(server, bro
         assert box["width"] >= 44 and box["height"] >= 44, sel
 
     page.locator("#toast-open").tap()  # play it back here
-    page.wait_for_function("document.getElementById('source-badge').dataset.kind === 'replay'", timeout=30_000)
-    assert page.text_content("#source-badge") == f"REPLAY {path.name}"
+    # the badge says REPLAY from the spec at once, and the recording's name once the replay is open
+    page.wait_for_function("t => document.getElementById('source-badge').textContent === t", arg=f"REPLAY {path.name}", timeout=30_000)
+    assert page.get_attribute("#source-badge", "data-kind") == "replay"
     assert page.locator("#toast").is_hidden()
     status = httpx.get(f"{base}/api/source").json()
     assert status["replay"]["recording"] == path.name and status["replay"]["frames"] == frames and status["home"] == SPEC

@@ -204,3 +204,38 @@ def test_keyboard_only_measurement(server, browser):
     assert page.evaluate("document.activeElement.id") != "canvas"
     page.close()
     assert problems == [], "\n".join(problems)
+
+
+def test_wheel_zoom_keeps_the_point_under_the_cursor_and_space_drag_pans(server, browser):
+    page = browser.new_page(viewport={"width": 1280, "height": 800})
+    problems = watch(page)
+    frame = open_live(page, server)
+    target = frame["truth"]["p1_px"]
+    x, y = (round(c) for c in view_point(page, target))  # mouse events arrive in whole CSS px
+    box = page.locator("#canvas").bounding_box()
+    under = [(x - box["x"]) * frame["width"] / box["width"] - 0.5, (y - box["y"]) * frame["height"] / box["height"] - 0.5]
+    page.mouse.move(x, y)
+    page.mouse.wheel(0, -300)  # three notches in: zoom on the frozen frame about the cursor
+    page.wait_for_function("+document.getElementById('canvas').dataset.zoom > 1.9")
+    assert page.get_attribute("#canvas", "data-frozen") == "1"
+    zx, zy = view_point(page, under)
+    assert abs(zx - x) < 0.01 and abs(zy - y) < 0.01  # the image point under the cursor stayed there
+    k = float(page.get_attribute("#canvas", "data-zoom"))
+    vx0, vy0 = float(page.get_attribute("#canvas", "data-view-x")), float(page.get_attribute("#canvas", "data-view-y"))
+    # space held: a drag pans by the distance dragged (in image px: CSS px x image px per CSS px)
+    page.keyboard.down(" ")
+    page.mouse.down()
+    page.mouse.move(x - 60, y - 30, steps=6)
+    page.mouse.up()
+    page.keyboard.up(" ")
+    per_css = frame["width"] / page.locator("#canvas").bounding_box()["width"] / k
+    assert float(page.get_attribute("#canvas", "data-view-x")) == pytest.approx(vx0 + 60 * per_css, abs=1e-6)
+    assert float(page.get_attribute("#canvas", "data-view-y")) == pytest.approx(vy0 + 30 * per_css, abs=1e-6)
+    assert points(page) == []  # the pan placed nothing
+    # a click at the zoomed, panned view lands on the pixel under it
+    x, y = view_point(page, target)
+    page.mouse.click(x, y)
+    placed = points(page)[0]
+    assert abs(placed[0] - target[0]) <= 0.5 and abs(placed[1] - target[1]) <= 0.5, (placed, target)
+    page.close()
+    assert problems == [], "\n".join(problems)
