@@ -43,8 +43,8 @@ def test_summary_counts_what_it_says():
     assert s["height"]["n"] == 5 and s["height"]["refused"] == 1 and s["height"]["median_abs_err_pct"] == pytest.approx(0.5)
     assert s["area"]["median_abs_err_pct"] == pytest.approx(1.0) and s["area"]["coverage_2sigma"] == 1.0
     met = {name: ok for _, name, _, _, ok in checks({"stress": s})}
-    assert met["panel area median |error| (%)"] and not met["cut/occluded boxes not good (share)"]
-    assert not met["box length median |error| 0.6-2 m (%)"] and met["box width median |error| 0.6-2 m (%)"]
+    assert met["panel area median abs. error (%)"] and not met["cut/occluded boxes not good (share)"]
+    assert not met["box length median abs. error 0.6-2 m (%)"] and met["box width median abs. error 0.6-2 m (%)"]
 
 
 def test_plan_draws_each_profile_from_the_same_seeds():
@@ -79,7 +79,7 @@ def test_eval_shapes_command(tmp_path):
     res = CliRunner().invoke(app, ["shapes", "--out", str(tmp_path / "out"), "--boxes", "2", "--panels", "1", "--profile", "stress",
                                    "--width", "480", "--height", "270", "--workers", "1"])
     assert res.exit_code == 0, res.output
-    assert "stress: panel area median |error|" in res.output
+    assert "stress: panel area median abs. error" in res.output
     assert {p.name for p in (tmp_path / "out").iterdir()} == {"report.md", "results.json", "shapes.csv", "box_errors.png", "box_verdicts.png"}
     bad = CliRunner().invoke(app, ["shapes", "--out", str(tmp_path / "x"), "--profile", "tablet"])
     assert bad.exit_code == 2 and "tablet" in bad.output
