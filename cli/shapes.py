@@ -42,10 +42,7 @@ def shape_kind(box: str | None, height: str | None, path: bool, area: bool, poin
 def measure_shape(frame: Any, kind: str, click: tuple[float, float] | None, clicks: list[tuple[float, float]],
                   base: list[tuple[float, float]], options: Any) -> Any:
     """The core's answer for ``kind`` on ``frame`` (raises measure.MeasureError on bad input)."""
-    from measure.area import measure_area
-    from measure.box import measure_box
-    from measure.height import measure_height
-    from measure.path import measure_path
+    from measure import measure_area, measure_box, measure_height, measure_path
 
     if kind == "box":
         return measure_box(frame, click, options)

@@ -54,9 +54,7 @@ def _err_pct(value: float, truth: float) -> float:
 
 
 def _box_record(job: ShapeJob) -> dict[str, Any]:
-    from measure import MeasureError
-    from measure.box import measure_box
-    from measure.height import measure_height
+    from measure import MeasureError, measure_box, measure_height
     from sim.shapes import box_case
 
     case = box_case(job.seed, job.profile, width=job.width, height=job.height)
@@ -89,8 +87,7 @@ def _box_record(job: ShapeJob) -> dict[str, Any]:
 
 
 def _panel_record(job: ShapeJob) -> dict[str, Any]:
-    from measure import MeasureError
-    from measure.area import measure_area
+    from measure import MeasureError, measure_area
     from sim.shapes import panel_case
 
     case = panel_case(job.seed, job.profile, width=job.width, height=job.height)
