@@ -33,7 +33,7 @@ from measure.height import height_above, window_plane
 from measure.planes import INLIER_SIGMAS, GrownPlane, Plane, grow_plane, sigma_of
 from measure.sampling import check_point
 from measure.shape_types import BoxMeasurement
-from measure.support import angle_deg, check_options, cross2, parallel_support, verdict
+from measure.support import angle_deg, check_options, cross2, parallel_levels, verdict
 from measure.types import Frame, MeasureError, MeasureOptions
 
 BOX_SIGMA_SCALE = 1.0
@@ -261,7 +261,7 @@ def measure_box(frame: Frame, click_px: tuple[float, float], options: MeasureOpt
     ys, xs = np.nonzero(mask)
     cx, cy = float(xs.mean()), float(ys.mean())
     merged = _not_the_clicked_plane(frame, top, x, y, opts.seed)
-    floor = parallel_support(frame, mask, top, seed=opts.seed, min_drop_m=MIN_HEIGHT_M)
+    floor, between = parallel_levels(frame, mask, top, seed=opts.seed, min_drop_m=MIN_HEIGHT_M)
     if floor is None:
         raise MeasureError("no plane parallel to the clicked surface lies below it: this is not the top face of a box "
                            "standing on a floor or table (a click on the floor itself, a wall or a side face); "
@@ -287,6 +287,8 @@ def measure_box(frame: Frame, click_px: tuple[float, float], options: MeasureOpt
         reasons.append(f"top face's edges uncertain (outline and creases differ by {100 * worst:.0f} %)")
     if grown.touches_border or not rect["seen"].all():
         reasons.append("box cut by the image border" if grown.touches_border else "an edge of the top face is not seen")
+    if between:
+        reasons.append("another level lies between the top and the plane it is measured from (a table or a neighbouring box)")
     if merged:
         reasons.append("the grown top is not the clicked face's plane (another surface joined it)")
     hidden = _hidden_sides(frame, top, rect)
