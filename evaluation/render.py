@@ -16,7 +16,9 @@ from typing import Any
 
 
 def kind(data: dict[str, Any]) -> str:
-    """Which study wrote ``data``: "sim", "middlebury", "stress-middlebury", "stress-sim" or "frames"."""
+    """Which study wrote ``data``: "sim", "middlebury", "stress-middlebury", "stress-sim", "frames" or "shapes"."""
+    if data.get("kind") == "shapes":
+        return "shapes"
     if "methods" in data and "gap" in data:
         return "sim"
     if "conditions" in data:
@@ -32,6 +34,10 @@ def render(folder: Path) -> str:
     """The report.md that ``folder``'s results.json gives."""
     data = json.loads((folder / "results.json").read_text())
     which = kind(data)
+    if which == "shapes":
+        from evaluation.shapes_report import shapes_markdown
+
+        return shapes_markdown(data["summary"], data["protocol"])
     if which == "sim":
         from evaluation.sim_report import PLOTS, sim_markdown
 

@@ -54,9 +54,7 @@ def _err_pct(value: float, truth: float) -> float:
 
 
 def _box_record(job: ShapeJob) -> dict[str, Any]:
-    from measure import MeasureError
-    from measure.box import measure_box
-    from measure.height import measure_height
+    from measure import MeasureError, measure_box, measure_height
     from sim.shapes import box_case
 
     case = box_case(job.seed, job.profile, width=job.width, height=job.height)
@@ -89,8 +87,7 @@ def _box_record(job: ShapeJob) -> dict[str, Any]:
 
 
 def _panel_record(job: ShapeJob) -> dict[str, Any]:
-    from measure import MeasureError
-    from measure.area import measure_area
+    from measure import MeasureError, measure_area
     from sim.shapes import panel_case
 
     case = panel_case(job.seed, job.profile, width=job.width, height=job.height)
@@ -192,7 +189,7 @@ def checks(summary: dict[str, Any]) -> list[tuple[str, str, float | None, str, b
         for band, key in (("0.6-2 m", "near_pct"), ("2-3 m", "far_pct")):
             for d in DIMS:
                 v = s["bands"][band][d]
-                rows.append((profile, f"box {d} median |error| {band} (%)", v, f"<= {TARGETS[key]}", v is not None and v <= TARGETS[key]))
+                rows.append((profile, f"box {d} median abs. error {band} (%)", v, f"<= {TARGETS[key]}", v is not None and v <= TARGETS[key]))
         v = s["good_above_5pct_share"]
         rows.append((profile, "good with error > 5 % (share of fully seen boxes)", v, "<= 0.02", v is not None and v <= TARGETS["good_above_5pct_share"]))
         v = s["coverage_2sigma"]
@@ -200,7 +197,7 @@ def checks(summary: dict[str, Any]) -> list[tuple[str, str, float | None, str, b
         v = s["cut_or_occluded"]["not_good_share"]
         rows.append((profile, "cut/occluded boxes not good (share)", v, "= 1", v is not None and v >= TARGETS["cut_not_good_share"]))
         v = s["height"]["median_abs_err_pct"]
-        rows.append((profile, "height median |error| 1-3 m (%)", v, "<= 1.0", v is not None and v <= TARGETS["height_pct"]))
+        rows.append((profile, "height median abs. error 1-3 m (%)", v, "<= 1.0", v is not None and v <= TARGETS["height_pct"]))
         v = s["area"]["median_abs_err_pct"]
-        rows.append((profile, "panel area median |error| (%)", v, "<= 2.0", v is not None and v <= TARGETS["area_pct"]))
+        rows.append((profile, "panel area median abs. error (%)", v, "<= 2.0", v is not None and v <= TARGETS["area_pct"]))
     return rows

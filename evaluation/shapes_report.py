@@ -33,16 +33,16 @@ def shapes_markdown(summary: dict[str, Any], protocol: dict[str, Any]) -> str:
         lines += [f"## Profile {profile}", "",
                   f"{s['boxes']} boxes, {s['full_view']} with the top face fully seen; median time per box {_v(s['box_ms_median'])} ms.", ""]
         band_rows = [[name, str(b["n"]), str(b["refused"]), *(_v(b[d]) for d in DIMS)] for name, b in s["bands"].items()]
-        lines += [report.markdown_table(["distance", "boxes", "refused", "median |err| L %", "W %", "H %"], band_rows), ""]
+        lines += [report.markdown_table(["distance", "boxes", "refused", "median abs. error L %", "W %", "H %"], band_rows), ""]
         c = s["cut_or_occluded"]
         lines += [f"- good answers with an error above 5 %: {s['good_above_5pct']} of {s['full_view']} fully seen boxes "
                   f"({_v(s['good_above_5pct_share'], True)}); {s['good']} good answers.",
                   f"- 2σ coverage of the good answers' dimensions: {_v(s['coverage_2sigma'], True)} of {s['coverage_dims']}.",
                   f"- cut or occluded boxes: {c['n']}: good {c['good']}, check {c['check']}, unreliable {c['unreliable']}, "
                   f"refused {c['refused']}.",
-                  f"- height above the plane found under the click, 1-3 m: median |error| {_v(s['height']['median_abs_err_pct'])} % "
+                  f"- height above the plane found under the click, 1-3 m: median abs. error {_v(s['height']['median_abs_err_pct'])} % "
                   f"over {s['height']['n']} ({s['height']['refused']} refused), 2σ coverage {_v(s['height']['coverage_2sigma'], True)}.",
-                  f"- panel area: median |error| {_v(s['area']['median_abs_err_pct'])} % over {s['area']['n']} "
+                  f"- panel area: median abs. error {_v(s['area']['median_abs_err_pct'])} % over {s['area']['n']} "
                   f"({s['area']['refused']} refused), 2σ coverage {_v(s['area']['coverage_2sigma'], True)}.", ""]
     lines += ["Plots: box_errors.png (signed error of each dimension against distance, fully seen boxes), "
               "box_verdicts.png (verdicts of fully seen and cut/occluded boxes).", ""]

@@ -1,4 +1,5 @@
-"""depthruler's measurement core: robust point-to-point 3D distance from registered disparity.
+"""depthruler's measurement core: robust point-to-point 3D distance from registered disparity, and shapes
+(a box's dimensions, a height above a plane, a path, an area) on robust planes.
 
 Pure numpy/scipy; imports nothing else of ours, does no I/O, prints nothing. ``__all__`` is the
 public API (docs/api/measure.md); the submodules are internal and may change without notice.
@@ -15,10 +16,14 @@ from measure.robust import robust_with_terms
 from measure.sampling import ray
 from measure.sequence import MAX_FRAMES, measure_sequence
 from measure.options import METHODS
+from measure.height import measure_height
+from measure.path import measure_path
+from measure.shape_types import SHAPE_KINDS, BoxMeasurement, ShapeMeasurement
 from measure.types import MAX_CLICK_PX, Frame, MeasureError, MeasureOptions, Measurement, PinholeCamera
 from measure.zonly import measure_z_only
 
 __all__ = [
+    "BoxMeasurement",
     "MAX_CLICK_PX",
     "MAX_FRAMES",
     "METHODS",
@@ -29,6 +34,8 @@ __all__ = [
     "MeasureOptions",
     "Measurement",
     "PinholeCamera",
+    "SHAPE_KINDS",
+    "ShapeMeasurement",
     "accuracy",
     "check_options",
     "describe_options",

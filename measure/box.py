@@ -18,7 +18,8 @@ Steps (docs/method.md Eq. 9-15):
    outline's and the creases' sides (two models of one edge); times ``BOX_SIGMA_SCALE``
    (docs/decisions/box-edges.md). The verdict says "check" for a box cut by the image border, a face
    partly hidden by something in front, a top that is not rectangular or not parallel to its floor,
-   or edge models that differ by more than ``EDGE_DISAGREE`` of a side.
+   edge models that differ by more than ``EDGE_DISAGREE`` of a side, or a grown top whose plane is not
+   the click window's own (``MERGED_SIGMAS``: a neighbouring box's top joined it).
 """
 
 from __future__ import annotations
@@ -28,11 +29,11 @@ import time
 
 import numpy as np
 
-from measure.height import height_above
+from measure.height import height_above, window_plane
 from measure.planes import INLIER_SIGMAS, GrownPlane, Plane, grow_plane, sigma_of
 from measure.sampling import check_point
 from measure.shape_types import BoxMeasurement
-from measure.support import angle_deg, check_options, cross2, parallel_support, verdict
+from measure.support import angle_deg, check_options, cross2, parallel_levels, verdict
 from measure.types import Frame, MeasureError, MeasureOptions
 
 BOX_SIGMA_SCALE = 1.0
@@ -52,6 +53,7 @@ CREASE_RESIDUAL = 4.0
 CREASE_GAIN = 25.0
 CREASE_BINS = 5
 EDGE_DISAGREE = 0.05
+MERGED_SIGMAS = 4.0
 
 
 def _outline(mask: np.ndarray) -> np.ndarray:
@@ -224,6 +226,19 @@ def _hidden_sides(frame: Frame, top: Plane, rect: dict) -> list[int]:
     return out
 
 
+def _not_the_clicked_plane(frame: Frame, top: Plane, x: float, y: float, seed: int) -> bool:
+    """Whether the plane of the click's own window differs from the grown top's at the click by more
+    than ``MERGED_SIGMAS`` of their combined disparity one-sigma (Eq. 11 covariances): a neighbour's top
+    a few centimetres higher or lower joined the grown face and tilted or shifted its plane."""
+    try:
+        own = window_plane(frame, x, y, seed)
+    except MeasureError:
+        return False
+    g = np.array([x, y, 1.0])
+    diff = float(own.disparity_at(x, y) - top.disparity_at(x, y))
+    return abs(diff) > MERGED_SIGMAS * math.sqrt(float(g @ own.cov @ g + g @ top.cov @ g))
+
+
 def measure_box(frame: Frame, click_px: tuple[float, float], options: MeasureOptions | None = None) -> BoxMeasurement:
     """Dimensions (m) of the box whose top face is clicked at ``click_px`` (x, y px); steps in the module docstring.
 
@@ -245,7 +260,8 @@ def measure_box(frame: Frame, click_px: tuple[float, float], options: MeasureOpt
         raise MeasureError(f"the clicked face has only {n_top} pixels with depth; click the top face of a box nearer the camera")
     ys, xs = np.nonzero(mask)
     cx, cy = float(xs.mean()), float(ys.mean())
-    floor = parallel_support(frame, mask, top, seed=opts.seed, min_drop_m=MIN_HEIGHT_M)
+    merged = _not_the_clicked_plane(frame, top, x, y, opts.seed)
+    floor, between = parallel_levels(frame, mask, top, seed=opts.seed, min_drop_m=MIN_HEIGHT_M)
     if floor is None:
         raise MeasureError("no plane parallel to the clicked surface lies below it: this is not the top face of a box "
                            "standing on a floor or table (a click on the floor itself, a wall or a side face); "
@@ -271,6 +287,10 @@ def measure_box(frame: Frame, click_px: tuple[float, float], options: MeasureOpt
         reasons.append(f"top face's edges uncertain (outline and creases differ by {100 * worst:.0f} %)")
     if grown.touches_border or not rect["seen"].all():
         reasons.append("box cut by the image border" if grown.touches_border else "an edge of the top face is not seen")
+    if between:
+        reasons.append("another level lies between the top and the plane it is measured from (a table or a neighbouring box)")
+    if merged:
+        reasons.append("the grown top is not the clicked face's plane (another surface joined it)")
     hidden = _hidden_sides(frame, top, rect)
     if hidden:
         reasons.append("top face partly hidden by something in front")

@@ -45,11 +45,14 @@ def angle_deg(a: Plane, b: Plane) -> float:
     return math.degrees(math.acos(min(1.0, abs(float(na @ nb)))))
 
 
-def parallel_support(frame: Frame, mask: np.ndarray, top: Plane, seed: int = 0, min_drop_m: float = 0.0) -> Plane | None:
-    """The plane a box with top plane ``top`` stands on: among the ring's pixels, the nearest dense
+def parallel_levels(frame: Frame, mask: np.ndarray, top: Plane, seed: int = 0,
+                    min_drop_m: float = 0.0) -> tuple[Plane | None, bool]:
+    """The plane a box with top plane ``top`` stands on, and whether another parallel level lies between
+    them (a table, a neighbour's top: the choice is ambiguous). Among the ring's pixels, the densest
     level below the top along its normal (a histogram of n . P + o in bins of ``LEVEL_BIN_M`` or two
-    depth-noise scales, whichever is wider, holding at least ``LEVEL_SHARE`` of the ring; side faces spread over all levels, a floor or table is one),
-    then a robust plane of that level's pixels, parallel to the top within ``PARALLEL_DEG``."""
+    depth-noise scales, whichever is wider, holding at least ``LEVEL_SHARE`` of the ring; side faces
+    spread over all levels, a floor or table is one), then a robust plane of that level's pixels,
+    parallel to the top within ``PARALLEL_DEG``."""
     area = int(mask.sum())
     width = max(RING_MIN_PX, int(0.6 * math.sqrt(max(area, 1))))
     xs, ys = ring_pixels(mask, RING_GAP_PX, width)
@@ -57,7 +60,7 @@ def parallel_support(frame: Frame, mask: np.ndarray, top: Plane, seed: int = 0, 
     keep = frame.valid(d)
     xs, ys, d = xs[keep], ys[keep], d[keep].astype(float)
     if len(xs) < MIN_PLANE_PIXELS * 4:
-        return None
+        return None, False
     z = top.fb / (d + top.doffs)
     pts = np.stack([(xs - top.cx) * z / top.fx, (ys - top.cy) * z / top.fy, z], axis=1)
     n, o = top.metric()
@@ -65,7 +68,7 @@ def parallel_support(frame: Frame, mask: np.ndarray, top: Plane, seed: int = 0, 
     lo = max(min_drop_m, 0.0)
     sel = below > lo
     if sel.sum() < MIN_PLANE_PIXELS * 4:
-        return None
+        return None, False
     # A level's spread along the normal is the ring's depth noise, Z² / fB times the disparity noise the
     # top shows (or the quantum's rounding): a coarse sensor's floor spans several centimetres.
     z_med = float(np.median(z))
@@ -75,7 +78,8 @@ def parallel_support(frame: Frame, mask: np.ndarray, top: Plane, seed: int = 0, 
     # Two neighbouring bins together: a level straddling a bin edge still counts once.
     pair = hist[:-1] + hist[1:] if len(hist) > 1 else hist
     dense = np.flatnonzero(pair >= LEVEL_SHARE * len(xs))
-    for k in dense[np.argsort(-pair[dense], kind="stable")][:MAX_CANDIDATES]:  # densest level first
+
+    def level_plane(k: int) -> Plane | None:
         level = (below >= edges[k] - bin_m) & (below <= edges[k] + 3 * bin_m)
         try:
             plane = fit_plane(frame, xs[level], ys[level], seed)
@@ -83,10 +87,24 @@ def parallel_support(frame: Frame, mask: np.ndarray, top: Plane, seed: int = 0, 
             # their noisy level, which would truncate the noise on one side and bias the plane.
             plane = fit_plane(frame, xs, ys, seed, start=plane)
         except MeasureError:
+            return None
+        return plane if angle_deg(plane, top) <= PARALLEL_DEG and plane.n_support >= MIN_PLANE_PIXELS * 4 else None
+
+    for k in dense[np.argsort(-pair[dense], kind="stable")][:MAX_CANDIDATES]:  # densest level first
+        plane = level_plane(int(k))
+        if plane is None:
             continue
-        if angle_deg(plane, top) <= PARALLEL_DEG and plane.n_support >= MIN_PLANE_PIXELS * 4:
-            return plane
-    return None
+        # A parallel level nearer below the top than the one chosen: a table under the box, or a
+        # neighbour's top; which one the box stands on is not known from the ring alone.
+        nearer = [j for j in dense if j < k - 2]
+        between = any(level_plane(int(j)) is not None for j in nearer[:MAX_CANDIDATES])
+        return plane, between
+    return None, False
+
+
+def parallel_support(frame: Frame, mask: np.ndarray, top: Plane, seed: int = 0, min_drop_m: float = 0.0) -> Plane | None:
+    """The plane of :func:`parallel_levels` alone."""
+    return parallel_levels(frame, mask, top, seed, min_drop_m)[0]
 
 
 def support_plane(frame: Frame, mask: np.ndarray, top_m: np.ndarray, parallel_to: Plane | None = None,

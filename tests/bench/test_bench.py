@@ -97,3 +97,13 @@ def test_export_bench_compares_the_same_files(tmp_path):
     rows = _load("export").run(n=40, repeats=1)
     assert set(rows) == {"CSV", "JSON"}
     assert rows["JSON"]["total"] > rows["CSV"]["total"] > 40 * 200  # 40 rows of ~250 bytes; the JSON has the arrays
+
+
+def test_shapes_report_judges_every_run_against_each_target():
+    mod = _load("shapes")
+    rows = [{"seed": 4, "shape": k, "cpu_median_ms": ms, "cpu_p90_ms": ms, "wall_median_ms": ms, "segment_cpu_ms": 5.0, "ratio": ms / 5}
+            for k, ms in (("box", 40.0), ("height", 12.0), ("area", 8.0))]
+    text = mod.report([rows], (0.5, 0.6), "2026-12-03 08:00 UTC")
+    assert text.startswith(mod.SECTION)
+    assert "| 1 | 4 | box | 40.0 / 40.0 | 40.0 | 5.0 | 8.0x | 50 |" in text
+    assert text.rstrip().endswith("Targets met in every run: box yes, height no, area yes.")
