@@ -75,7 +75,8 @@ def figures(result: CheckResult) -> dict:
     return {
         "board": {"squares": f"{result.board.squares_x}x{result.board.squares_y}",
                   "square_mm": result.board.square_m * 1000, "marker_mm": result.board.marker_m * 1000,
-                  "dictionary": result.board.dictionary},
+                  "dictionary": result.board.dictionary, "legacy": result.board.legacy,
+                  "legacy_found": result.legacy_found},
         "frames": len(v) + len(result.missed_frames),
         "frames_with_board": len(v),
         "pairs": len(pr),

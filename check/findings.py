@@ -15,6 +15,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from check.advice import advice_for
 from check.figures import LENGTH_BINS
 
 
@@ -42,9 +43,19 @@ FAR_DISPARITY_PX = 25.0
 SMALL_PX_PER_SQUARE = 15.0
 
 
-def findings(fig: dict) -> list[Finding]:
-    """The verdict: measured conclusions, each with a likely cause and what to do (module docstring)."""
+def findings(fig: dict, kind: str | None = None) -> list[Finding]:
+    """The verdict: measured conclusions, each with a likely cause and what to do (module docstring);
+    ``kind``: the frames' source kind, which decides what fixes a scale (:func:`check.advice.advice_for`)."""
+    advice = advice_for(kind)
     out: list[Finding] = []
+    if fig["board"].get("legacy_found"):
+        out.append(Finding(
+            measured="the board's markers were found but no corners with the board as described; its corners were "
+                     "with OpenCV's legacy pattern",
+            cause="the board was printed by OpenCV before 4.6 or a generator that follows it (an even number of rows)",
+            action="pass --legacy to check and calibrate with this board",
+            severity="info",
+        ))
     z = fig["distance_m"] or math.nan
     b, se = fig["bias_pct"], fig["bias_se_pct"]
     sq_mm = fig["board"]["square_mm"]
@@ -64,11 +75,10 @@ def findings(fig: dict) -> list[Finding]:
             out.append(Finding(
                 measured=measured + f"; stereo depth reads {dz:+.1f} % against the board's pose from the image alone"
                          + (" - the same at every length: a scale error" if bins_agree else ": a scale error"),
-                cause=f"the baseline in the calibration is probably off by about {b:+.1f} % (it scales every depth and "
-                      "length alike, and the pose does not use it); a board printed at another scale than --square-mm "
-                      "gives the same signature",
-                action=f"measure a printed square with a ruler: if it is {sq_mm:g} mm, recalibrate (depthruler calibrate) "
-                       f"or scale the calibration's T by {1 / (1 + b / 100):.4f}; otherwise pass the measured --square-mm",
+                cause=advice.scale_cause.format(pct=b) + " (it scales every depth and length alike, and the pose does "
+                      "not use it); a board printed at another scale than --square-mm gives the same signature",
+                action=f"measure a printed square with a ruler: if it is {sq_mm:g} mm, "
+                       + advice.scale_action.format(factor=1 / (1 + b / 100)) + "; otherwise pass the measured --square-mm",
                 severity="fail" if abs(b) >= 2.0 else "warn",
             ))
         elif bins_agree:
@@ -173,11 +183,13 @@ TREND_MIN_CHECKS = 3
 TREND_MIN_RATIO = 1.5  # farthest / nearest distance among the checks
 
 
-def trend_findings(history: Sequence[dict], fig: dict) -> list[Finding]:
+def trend_findings(history: Sequence[dict], fig: dict, kind: str | None = None) -> list[Finding]:
     """What the earlier checks of the same camera and calibration add (``history``: their records with
     "figures"): whether the bias stays the same across distances (a baseline: ``Z = fx B / d`` scales
     every distance alike) or grows with distance (a disparity offset delta: the relative error of
-    ``fx B / (d + delta)`` is about ``-delta / d = -delta Z / (fx B)``, proportional to Z)."""
+    ``fx B / (d + delta)`` is about ``-delta / d = -delta Z / (fx B)``, proportional to Z); ``kind``: the
+    frames' source kind, which decides the words (:func:`check.advice.advice_for`)."""
+    advice = advice_for(kind)
     pts = [(h["figures"].get("distance_m"), h["figures"].get("bias_pct"), h["figures"].get("fx_baseline"))
            for h in history if h.get("figures")] + [(fig["distance_m"], fig["bias_pct"], fig["fx_baseline"])]
     pts = [p for p in pts if all(v is not None and math.isfinite(v) for v in p)]
@@ -194,17 +206,17 @@ def trend_findings(history: Sequence[dict], fig: dict) -> list[Finding]:
         return [Finding(
             measured=f"over {where} the bias goes from {icpt + slope * z.min():+.1f} to {icpt + slope * z.max():+.1f} %: "
                      "it grows with distance",
-            cause=f"a disparity offset of about {delta:+.2f} px (the calibration's principal points or doffs, or the "
-                  "rectification), not only the baseline, which would read the same % at every distance",
-            action="recalibrate with board views spread over the working distances",
+            cause=advice.offset_cause.format(delta=delta),
+            action=advice.offset_action,
             severity="warn",
         )]
     if abs(float(np.mean(bias))) >= BIAS_PCT:
         return [Finding(
             measured=f"over {where} the bias stays at {np.mean(bias):+.1f} % (±{abs(change) / 2:.1f})",
-            cause="a scale that does not depend on distance: the baseline (or the board's printed size), not a "
-                  "disparity offset",
-            action="see the baseline finding above",
+            cause="a scale that does not depend on distance: " + ("the baseline (or the board's printed size), not a "
+                  "disparity offset" if advice.family == "stereo" else "the camera's depth scale (or the board's printed "
+                  "size), not an offset"),
+            action="see the scale finding above: " + advice.scale_action.format(factor=1 / (1 + float(np.mean(bias)) / 100)),
             severity="info",
         )]
     return []

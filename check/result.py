@@ -21,3 +21,5 @@ class CheckResult:
     missed_frames: tuple[int, ...] = ()
     detections: tuple[Detection, ...] = field(default=(), repr=False)  # per view, for drawing
     fx_baseline: float = math.nan  # fx * B (px m) of the first frame with the board
+    legacy_found: bool = False  # the board was described in today's pattern but found in the legacy one
+    source_kind: str | None = None  # that frame's meta["source"] ("oak", "v4l2", "sim", ...): what advice fits

@@ -29,6 +29,12 @@ def paper_option(help: str):  # noqa: ANN201, A002 — typer's keyword
     return typer.Option(None, "--board", "--paper", metavar="|".join(PAPERS), help=help)
 
 
+def legacy_option():  # noqa: ANN201
+    return typer.Option(False, "--legacy", help="The board is in OpenCV's legacy pattern (printed by OpenCV before 4.6 "
+                        "or a generator that follows it; differs with an even number of rows). Without it such a board "
+                        "is still tried as legacy when its markers show but no corners.")
+
+
 def parse_squares(text: str) -> tuple[int, int]:
     """``COLSxROWS`` (e.g. ``11x8``) as two ints; typer.BadParameter otherwise."""
     try:
@@ -38,11 +44,14 @@ def parse_squares(text: str) -> tuple[int, int]:
         raise typer.BadParameter(f"{text!r} is not COLSxROWS, e.g. 11x8", param_hint="--squares") from exc
 
 
-def board_from_options(ctx: typer.Context, squares: str, square_mm: float, marker_mm: float, dictionary: str, paper: str | None):
+def board_from_options(ctx: typer.Context, squares: str, square_mm: float, marker_mm: float, dictionary: str, paper: str | None,
+                       legacy: bool = False):
     """The board the options describe and the PNG margin (mm) to print it with (None: the printer's default).
 
     With ``paper`` the squares are sized to fit it (:func:`check.boards.paper_board`) and giving
     ``--square-mm`` or ``--marker-mm`` as well is an error; without, both sizes must be positive."""
+    from dataclasses import replace
+
     from check.boards import paper_board
     from check.errors import CheckError
     from device.calibration.board import BoardSpec
@@ -56,8 +65,8 @@ def board_from_options(ctx: typer.Context, squares: str, square_mm: float, marke
             preset = paper_board(paper, sx, sy, dictionary)
         except CheckError as exc:
             raise typer.BadParameter(str(exc), param_hint="--board") from None
-        return preset.board, preset.margin_mm
+        return replace(preset.board, legacy=legacy), preset.margin_mm
     for name, value in (("--square-mm", square_mm), ("--marker-mm", marker_mm)):
         if not (math.isfinite(value) and value > 0):
             raise typer.BadParameter(f"{value:g} is not a length; give the printed side in mm (measure it with a ruler)", param_hint=name)
-    return BoardSpec(sx, sy, square_mm / 1000.0, marker_mm / 1000.0, dictionary), None
+    return BoardSpec(sx, sy, square_mm / 1000.0, marker_mm / 1000.0, dictionary, legacy), None

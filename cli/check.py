@@ -20,6 +20,7 @@ def check(
     dictionary: str = board_options.dictionary_option(),
     board_paper: str | None = board_options.paper_option("The board printed by `calibrate --board-png OUT --board PAPER`: "
                                                          "its squares fit that paper (instead of --square-mm, --marker-mm)."),
+    legacy: bool = board_options.legacy_option(),
     frames: int = typer.Option(1, "--frames", min=1, max=1000, help="Frames to check (more give the frame-to-frame spread)."),
     json_out: bool = typer.Option(False, "--json", help="Print the report as JSON."),
     out: Path | None = typer.Option(None, "--out", help="Folder for check.png (the board, pairs coloured by error, "
@@ -40,7 +41,7 @@ def check(
 
     from cli.specs import source_spec
 
-    board, _ = board_options.board_from_options(ctx, squares, square_mm, marker_mm, dictionary, board_paper)
+    board, _ = board_options.board_from_options(ctx, squares, square_mm, marker_mm, dictionary, board_paper, legacy)
     try:
         got = []
         with open_source(source_spec(source)) as src:

@@ -54,6 +54,7 @@ def calibrate(
     paper: str | None = board_options.paper_option("Size the squares to print on this paper (instead of --square-mm, "
                                                    "--marker-mm); `check --board PAPER` checks against it."),
     side_by_side: bool = typer.Option(False, "--side-by-side", help="Each image holds left | right halves."),
+    legacy: bool = board_options.legacy_option(),
     views: int = typer.Option(20, "--views", help="Live capture: how many distinct board views to collect."),
     save_views: Path | None = typer.Option(None, "--save-views", help="Live capture: also save the pairs here."),
 ) -> None:
@@ -65,7 +66,7 @@ def calibrate(
 
     if fmt not in FORMATS:
         raise typer.BadParameter(f"{fmt!r} is not one of {', '.join(FORMATS)}", param_hint="--format")
-    board, margin_mm = board_options.board_from_options(ctx, squares, square_mm, marker_mm, dictionary, paper)
+    board, margin_mm = board_options.board_from_options(ctx, squares, square_mm, marker_mm, dictionary, paper, legacy)
     try:
         if board_png is not None:
             path, w_mm, h_mm = write_board_png(board, board_png, dpi=dpi, **({} if margin_mm is None else {"margin_mm": margin_mm}))

@@ -1,10 +1,16 @@
-"""The ChArUco calibration board: its description (squares, sizes in metres, dictionary), a printable PNG
-at its physical size, corner detection, and rendering a view of it (to synthesise calibration data)."""
+"""The ChArUco calibration board: its description (squares, sizes in metres, dictionary, pattern), a printable
+PNG at its physical size, corner detection, and rendering a view of it (to synthesise calibration data).
+
+Boards printed by OpenCV before 4.6 (and by many online generators) use the *legacy* pattern: with an
+even number of rows the chessboard is shifted by one square against today's, so today's detector finds
+the markers but no corner. ``BoardSpec(legacy=True)`` (``--legacy``) describes such a board, and
+:class:`BoardDetector` retries with the legacy pattern by itself when markers are found but few corners.
+"""
 
 from __future__ import annotations
 
 from collections.abc import Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 
 import cv2
@@ -22,6 +28,7 @@ class BoardSpec:
     square_m: float = 0.030
     marker_m: float = 0.022
     dictionary: str = "DICT_5X5_100"
+    legacy: bool = False  # OpenCV's pattern before 4.6 (differs from today's with an even number of rows)
 
     def __post_init__(self) -> None:
         if self.squares_x < 3 or self.squares_y < 3:
@@ -35,7 +42,9 @@ class BoardSpec:
 
     def board(self) -> cv2.aruco.CharucoBoard:
         dictionary = cv2.aruco.getPredefinedDictionary(getattr(cv2.aruco, self.dictionary))
-        return cv2.aruco.CharucoBoard((self.squares_x, self.squares_y), self.square_m, self.marker_m, dictionary)
+        board = cv2.aruco.CharucoBoard((self.squares_x, self.squares_y), self.square_m, self.marker_m, dictionary)
+        board.setLegacyPattern(bool(self.legacy))
+        return board
 
     @property
     def n_corners(self) -> int:
@@ -85,11 +94,46 @@ class Detection:
 
 
 def detect_board(detector: cv2.aruco.CharucoDetector, image: np.ndarray) -> Detection | None:
+    """The board's chessboard corners in ``image`` (BGR or grey), sub-pixel; None when none is found."""
+    return _detect(detector, image)[0]
+
+
+def _detect(detector: cv2.aruco.CharucoDetector, image: np.ndarray) -> tuple[Detection | None, int]:
     gray = image if image.ndim == 2 else cv2.cvtColor(image, cv2.COLOR_BGR2GRAY)
-    corners, ids, _, _ = detector.detectBoard(gray)
+    corners, ids, _, marker_ids = detector.detectBoard(gray)
+    markers = 0 if marker_ids is None else len(marker_ids)
     if corners is None or ids is None or len(ids) == 0:
-        return None
-    return Detection(ids=np.asarray(ids).ravel().astype(np.int32), corners=np.asarray(corners, np.float32).reshape(-1, 2))
+        return None, markers
+    return Detection(ids=np.asarray(ids).ravel().astype(np.int32), corners=np.asarray(corners, np.float32).reshape(-1, 2)), markers
+
+
+class BoardDetector:
+    """Finds one board in images, and finds out whether it is printed in the legacy pattern.
+
+    :meth:`detect` uses the board as described; when an image shows markers but fewer corners than
+    markers (a legacy board read as today's gives none) and the board is not already legacy, it tries
+    the legacy pattern, and if that finds more corners it keeps it: :attr:`board` is then the board
+    with ``legacy=True``, for the later images and for the caller to report.
+    """
+
+    def __init__(self, board: BoardSpec) -> None:
+        self.board = board
+        self._detector = cv2.aruco.CharucoDetector(board.board())
+        self.switched = False  # True once the legacy pattern was found instead of the one described
+
+    def detect(self, image: np.ndarray) -> Detection | None:
+        """The board's corners in ``image`` (:func:`detect_board`), with the legacy retry above."""
+        det, markers = _detect(self._detector, image)
+        found = 0 if det is None else len(det.ids)
+        if self.board.legacy or self.board.squares_y % 2 or markers == 0 or found >= markers:
+            return det  # with an odd number of rows both patterns are the same board
+        legacy = replace(self.board, legacy=True)
+        detector = cv2.aruco.CharucoDetector(legacy.board())
+        other, _ = _detect(detector, image)
+        if other is None or len(other.ids) <= found:
+            return det
+        self.board, self._detector, self.switched = legacy, detector, True
+        return other
 
 
 def render_board_view(

@@ -10,7 +10,7 @@ from typing import Protocol
 import cv2
 import numpy as np
 
-from device.calibration.board import BoardSpec, detect_board
+from device.calibration.board import BoardDetector, BoardSpec
 from device.calibration.solve import Progress
 from device.errors import CalibrationError, SourceDisconnected
 
@@ -45,7 +45,7 @@ def capture_views(
     the caller builds it, so this package does not depend on the capture code (which depends on it).
     """
     say = progress or (lambda _msg: None)
-    detector = cv2.aruco.CharucoDetector(board.board())
+    detector = BoardDetector(board)
     kept: list[tuple[str, np.ndarray, np.ndarray]] = []
     kept_corners: list[dict[int, np.ndarray]] = []
     out_dir = Path(save_to) if save_to else None
@@ -67,7 +67,7 @@ def capture_views(
                 if len(kept) >= 6:
                     break  # a finite recording ran out; calibrate with what there is
                 raise
-            dl, dr = detect_board(detector, left), detect_board(detector, right)
+            dl, dr = detector.detect(left), detector.detect(right)
             if dl is None or dr is None:
                 continue
             common = np.intersect1d(dl.ids, dr.ids)

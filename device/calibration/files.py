@@ -9,8 +9,9 @@ and every file is validated through it. Conventions:
   ``M1``/``K1``/``cameraMatrix1``, ``D1``/``distCoeffs1``, the same with 2 for the right camera,
   ``R`` and ``T`` with ``X_right = R X_left + T``, and the image size as ``image_size``/``imageSize``
   ([w, h]) or ``image_width`` + ``image_height`` (the samples do not write it: add it). ``T`` is in the
-  unit of the board's square size given to the calibration: metres unless the file has
-  ``units: "mm"`` or the spec says ``calib_units=mm``. The distortion model is OpenCV's pinhole model
+  unit of the board's square size given to the calibration: the file's ``units`` (e.g. ``"mm"``) or the
+  spec's ``calib_units`` (m, cm, mm, in, or squares with ``calib_square_mm``); without either, metres, and a
+  ``|T|`` outside a stereo baseline (1 cm - 0.5 m) is refused, naming the likely unit. The distortion model is OpenCV's pinhole model
   unless the file has ``distortion_model`` (or the spec ``distortion=equidistant``); four coefficients
   without a model are refused (device/calibration/stereo.py).
 - **ROS camera_info pair** (``calib=left.yaml,right.yaml``, camera_calibration_parsers' YAML):
@@ -37,7 +38,11 @@ from device.calibration.storage import read_storage
 from device.calibration.stereo import DISTORTION_MODELS, MAX_IMAGE_SIDE, StereoCalibration, calibration_from_json, load_calibration
 from device.errors import CalibrationError
 
-UNITS = {"m": 1.0, "mm": 1e-3}
+# Metres per unit of T; "squares" (the board's square side, given by calib_square_mm) is what OpenCV's
+# stereo_calib sample writes when run with its default square size of 1.
+UNITS = {"m": 1.0, "cm": 1e-2, "mm": 1e-3, "in": 0.0254, "squares": math.nan}
+BASELINE_M = (0.01, 0.5)  # a stereo camera's baseline: T in a file without units must give one in this range
+SQUARE_MM = (10.0, 100.0)  # printed board squares, for the guess whether T is in squares
 FORMATS = ("json", "opencv-yaml", "opencv-xml", "ros")
 ROS_MODELS = {"plumb_bob": "opencv", "rational_polynomial": "opencv", "equidistant": "equidistant"}
 _ALIASES = {
@@ -55,7 +60,10 @@ class CalibrationRef:
     """The calibration a source spec names: file(s), the unit of T in them, the distortion model."""
 
     path: str = option("", key="calib", example="rig.json", help="calibration: the project's JSON, OpenCV YAML/XML, or a ROS pair left.yaml,right.yaml")
-    units: str = option("m", key="calib_units", choices=tuple(UNITS), help="unit of T in an OpenCV or ROS file")
+    units: str | None = option(None, key="calib_units", choices=tuple(UNITS), default_text="the file's, else m",
+                               help="unit of T in an OpenCV or ROS file (squares: with calib_square_mm)")
+    square_mm: float | None = option(None, key="calib_square_mm", min=0.0, min_open=True, unit="mm",
+                                     help="the board's square side when calib_units=squares")
     distortion_model: str | None = option(None, key="distortion", choices=DISTORTION_MODELS,
                                           default_text="the file's", help="lens model of an OpenCV file without one")
 
@@ -69,17 +77,23 @@ class CalibrationRef:
                 ".yaml/.xml, or a ROS camera_info pair left.yaml,right.yaml); create one with "
                 "`depthruler calibrate --images DIR --out FILE.json`"
             )
-        return load_any(self.path, units=self.units, distortion_model=self.distortion_model)
+        return load_any(self.path, units=self.units, square_mm=self.square_mm, distortion_model=self.distortion_model)
 
 
-def load_any(ref: str, *, units: str = "m", distortion_model: str | None = None) -> StereoCalibration:
-    """A calibration from the project's JSON, OpenCV FileStorage file(s) or a ROS camera_info pair."""
+def load_any(ref: str, *, units: str | None = None, square_mm: float | None = None,
+             distortion_model: str | None = None) -> StereoCalibration:
+    """A calibration from the project's JSON, OpenCV FileStorage file(s) or a ROS camera_info pair.
+
+    ``units``: the unit of T (:data:`UNITS`; None: the file's ``units``, else metres, and then a ``|T|``
+    outside :data:`BASELINE_M` is refused, naming the units that would give a baseline);
+    ``square_mm``: the board's square side (mm) for ``units="squares"``.
+    """
     paths = [Path(p.strip()) for p in ref.split(",") if p.strip()]
     for p in paths:
         if not p.is_file():
             raise CalibrationError(f"calibration file {str(p)!r} does not exist; fix the calib= path")
     if len(paths) == 1 and paths[0].suffix.lower() == ".json":
-        if units != "m" or distortion_model:
+        if units not in (None, "m") or square_mm is not None or distortion_model:
             raise CalibrationError(f"{paths[0]}: the project's JSON is in metres with its distortion model "
                                    "inside; drop calib_units/distortion from the spec")
         return load_calibration(paths[0])
@@ -93,14 +107,49 @@ def load_any(ref: str, *, units: str = "m", distortion_model: str | None = None)
         for n in nodes:
             merged.update(n)
         data = _from_opencv(merged, ref)
-    unit = units if units != "m" else str(data.pop("units", "m"))
-    data.pop("units", None)
-    if unit not in UNITS:
-        raise CalibrationError(f"{ref}: units {unit!r} is unknown; use m or mm")
-    data["T"] = (np.asarray(data["T"], np.float64).ravel() * UNITS[unit]).tolist()
+    given = data.pop("units", None)
+    unit = units or (None if given is None else str(given))
+    if unit is not None and unit not in UNITS:
+        raise CalibrationError(f"{ref}: units {unit!r} is unknown; use one of {', '.join(UNITS)}")
+    if (unit == "squares") != (square_mm is not None):
+        raise CalibrationError(f"{ref}: T in board squares needs the square side: give calib_units=squares together "
+                               "with calib_square_mm=SIDE (the printed square in mm, measured with a ruler)")
+    T = np.asarray(data["T"], np.float64).ravel()
+    if unit is None:
+        _check_baseline(T, ref)
+    data["T"] = (T * (square_mm * 1e-3 if unit == "squares" else UNITS[unit or "m"])).tolist()
     if distortion_model:
         data["distortion_model"] = distortion_model
     return calibration_from_json(data, source=ref)
+
+
+def _check_baseline(T: np.ndarray, source: str) -> None:
+    """CalibrationError when T, read in metres for want of a unit, is no stereo baseline (:data:`BASELINE_M`):
+    the message gives the baseline each unit would give and names those that give a plausible one."""
+    if T.size != 3 or not np.all(np.isfinite(T)) or np.abs(T).max() > 1e12:
+        return  # calibration_from_json names what is wrong with T itself
+    norm = float(np.linalg.norm(T))
+    lo, hi = BASELINE_M
+    if norm == 0 or lo <= norm <= hi:
+        return
+    each = [f"{u} {_length(norm * UNITS[u])}" for u in UNITS if u != "squares"]
+    likely = [u for u in UNITS if u != "squares" and lo <= norm * UNITS[u] <= hi]
+    if SQUARE_MM[0] * 1e-3 * norm <= hi and SQUARE_MM[1] * 1e-3 * norm >= lo:
+        likely.append("squares")
+    each.append(f"squares {norm:.3g} x the square side ({_length(norm * 0.025)} with 25 mm squares; OpenCV's "
+                "stereo_calib sample writes T in squares unless given the square size)")
+    fix = (f"the likely unit is {' or '.join(likely)}: add calib_units={'|'.join(likely)} to the source spec"
+           + (" (squares with calib_square_mm=SIDE, the printed square in mm)" if "squares" in likely else "")
+           if likely else "no unit gives a plausible baseline: check T")
+    raise CalibrationError(
+        f"{source}: |T| = {norm:.4g} and the file gives no unit; in metres the baseline would be {_length(norm)}, outside "
+        f"a stereo camera's {_length(lo)} - {_length(hi)}. As each unit: {', '.join(each)}. {fix[0].upper()}{fix[1:]} "
+        f"(or units: to the file); calib_units=m if {_length(norm)} is right"
+    )
+
+
+def _length(m: float) -> str:
+    return f"{m * 1000:.3g} mm" if m < 1 else f"{m:.3g} m"
 
 
 def _matrix(value, source: str, name: str) -> np.ndarray:

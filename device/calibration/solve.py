@@ -22,7 +22,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from device.calibration.board import BoardSpec, detect_board
+from device.calibration.board import BoardDetector, BoardSpec
 from device.calibration.stereo import StereoCalibration, ViewResult
 from device.errors import CalibrationError
 
@@ -61,7 +61,7 @@ def calibrate_stereo(
     """
     say = progress or (lambda _msg: None)
     cb = board.board()
-    detector = cv2.aruco.CharucoDetector(cb)
+    detector = BoardDetector(board)  # finds out a legacy-pattern board by itself
     all_obj = cb.getChessboardCorners().astype(np.float32)
     results: dict[str, ViewResult] = {}
     names, obj_pts, left_pts, right_pts = [], [], [], []
@@ -81,7 +81,7 @@ def calibrate_stereo(
             size = this
         elif this != size:
             raise CalibrationError(f"view {name} is {this[0]}x{this[1]} but earlier views are {size[0]}x{size[1]}")
-        dl, dr = detect_board(detector, left), detect_board(detector, right)
+        dl, dr = detector.detect(left), detector.detect(right)
         common = np.intersect1d(dl.ids, dr.ids) if dl is not None and dr is not None else np.empty(0, np.int32)
         if len(common) < min_corners:
             seen = f"{0 if dl is None else len(dl.ids)} left / {0 if dr is None else len(dr.ids)} right"
@@ -103,10 +103,14 @@ def calibrate_stereo(
             raise CalibrationError(
                 f"only {n} usable views {stage} (need {min_views}); capture more pairs with the whole board "
                 f"sharp and visible to both cameras at varied angles and distances; board {board.squares_x}x"
-                f"{board.squares_y} squares {board.dictionary} must match the printed one"
+                f"{board.squares_y} squares {board.dictionary} must match the printed one (--legacy for a board "
+                "printed by OpenCV before 4.6)"
             )
 
     need(len(names), "with the board seen by both cameras")
+    if detector.switched:
+        board = detector.board
+        say("the board is in OpenCV's legacy pattern (printed before OpenCV 4.6): pass --legacy next time")
     keep = np.ones(len(names), bool)
     for last in (False, False, True):
         idx = np.flatnonzero(keep)

@@ -28,6 +28,7 @@ from __future__ import annotations
 
 import json
 import math
+import warnings
 from dataclasses import asdict, dataclass, field, fields
 from datetime import datetime, timezone
 from pathlib import Path
@@ -46,6 +47,14 @@ MAX_IMAGE_SIDE = 65536  # px; a calibration for larger images is a corrupt file 
 FORMAT = "depthruler-stereo-calibration"
 VERSION = 1
 DISTORTION_MODELS = ("opencv", "equidistant")
+# How far (largest entry) a file's R may be from the nearest rotation: a rotation printed with 4 or more
+# decimals is off by at most 5e-5 and is used silently; up to ROTATION_FAR with a warning; beyond, refused.
+ROTATION_WARN = 1e-4
+ROTATION_FAR = 1e-2
+
+
+class CalibrationWarning(UserWarning):
+    """A calibration was read but something in it was repaired (R re-orthonormalised); the message says what."""
 
 
 @dataclass(frozen=True)
@@ -122,6 +131,32 @@ class StereoCalibration:
         return path
 
 
+def nearest_rotation(R: np.ndarray, source: str = "calibration") -> np.ndarray:
+    """The rotation nearest to ``R`` (3x3) in the Frobenius norm: ``U V^T`` of its SVD ``U S V^T``.
+
+    A matrix printed with a few decimals is no longer exactly orthonormal (5 decimals: entries off by up
+    to 5e-6), so it is re-orthonormalised rather than refused; a :class:`CalibrationWarning` says so when
+    an entry moves by more than ``ROTATION_WARN``, and a matrix that is no rotation (an entry off by more
+    than ``ROTATION_FAR``, or a determinant <= 0) is a CalibrationError. A rotation to machine precision
+    is returned as it is (a file written with all its digits reads back bit for bit).
+    """
+    U, _, Vt = np.linalg.svd(R)
+    if np.linalg.det(R) <= 0:
+        raise CalibrationError(f"{source}: R is not a rotation matrix: its determinant is {np.linalg.det(R):.4g}, a "
+                               "rotation's is +1 (a negative one mirrors: is the field R, written row by row?)")
+    near = U @ Vt  # det(R) > 0, so det(U V^T) = +1: a rotation, not a reflection
+    moved = float(np.abs(near - R).max())
+    if moved <= 1e-12:
+        return R
+    if moved > ROTATION_FAR:
+        raise CalibrationError(f"{source}: R is not a rotation matrix: an entry is {moved:.3g} off the nearest rotation "
+                               f"(up to {ROTATION_FAR:g} is repaired); check that R is the 3x3 rotation, row by row")
+    if moved > ROTATION_WARN:
+        warnings.warn(f"{source}: R is {moved:.2g} off a rotation (more than printing it rounds); "
+                      "using the nearest rotation", CalibrationWarning, stacklevel=3)
+    return near
+
+
 def load_calibration(path: str | Path) -> StereoCalibration:
     """Read a calibration file written by :meth:`StereoCalibration.save` (or by hand, same format)."""
     path = Path(path)
@@ -192,9 +227,7 @@ def calibration_from_json(data: dict, source: str = "calibration") -> StereoCali
             "e.g. Kalibr's equidistant); name the model: distortion_model \"opencv\" or \"equidistant\" "
             "(source spec: distortion=opencv|equidistant)"
         )
-    R = arr("R", (3, 3))
-    if np.abs(R).max() > 1 + 1e-6 or not np.allclose(R @ R.T, np.eye(3), atol=1e-6) or np.linalg.det(R) < 0:
-        raise CalibrationError(f"{source}: R is not a rotation matrix (orthonormal with determinant +1)")
+    R = nearest_rotation(arr("R", (3, 3)), source)
     T = arr("T", None, (3,)).reshape(3)
     if np.abs(T).max() > 5:  # before the norm: its squares could overflow
         raise CalibrationError(f"{source}: T = {T.tolist()} is implausible; T must be in metres "

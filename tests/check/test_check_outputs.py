@@ -127,7 +127,8 @@ def test_check_against_an_a4_board(tmp_path):
     res = runner.invoke(app, ["check", "--source", spec, "--board", "a4", "--no-history", "--json"])
     assert res.exit_code == 0, res.output
     fig = json.loads(res.output.strip().splitlines()[-1])["figures"]
-    assert fig["board"] == {"squares": "11x8", "square_mm": 23.0, "marker_mm": 17.0, "dictionary": "DICT_5X5_100"}
+    assert fig["board"] == {"squares": "11x8", "square_mm": 23.0, "marker_mm": 17.0, "dictionary": "DICT_5X5_100",
+                            "legacy": False, "legacy_found": False}
     assert fig["pairs"] > 300 and abs(fig["bias_pct"]) < 0.5
 
 

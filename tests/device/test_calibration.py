@@ -27,15 +27,15 @@ PX_PER_M, MARGIN = 4000.0, 40
 SUPERSAMPLE = 2
 
 
-def _board_image() -> np.ndarray:
-    w = round(BOARD.squares_x * BOARD.square_m * PX_PER_M) + 2 * MARGIN
-    h = round(BOARD.squares_y * BOARD.square_m * PX_PER_M) + 2 * MARGIN
-    return BOARD.board().generateImage((w, h), marginSize=MARGIN, borderBits=1)
+def _board_image(board: BoardSpec = BOARD) -> np.ndarray:
+    w = round(board.squares_x * board.square_m * PX_PER_M) + 2 * MARGIN
+    h = round(board.squares_y * board.square_m * PX_PER_M) + 2 * MARGIN
+    return board.board().generateImage((w, h), marginSize=MARGIN, borderBits=1)
 
 
-def _render_views(n: int, seed: int = 1) -> list[tuple[str, np.ndarray, np.ndarray]]:
+def _render_views(n: int, seed: int = 1, board: BoardSpec = BOARD) -> list[tuple[str, np.ndarray, np.ndarray]]:
     """n view pairs of the board at random poses 0.45-0.8 m away, tilted up to ~26 degrees."""
-    img = _board_image()
+    img = _board_image(board)
     rng = np.random.default_rng(seed)
     centre = np.array([BOARD.squares_x * BOARD.square_m / 2, BOARD.squares_y * BOARD.square_m / 2, 0])
     views = []
@@ -109,6 +109,32 @@ def test_too_few_views_says_what_to_do(views):
         BoardSpec(dictionary="DICT_NOPE")
     with pytest.raises(CalibrationError, match="smaller than the square"):
         BoardSpec(square_m=0.02, marker_m=0.03)
+
+
+def test_a_legacy_pattern_board_is_found_and_calibrates():
+    """A board printed by OpenCV before 4.6 (11x8: an even number of rows, so the chessboard is shifted
+    against today's): today's detector finds its markers but no corner. The detector retries the legacy
+    pattern by itself, calibrate says to pass --legacy, and the rig is recovered as with today's board."""
+    import dataclasses
+
+    from device.calibration.board import BoardDetector, detect_board
+
+    legacy = dataclasses.replace(BOARD, legacy=True)
+    views = _render_views(8, seed=3, board=legacy)
+    plain = detect_board(cv2.aruco.CharucoDetector(BOARD.board()), views[0][1])
+    assert plain is None or len(plain.ids) < 6  # what made check and calibrate give up
+    detector = BoardDetector(BOARD)
+    found = detector.detect(views[0][1])
+    assert detector.switched and detector.board == legacy and len(found.ids) >= 0.8 * BOARD.n_corners
+    lines: list[str] = []
+    calib = calibrate_stereo(views, BOARD, progress=lines.append)
+    assert any("--legacy" in line for line in lines)
+    assert calib.baseline_m == pytest.approx(np.linalg.norm(T_LR), rel=0.01) and calib.rms < 0.5
+    # Told it is legacy, nothing is retried; an odd number of rows is the same board in both patterns.
+    told = BoardDetector(legacy)
+    assert len(told.detect(views[0][1]).ids) == len(found.ids) and not told.switched
+    odd = BoardSpec(7, 5)
+    assert odd.board().getChessboardCorners().tolist() == dataclasses.replace(odd, legacy=True).board().getChessboardCorners().tolist()
 
 
 def test_file_round_trip_and_format(views, tmp_path):

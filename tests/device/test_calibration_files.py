@@ -6,6 +6,7 @@ from __future__ import annotations
 import ast
 import re
 import struct
+import warnings
 from pathlib import Path
 
 import cv2
@@ -58,8 +59,8 @@ def test_opencv_sample_files_intrinsics_and_extrinsics_in_mm(tmp_path):
     no_size = _storage(tmp_path / "nosize.yml", {"M1": K1, "D1": D_PINHOLE, "M2": K2, "D2": D_PINHOLE})
     with pytest.raises(CalibrationError, match="image_width and image_height"):
         load_any(f"{no_size},{extr}", units="mm")
-    with pytest.raises(CalibrationError, match="calib_units='cm' must be one of m, mm"):
-        CalibrationRef(ref, units="cm")
+    with pytest.raises(CalibrationError, match="calib_units='ft' must be one of m, cm, mm, in, squares"):
+        CalibrationRef(ref, units="ft")
 
 
 @pytest.mark.parametrize("fmt,suffix", [("opencv-yaml", ".yaml"), ("opencv-xml", ".xml")])
@@ -189,3 +190,64 @@ def test_calibration_does_not_import_the_capture_code():
         imported = {n.module for n in ast.walk(tree) if isinstance(n, ast.ImportFrom) and n.module}
         imported |= {a.name for n in ast.walk(tree) if isinstance(n, ast.Import) for a in n.names}
         assert not {m for m in imported if m.split(".")[-1] in ("stereo_pair", "stereo_processing", "video", "oak")}, (module, imported)
+
+
+def _sample_extrinsics(path: Path, T_written: np.ndarray, R_written: np.ndarray = R) -> Path:
+    """An extrinsics file as OpenCV's stereo_calib.cpp writes it (R, T, R1, R2, P1, P2, Q), no units."""
+    return _storage(path, {"R": R_written, "T": T_written.reshape(3, 1), "R1": np.eye(3), "R2": np.eye(3),
+                           "P1": np.zeros((3, 4)), "P2": np.zeros((3, 4)), "Q": np.zeros((4, 4))})
+
+
+def test_T_in_board_squares_as_the_opencv_sample_writes_it_is_refused_naming_the_unit(tmp_path):
+    """stereo_calib.cpp's default square size is 1.0: a 62.5 mm pair calibrated on 25 mm squares writes
+    |T| = 2.5 (squares). Read as metres that is a 2.5 m baseline and every length 40x too long."""
+    intr = _storage(tmp_path / "intrinsics.yml", {"M1": K1, "D1": D_PINHOLE.reshape(1, 5), "M2": K2,
+                                                  "D2": D_PINHOLE.reshape(1, 5), "image_width": 640, "image_height": 480})
+    extr = _sample_extrinsics(tmp_path / "extrinsics.yml", T / 0.025)
+    ref = f"{intr},{extr}"
+    with pytest.raises(CalibrationError) as err:
+        load_any(ref)
+    msg = str(err.value)
+    assert "calib_units=" in msg and "squares" in msg and "calib_square_mm" in msg and "2.5 m" in msg
+    c = CalibrationRef(ref, units="squares", square_mm=25.0).load()
+    assert c.baseline_m == pytest.approx(float(np.linalg.norm(T)), rel=1e-12)
+    with pytest.raises(CalibrationError, match="calib_square_mm"):
+        load_any(ref, units="squares")  # squares without the side
+    # The same file with T in inches (2.46 in) or cm (6.25): refused, and the message names that unit.
+    for unit, scale in (("in", 0.0254), ("cm", 0.01)):
+        other = _sample_extrinsics(tmp_path / f"extrinsics_{unit}.yml", T / scale)
+        with pytest.raises(CalibrationError, match=rf"likely unit is [^:]*\b{unit}\b"):
+            load_any(f"{intr},{other}")
+        assert load_any(f"{intr},{other}", units=unit).baseline_m == pytest.approx(float(np.linalg.norm(T)), rel=1e-12)
+    # In metres inside 1 cm - 0.5 m: read silently; a file that says its units is believed.
+    assert load_any(f"{intr},{_sample_extrinsics(tmp_path / 'm.yml', T)}").baseline_m == pytest.approx(0.0625, abs=1e-4)
+    said = _storage(tmp_path / "said.yml", {"R": R, "T": (T * 1000).reshape(3, 1), "units": "mm"})
+    assert load_any(f"{intr},{said}").baseline_m == pytest.approx(0.0625, abs=1e-4)
+
+
+def test_rotations_printed_with_five_decimals_load_as_the_nearest_rotation(tmp_path):
+    """2,000 small rotations (up to 3 degrees, as between two cameras of a stereo pair) written with 5
+    decimals: every one loads, as a rotation (orthonormal to 1e-12, det +1) within 1e-5 of the file."""
+    from device.calibration.stereo import CalibrationWarning, calibration_from_json
+
+    rng = np.random.default_rng(8)
+    data = _calib().to_json()
+    for i in range(2000):
+        Ri, _ = cv2.Rodrigues(rng.uniform(-1, 1, 3) * np.deg2rad(3.0) / np.sqrt(3))
+        data["R"] = np.round(Ri, 5).tolist()
+        with warnings.catch_warnings():
+            warnings.simplefilter("error", CalibrationWarning)  # rounding alone must not warn
+            c = calibration_from_json(data, source=f"rotation {i}")
+        assert np.allclose(c.R @ c.R.T, np.eye(3), atol=1e-12) and np.linalg.det(c.R) == pytest.approx(1.0, abs=1e-12)
+        assert np.abs(c.R - np.round(Ri, 5)).max() <= 1e-5
+    # A rotation off by 1e-3 loads with a warning; a mirror or a matrix far from any rotation is refused.
+    data["R"] = (np.asarray(data["R"]) + np.diag([1e-3, 0, 0])).tolist()
+    with pytest.warns(CalibrationWarning, match="nearest rotation"):
+        calibration_from_json(data)
+    for bad, match in ((np.diag([1.0, 1.0, -1.0]), "determinant"), (np.eye(3) * 1.1, "off the nearest rotation")):
+        data["R"] = bad.tolist()
+        with pytest.raises(CalibrationError, match=match):
+            calibration_from_json(data)
+    # A file written with all its digits reads back bit for bit.
+    (path,) = write(_calib(), tmp_path / "exact", "opencv-yaml")
+    assert np.array_equal(load_any(str(path)).R, R)
