@@ -52,28 +52,50 @@ class Hinge:
     scale: float  # robust residual scale (px)
 
 
-def _scale(r: np.ndarray, floor: float) -> np.ndarray:
-    med = np.median(r, axis=-1, keepdims=True)
-    return np.maximum(1.4826 * np.median(np.abs(r - med), axis=-1), floor)
+def _median(r: np.ndarray) -> np.ndarray:
+    """Median of each row of ``r`` (K, n)."""
+    n = r.shape[1]
+    part = np.partition(r, ((n - 1) // 2, n // 2), axis=1)
+    return 0.5 * (part[:, (n - 1) // 2] + part[:, n // 2])
 
 
-def _fit(X: np.ndarray, d: np.ndarray, w: np.ndarray) -> np.ndarray:
-    """Weighted least squares per candidate: X (K, n, p), d (n,), w (K, n) -> coefficients (K, p)."""
-    A = np.einsum("kni,kn,knj->kij", X, w, X) + 1e-9 * np.eye(X.shape[2])
-    y = np.einsum("kni,kn,n->ki", X, w, d)
+def _scale(r: np.ndarray, floor: float) -> tuple[np.ndarray, np.ndarray]:
+    """Each row's robust scale 1.4826 MAD (floored) and its median."""
+    med = _median(r)
+    return np.maximum(1.4826 * _median(np.abs(r - med[:, None])), floor), med
+
+
+def _fit(t: np.ndarray, H: np.ndarray | None, w: np.ndarray, d: np.ndarray) -> np.ndarray:
+    """Weighted least squares of d on the columns 1, t (and H, the hinge column of each candidate):
+    ``w`` (K, n) -> coefficients (K, 2 or 3), from the normal equations' sums."""
+    cols = [np.ones_like(w), np.broadcast_to(t, w.shape)] + ([] if H is None else [H])
+    p = len(cols)
+    wc = [w * c for c in cols]
+    A = np.empty((w.shape[0], p, p))
+    for i in range(p):
+        for j in range(i, p):
+            A[:, i, j] = A[:, j, i] = np.einsum("kn,kn->k", wc[i], cols[j])
+    A += 1e-9 * np.eye(p)
+    y = np.stack([c @ d for c in wc], axis=1)
     return np.linalg.solve(A, y[..., None])[..., 0]
 
 
-def _robust(X: np.ndarray, d: np.ndarray, floor: float) -> tuple[np.ndarray, np.ndarray]:
-    """Two passes: least squares, then least squares on the samples within 3 robust sigmas."""
-    w = np.ones(X.shape[:2])
-    beta = _fit(X, d, w)
-    r = d[None] - np.einsum("kni,ki->kn", X, beta)
-    s = _scale(r, floor)
-    w = (np.abs(r - np.median(r, axis=1, keepdims=True)) <= 3.0 * s[:, None]).astype(np.float64)
-    beta = _fit(X, d, w)
-    r = d[None] - np.einsum("kni,ki->kn", X, beta)
-    return beta, r
+def _residuals(t: np.ndarray, H: np.ndarray | None, d: np.ndarray, beta: np.ndarray) -> np.ndarray:
+    r = d[None] - beta[:, :1] - beta[:, 1:2] * t[None]
+    return r if H is None else r - beta[:, 2:3] * H
+
+
+def _robust(t: np.ndarray, H: np.ndarray | None, d: np.ndarray, floor: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Two passes: least squares, then least squares on the samples within 3 robust sigmas; the
+    coefficients, the residuals and their robust scale."""
+    k = 1 if H is None else H.shape[0]
+    beta = _fit(t, H, np.ones((k, t.size)), d)
+    r = _residuals(t, H, d, beta)
+    s, med = _scale(r, floor)
+    w = (np.abs(r - med[:, None]) <= 3.0 * s[:, None]).astype(np.float64)
+    beta = _fit(t, H, w, d)
+    r = _residuals(t, H, d, beta)
+    return beta, r, _scale(r, floor)[0]
 
 
 def hinge_ends(t: np.ndarray, d: np.ndarray, length: float, quantum: float, noise: float) -> Hinge | None:
@@ -91,13 +113,10 @@ def hinge_ends(t: np.ndarray, d: np.ndarray, length: float, quantum: float, nois
     t0s = t0s[(left >= MIN_PIECE_SAMPLES) & (n - left >= MIN_PIECE_SAMPLES)]
     if t0s.size == 0:
         return None
-    one = np.stack([np.ones(n), t], axis=1)[None]
-    b1, r1 = _robust(one, d, floor)
-    X = np.stack([np.ones((t0s.size, n)), np.broadcast_to(t, (t0s.size, n)), np.maximum(t[None] - t0s[:, None], 0.0)], axis=2)
-    b2, r2 = _robust(X, d, floor)
-    s2 = _scale(r2, floor)
+    _, _, s1 = _robust(t, None, d, floor)
+    b2, r2, s2 = _robust(t, np.maximum(t[None] - t0s[:, None], 0.0), d, floor)
     k = int(np.argmin(s2))
-    s1 = float(_scale(r1, floor)[0])
+    s1 = float(s1[0])
     n_eff = n / correlation_inflation(r2[k]) ** 2
     if not n_eff * math.log(s1 * s1 / (s2[k] * s2[k])) > PENALTY * 2.0 * math.log(max(n_eff, 2.0)):
         return None

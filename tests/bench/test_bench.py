@@ -3,6 +3,7 @@ reference really runs the same pipeline (same answer) so the timing ratio compar
 
 from __future__ import annotations
 
+import numpy as np
 import pytest
 from typer.testing import CliRunner
 
@@ -107,3 +108,43 @@ def test_shapes_report_judges_every_run_against_each_target():
     assert text.startswith(mod.SECTION)
     assert "| 1 | 4 | box | 40.0 / 40.0 | 40.0 | 5.0 | 8.0x | 50 |" in text
     assert text.rstrip().endswith("Targets met in every run: box yes, height no, area yes.")
+
+
+def test_the_same_work_reference_finds_our_support_and_uses_our_settings():
+    """scikit-learn doing our FAST-MCD's work (starts, candidates kept, C-steps) finds nearly the same
+    support on lines with 30 % wrong matches, and hands scikit-learn our numbers."""
+    from unittest import mock
+
+    from sklearn.covariance import _robust_covariance
+
+    from measure.dline import _BEST_PER_SUBSAMPLE, _FULL_DATA_STEPS, _STARTS
+    from measure.mcd import fast_mcd
+
+    ref = _load("measure").sklearn_same_work
+    agree = []
+    for seed in range(10):
+        rng = np.random.default_rng(seed)
+        t = np.linspace(0, 100, 150)
+        d = 20 + 0.05 * t + rng.normal(0, 0.2, t.size)
+        bad = rng.random(t.size) < 0.3
+        d[bad] *= rng.uniform(0.5, 1.5, bad.sum())
+        x = np.c_[t, d]
+        kw = dict(seed=seed, n_starts=_STARTS, n_best=_BEST_PER_SUBSAMPLE, max_iter=_FULL_DATA_STEPS)
+        agree.append(np.mean(fast_mcd(x, **kw).support == ref(x, **kw).support))
+    assert min(agree) >= 0.95 and np.mean(agree) >= 0.98
+    with mock.patch.object(_robust_covariance, "select_candidates", wraps=_robust_covariance.select_candidates) as spy:
+        ref(x, **kw)
+    first, second = (c.kwargs for c in spy.call_args_list)
+    assert (first["n_trials"], first["select"], first["n_iter"]) == (_STARTS, _BEST_PER_SUBSAMPLE, 2)
+    assert second["select"] == 1 and second["n_iter"] == _FULL_DATA_STEPS and len(second["n_trials"][0]) == _BEST_PER_SUBSAMPLE
+
+
+def test_measure_report_states_the_ratio_on_realistic_clicks_beside_the_diagonal():
+    mod = _load("measure")
+    row = {"n_samples": 1280, "n_support": 800, "median_ms": 3.0, "p99_ms": 4.0, "cpu_median_ms": 3.0, "cpu_p99_ms": 4.0,
+           "sklearn_median_ms": 390.0, "sklearn_cpu_median_ms": 390.0, "speedup": 130.0, "distance_m": 4.5, "sklearn_distance_m": 4.5}
+    real = {"cases": 48, "samples_median": 280.0, "samples_range": (120, 600), "cpu_median_ms": 5.8, "cpu_p99_ms": 11.0,
+            "sklearn_cpu_median_ms": 88.0, "speedup": 15.2, "same_answer": 0.67}
+    text = mod.report([{"robust": row}], (0.5, 0.6), "2026-12-03 12:00 UTC", [{"robust": real}])
+    assert "| 1 | robust | 48 | 280 (120-600) | 5.80 / 11.00 | 88.0 | 15.2x | 67 % |" in text
+    assert "15.2-15.2x on realistic clicks, 130-130x on the diagonal" in text
