@@ -28,6 +28,7 @@ import functools
 import hashlib
 import json
 import math
+from collections.abc import Iterable, Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -211,37 +212,43 @@ def parse_pixel(name: str, value: Any) -> float:
     return f
 
 
-def read_rows(path: Path) -> list[dict[str, Any] | BadLine]:
-    """The rows of a CSV, JSONL or Parquet table as dicts (by file suffix); a JSONL line that is
-    no JSON object is a :class:`BadLine`."""
+def read_rows(path: Path) -> Iterator[dict[str, Any] | BadLine]:
+    """The rows of a CSV, JSONL or Parquet table as dicts (by file suffix), one at a time (a table of
+    a million rows is never held as dicts); a JSONL line that is no JSON object is a :class:`BadLine`.
+    TaskError when the file cannot be read, also part way through."""
     if not path.is_file():
         raise TaskError(f"{path} does not exist; give a CSV, JSONL or Parquet table of tasks")
     suffix = path.suffix.lower()
+    if suffix not in (".csv", ".jsonl", ".ndjson", ".parquet", ".pq"):
+        raise TaskError(f"{path}: unknown table type {suffix!r}; use .csv, .jsonl or .parquet")
+    return _rows(path, suffix)
+
+
+def _rows(path: Path, suffix: str) -> Iterator[dict[str, Any] | BadLine]:
     try:
         if suffix == ".csv":
             with path.open(newline="", encoding="utf-8-sig") as fh:
-                return list(csv.DictReader(fh))
-        if suffix in (".jsonl", ".ndjson"):
-            rows: list[dict[str, Any] | BadLine] = []
-            for n, line in enumerate(path.read_text(encoding="utf-8-sig").splitlines(), 1):
-                if line.strip():
-                    try:
-                        obj = json.loads(line)
-                    except (json.JSONDecodeError, RecursionError) as exc:
-                        obj = exc
-                    rows.append(obj if isinstance(obj, dict) else BadLine(f"line {n} is not a JSON object ({obj}); write one object per line"))
-            return rows
-        if suffix in (".parquet", ".pq"):
+                yield from csv.DictReader(fh)
+        elif suffix in (".jsonl", ".ndjson"):
+            with path.open(encoding="utf-8-sig") as fh:
+                for n, line in enumerate(fh, 1):
+                    if line.strip():
+                        try:
+                            obj = json.loads(line)
+                        except (json.JSONDecodeError, RecursionError) as exc:
+                            obj = exc
+                        yield obj if isinstance(obj, dict) else BadLine(f"line {n} is not a JSON object ({obj}); write one object per line")
+        else:
             import pyarrow.parquet as pq
 
-            return pq.read_table(path).to_pylist()
+            for batch in pq.ParquetFile(path).iter_batches(batch_size=4096):
+                yield from batch.to_pylist()
     except (OSError, UnicodeDecodeError, csv.Error) as exc:
         raise TaskError(f"{path} cannot be read as {suffix[1:]}: {exc}") from exc
     except Exception as exc:  # pyarrow's errors have no common base worth naming here
         if type(exc).__module__.startswith("pyarrow"):
             raise TaskError(f"{path} cannot be read as Parquet: {exc}") from exc
         raise
-    raise TaskError(f"{path}: unknown table type {suffix!r}; use .csv, .jsonl or .parquet")
 
 
 def read_tasks(path: Path | str) -> list[Task]:
@@ -253,19 +260,25 @@ def read_tasks(path: Path | str) -> list[Task]:
         import tempfile
 
         with tempfile.TemporaryDirectory() as folder:
-            rows = read_rows(fetch_table(path, Path(folder)))
-        base: Path | str = parent(path)
-    else:
-        path = Path(path)
-        rows = read_rows(path)
-        base = path.resolve().parent
-    if not rows:
-        raise TaskError(f"{path} holds no task rows")
-    columns = {k for r in rows if isinstance(r, dict) for k in r}
+            return _tasks(read_rows(fetch_table(path, Path(folder))), parent(path), path)
+    path = Path(path)
+    return _tasks(read_rows(path), path.resolve().parent, path)
+
+
+def _tasks(rows: Iterable[dict[str, Any] | BadLine], base: Path | str, where: Path | str) -> list[Task]:
+    """Each row parsed as it is read; the table refused when it holds no row or lacks a required column."""
+    tasks: list[Task] = []
+    columns: set[str] = set()
+    for i, row in enumerate(rows):
+        if isinstance(row, dict) and not columns.issuperset(row):
+            columns.update(k for k in row if k is not None)
+        tasks.append(parse_row(i, row, base))
+    if not tasks:
+        raise TaskError(f"{where} holds no task rows")
     missing = [c for c in REQUIRED if c not in columns]
     if missing:
-        raise TaskError(f"{path} lacks the column(s) {', '.join(missing)}; a task table needs {', '.join(REQUIRED)}")
-    return [parse_row(i, row, base) for i, row in enumerate(rows)]
+        raise TaskError(f"{where} lacks the column(s) {', '.join(missing)}; a task table needs {', '.join(REQUIRED)}")
+    return tasks
 
 
 def parse_row(index: int, row: dict[str, Any] | BadLine, base: Path | str) -> Task:

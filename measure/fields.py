@@ -14,6 +14,7 @@ Bounds are in the option's unit; ``min_open``/``max_open`` exclude the bound its
 from __future__ import annotations
 
 import dataclasses
+import functools
 import math
 import types
 import typing
@@ -81,11 +82,15 @@ def key_of(f: dataclasses.Field) -> str:
     return (o.key if o and o.key else "") or f.name
 
 
+@functools.cache
 def hints(cls: type) -> dict[str, Any]:
-    """The resolved annotations of dataclass ``cls`` (the classes, not their strings)."""
+    """The resolved annotations of dataclass ``cls`` (the classes, not their strings); resolved once
+    per class (each resolution compiles every annotation: 0.2 ms per MeasureOptions, 7 fields).
+    Read-only: the dict is shared."""
     return typing.get_type_hints(cls)
 
 
+@functools.lru_cache(maxsize=512)
 def base_type(hint: Any) -> tuple[Any, bool]:
     """(the type without ``| None``, whether None is allowed)."""
     args = typing.get_args(hint)
@@ -95,6 +100,7 @@ def base_type(hint: Any) -> tuple[Any, bool]:
     return hint, False
 
 
+@functools.lru_cache(maxsize=512)
 def type_name(hint: Any) -> str:
     """A type in words for the API and the manual: bool, int, float, str, path, list, pairs, or a
     config class name (nested)."""
