@@ -273,3 +273,16 @@ def rendered_pair(scene: str, distance: float) -> RenderedPair:
     cam = view.camera
     k = np.array([[cam.fx, 0, cam.cx], [0, cam.fy, cam.cy], [0, 0, 1]])
     return RenderedPair(left, right, k, model.baseline_wide_m, true_disparity(params, model), view)
+
+
+def write_video(path: Path, frames: list[np.ndarray], fps: float = 10.0, fourcc: str = "FFV1") -> Path:
+    """``frames`` (BGR, one size) as a video file through OpenCV's FFmpeg backend (FFV1: lossless)."""
+    import cv2
+
+    h, w = frames[0].shape[:2]
+    writer = cv2.VideoWriter(str(path), cv2.CAP_FFMPEG, cv2.VideoWriter.fourcc(*fourcc), fps, (w, h))
+    assert writer.isOpened(), f"OpenCV cannot write {fourcc}"
+    for f in frames:
+        writer.write(f)
+    writer.release()
+    return path

@@ -22,6 +22,8 @@ from check.run import report, run_check
 from measure.metrics import accuracy
 from measure import MeasureOptions, measure_distance
 
+from factories import write_video
+
 W, H = 960, 540
 runner = CliRunner()
 
@@ -185,18 +187,6 @@ def test_no_board_is_a_typed_error():
         run_check([frame], board_for(1.0))
 
 
-def _write_video(path, frames):
-    import cv2
-
-    h, w = frames[0].shape[:2]
-    writer = cv2.VideoWriter(str(path), cv2.CAP_FFMPEG, cv2.VideoWriter.fourcc(*"FFV1"), 10.0, (w, h))
-    assert writer.isOpened()
-    for f in frames:
-        writer.write(f)
-    writer.release()
-    return path
-
-
 @pytest.mark.slow
 def test_video_stereo_pair_of_the_board_gives_its_lengths_within_the_interval(tmp_path):
     """A rectified pair rendered from the board at a known pose (2 m, turned 20 degrees), FFV1 side by side,
@@ -223,7 +213,7 @@ def test_video_stereo_pair_of_the_board_gives_its_lengths_within_the_interval(tm
     fs.write("image_width", W)
     fs.write("image_height", H)
     fs.release()
-    video = _write_video(tmp_path / "board.mkv", [np.hstack([left, right])] * 2)
+    video = write_video(tmp_path / "board.mkv", [np.hstack([left, right])] * 2)
     ndisp = round_up_disparities(int(np.nanmax(true_disparity(params, model)) * 1.25) + 8)
     spec = f"video:{video}?layout=side-by-side&calib={yaml}&ndisp={ndisp}"
     with open_source(spec) as src:

@@ -18,7 +18,7 @@ from check.doctor.stream import Window, timestamps_finding
 from device.base import SourceInfo
 from device.calibration.files import CalibrationRef
 from device.formats.recording import RecordingWriter
-from factories import synthetic_frame
+from factories import synthetic_frame, write_video
 
 runner = CliRunner()
 CHECKS = ["versions", "usb-speed", "usb-permission", "open", "frames", "timestamps", "registration", "fill", "baseline",
@@ -141,16 +141,6 @@ def test_usb_speed_and_permission_from_sysfs(tmp_path):
     assert with_depthai_speed(speed, "HIGH").figures["depthai_usb_speed"] == "HIGH" and with_depthai_speed(speed, "HIGH").status == "warn"
 
 
-def _write_video(path, frames):
-    h, w = frames[0].shape[:2]
-    writer = cv2.VideoWriter(str(path), cv2.CAP_FFMPEG, cv2.VideoWriter.fourcc(*"FFV1"), 10.0, (w, h))
-    assert writer.isOpened()
-    for f in frames:
-        writer.write(f)
-    writer.release()
-    return path
-
-
 def _opencv_yaml(path, k, t_x, size):
     """A stereo calibration as OpenCV's stereo_calib sample writes it (M1, D1, M2, D2, R, T; T in the board's unit)."""
     fs = cv2.FileStorage(str(path), cv2.FILE_STORAGE_WRITE)
@@ -169,7 +159,7 @@ def test_a_video_stereo_file_with_an_opencv_yaml(tmp_path):
     pair = rendered_pair("poster", 2.0)
     h, w = pair.left.shape[:2]
     yaml = _opencv_yaml(tmp_path / "stereo.yaml", pair.k, pair.baseline_m, (w, h))
-    video = _write_video(tmp_path / "pair.mkv", [np.hstack([pair.left, pair.right])] * 3)
+    video = write_video(tmp_path / "pair.mkv", [np.hstack([pair.left, pair.right])] * 3)
     report = run_doctor(f"video:{video}?layout=side-by-side&calib={yaml}&ndisp={pair.ndisp}", window_s=5.0)
     assert [f.check for f in report.findings] == CHECKS
     assert report.get("open").status == "pass" and report.get("frames").figures["frames"] == 3

@@ -18,22 +18,12 @@ from device.sources.middlebury import load_scene
 from device.sources.sgbm import SGBMConfig, round_up_disparities
 from device.sources.stereo_processing import StereoProcessor
 from device.sources.video import config_from_spec, restore_odd_size, split_eyes
-from factories import FakeClock, rendered_pair
+from factories import FakeClock, rendered_pair, write_video
 from device.base import SourceSpec
 from measure import MeasureOptions, measure_distance
 
 SCALE = 0.5  # half of the quarter-resolution scenes: fast, and odd sizes appear on their own
 runner = CliRunner()
-
-
-def write_video(path: Path, frames: list[np.ndarray], fps: float = 10.0, fourcc: str = "FFV1") -> Path:
-    h, w = frames[0].shape[:2]
-    writer = cv2.VideoWriter(str(path), cv2.CAP_FFMPEG, cv2.VideoWriter.fourcc(*fourcc), fps, (w, h))
-    assert writer.isOpened(), f"OpenCV cannot write {fourcc}"
-    for f in frames:
-        writer.write(f)
-    writer.release()
-    return path
 
 
 def write_opencv_yaml(path: Path, K1, D1, K2, D2, R, T, size, **extra) -> Path:
