@@ -7,6 +7,7 @@ public API (docs/api/measure.md); the submodules are internal and may change wit
 
 from measure.area import measure_area
 from measure.box import measure_box
+from measure.confidence import weak_stretches
 from measure.distance import measure_distance
 from measure.fields import Opt, OptionField, check as check_options, describe as describe_options, option, options_of
 from measure.height import measure_height
@@ -51,4 +52,5 @@ __all__ = [
     "ray",
     "robust_with_terms",
     "signed_error_pct",
+    "weak_stretches",
 ]

@@ -17,12 +17,14 @@ from history.errors import FrameDropped, FrameNotSaved, MeasurementUnknown, Save
 from measure import MeasureError
 
 from service import playback, recorder
+from service.frame_errors import NoConfidence
 from service.frames import FrameGone, FrameUnknown, NotAReplay, SeekOutOfRange, TooManyWaiters
 from service.workers import Busy
 
 STATUS: dict[type[Exception], int] = {
     FrameUnknown: 404,
     FrameGone: 410,
+    NoConfidence: 404,  # the frame exists; its source gives no confidence map
     TooManyWaiters: 429,
     Busy: 429,
     NotAReplay: 409,

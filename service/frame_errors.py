@@ -11,6 +11,10 @@ class FrameUnknown(KeyError):
     """The frame id was never issued (HTTP 404)."""
 
 
+class NoConfidence(LookupError):
+    """The frame's source gives no confidence map (``Frame.confidence`` is None) (HTTP 404)."""
+
+
 class ReplayControlError(ValueError):
     """Pause, play, step or seek cannot be done."""
 

@@ -1,6 +1,6 @@
 """Images the service sends: PNG (exact pixels) and JPEG (the live view: cheaper to encode and
-smaller, docs/decisions/service-speed.md) encoding, the colour-mapped disparity view, thumbnails,
-and the JSON view of a ring frame."""
+smaller, docs/decisions/service-speed.md) encoding, the colour-mapped disparity view, the grey
+confidence view, thumbnails, and the JSON view of a ring frame."""
 
 from __future__ import annotations
 
@@ -66,6 +66,12 @@ def colorize_disparity(disparity: np.ndarray) -> np.ndarray:
     return out
 
 
+def confidence_image(confidence: np.ndarray) -> np.ndarray:
+    """Grey uint8 image of a confidence map in [0, 1]: round(c * 255), so black = no support (0) and
+    white = fully supported (1), the recordings' encoding; NaN is black."""
+    return np.rint(np.clip(np.nan_to_num(confidence, nan=0.0), 0.0, 1.0) * 255.0).astype(np.uint8)
+
+
 def quarter(image: np.ndarray) -> np.ndarray:
     """``image`` at 1/4 size by area averaging: what the saved JPEG's reduced decode gives, for a thumbnail."""
     return cv2.resize(image, None, fx=0.25, fy=0.25, interpolation=cv2.INTER_AREA)
@@ -119,6 +125,7 @@ def frame_json(entry: RingFrame) -> dict[str, Any]:
         "source": str(f.meta.get("source", "")),
         "meta": {k: (v if not isinstance(v, float) or math.isfinite(v) else None) for k, v in meta.items()},
         "truth": truth_json(f.meta.get("truth")),
+        "has_confidence": f.confidence is not None,
         "replay_index": recorded_index(f),
         "recording": recording_name(f),
     }

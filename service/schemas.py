@@ -205,7 +205,8 @@ class FrameOut(_Out):
     """A frame of the ring: ``id`` for this service run, ``uid`` for the history; size in pixels,
     times in seconds since the epoch; ``replay_index`` the frame's 0-based index in the recording it is
     played from (a replay, a bag, a video file) and ``recording`` that recording's name; None and ""
-    for a live source."""
+    for a live source. ``has_confidence``: the frame carries the matcher's confidence map
+    (``GET /api/frames/{id}/confidence.png``); False where its source gives none."""
 
     id: int
     uid: str
@@ -217,6 +218,7 @@ class FrameOut(_Out):
     source: str
     meta: dict[str, str | int | float | bool | None]
     truth: TruthOut | None
+    has_confidence: bool
     replay_index: int | None
     recording: str
 
@@ -309,7 +311,10 @@ class SourceStatusOut(_Out):
 class MeasurementOut(BaseModel):
     """A stored measurement: where it was clicked (``p1``, ``p2``, px), with which options, and the
     result (metres; None where not finite). ``samples_px`` and ``support`` (the per-sample arrays)
-    are left out of history lists. Fields the measuring core adds later are kept as they come."""
+    are left out of history lists. ``weak_stretches``: where along the segment the matcher's support is
+    weak (``measure.weak_stretches``), ``[t0, t1]`` fractions of the segment (0 = ``p1``, 1 = ``p2``);
+    empty where none is, or the frame has no confidence; absent on measurements stored before it was
+    kept. Fields the measuring core adds later are kept as they come."""
 
     model_config = ConfigDict(extra="allow")
     id: int
@@ -342,6 +347,7 @@ class MeasurementOut(BaseModel):
     quality: str | None = None
     reasons: list[str] | None = None
     frame_index: int | None = None
+    weak_stretches: list[list[float]] | None = None
 
 
 class MeasurementsOut(_Out):

@@ -9,7 +9,16 @@ from fastapi import APIRouter, HTTPException, Query
 from fastapi.responses import Response
 
 from service.deps import FrameDep, State
-from service.render import colorize_disparity, disparity_range, encode_jpeg, encode_png, frame_json, turbo_colors
+from service.frame_errors import NoConfidence
+from service.render import (
+    colorize_disparity,
+    confidence_image,
+    disparity_range,
+    encode_jpeg,
+    encode_png,
+    frame_json,
+    turbo_colors,
+)
 from service.schemas import MAX_ID, DepthOut, DepthScaleOut, FrameOut, json_doc, media_doc
 
 router = APIRouter(prefix="/api/frames", tags=["frames"])
@@ -53,6 +62,24 @@ def color_jpg(entry: FrameDep) -> Response:
 @router.get("/{frame_id}/disparity.png", **media_doc("image/png"))
 def disparity_png(entry: FrameDep) -> Response:
     data = entry.encoded("disparity.png", lambda f: encode_png(colorize_disparity(f.disparity)))
+    return Response(data, media_type="image/png", headers={"Cache-Control": "private, max-age=3600"})
+
+
+# Which sources fill Frame.confidence (docs/decisions/matcher-confidence.md "Per source").
+CONFIDENCE_SOURCES = (
+    "SGBM sources (v4l2:, video:, middlebury:?disparity=sgbm, sim:?mode=stereo), DepthAI with align=left "
+    "and the simulator's sensor model (unless confidence=false) fill one"
+)
+
+
+@router.get("/{frame_id}/confidence.png", **media_doc("image/png"))
+def confidence_png(entry: FrameDep) -> Response:
+    """The frame's matcher confidence as a grey PNG of the frame's size: round(c * 255), black = no
+    support (0), white = fully supported (1). 404 where the frame's source gives no confidence."""
+    if entry.frame.confidence is None:
+        source = str(entry.frame.meta.get("source", "")) or "unknown"
+        raise NoConfidence(f"frame {entry.id} has no confidence map: its source ({source}) gives none; {CONFIDENCE_SOURCES}")
+    data = entry.encoded("confidence.png", lambda f: encode_png(confidence_image(f.confidence)))
     return Response(data, media_type="image/png", headers={"Cache-Control": "private, max-age=3600"})
 
 

@@ -8,7 +8,7 @@ from typing import Annotated, Any, Literal
 from fastapi import APIRouter, Query, Request
 from fastapi.responses import Response, StreamingResponse
 
-from measure import measure_distance, measure_sequence
+from measure import measure_distance, measure_sequence, weak_stretches
 
 from history.export import csv_chunks, json_chunks
 
@@ -56,6 +56,8 @@ def _measure(state: ServiceState, body: MeasureIn) -> Response:
         result = measure_sequence([e.frame for e in used], body.p1, body.p2, core)
     else:
         result = measure_distance(frame, body.p1, body.p2, core)
+    # where along the segment the clicked frame's matcher had weak support, for the page to mark
+    weak = {"weak_stretches": weak_stretches(frame.confidence, body.p1, body.p2).round(4).tolist()}
     source, context = provenance(frame, state.capture.info, state.capture.spec)
     if body.frames > 1:
         # The ids of the frames pooled, oldest first (the motion check may keep fewer than offered).
@@ -68,7 +70,7 @@ def _measure(state: ServiceState, body: MeasureIn) -> Response:
         p1=body.p1,
         p2=body.p2,
         options=options,
-        result=result.to_dict(),
+        result=result.to_dict() | weak,
         context=context,
     )  # returns once the measurement and its frame are on disk; the thumbnail is drawn on request
     return _json(record)

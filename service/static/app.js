@@ -17,6 +17,9 @@ const CLICK_SIGMA_PX = { mouse: 1.5, pen: 1.5, touch: 3 };
 const LONG_POLL_S = 5;
 const LOUPE_ZOOM = 4; // loupe pixels per screen pixel of the view
 const UNDO_MS = 6000;
+const WEAK_COLOR = "#ff8c1a"; // the weak stretch of a segment (style.css .weak-key)
+const VIEWS = { color: "color.jpg", disparity: "disparity.png", confidence: "confidence.png" };
+const NO_CONFIDENCE = "This source gives no confidence map (SGBM sources, DepthAI with align=left and the simulator do)";
 const MAX_ZOOM = 8; // image magnification on screen; at 8x a phone shows a 48 px wide patch of a 640 px image
 
 const $ = (id) => document.getElementById(id);
@@ -158,12 +161,15 @@ function fmtPoint3(p) {
 // ---- frames: the live loop, freezing ------------------------------------------------------------
 function imageUrl(frame) {
   // JPEG q85 for the colour view: ~20x smaller and ~30x cheaper to encode than PNG (exports use color.png)
-  return `api/frames/${frame.id}/${state.view === "color" ? "color.jpg" : "disparity.png"}`;
+  return `api/frames/${frame.id}/${VIEWS[state.view]}`;
 }
 
 // Put `frame` on screen unless what must be on screen changed (gen) while its image loaded.
 async function showFrame(frame, gen) {
-  const img = await loadImage(imageUrl(frame));
+  showViews(frame);
+  if (state.view === "confidence" && !frame.has_confidence) applyView("color"); // the source changed under it
+  const url = imageUrl(frame);
+  const img = await loadImage(url);
   if (gen !== state.gen) return false;
   if (canvas.width !== img.naturalWidth || canvas.height !== img.naturalHeight) {
     canvas.width = img.naturalWidth;
@@ -174,6 +180,7 @@ async function showFrame(frame, gen) {
   state.frame = frame;
   state.img = img;
   canvas.dataset.frameId = String(frame.id);
+  canvas.dataset.image = url; // which of the frame's images is on screen
   updateTag();
   showReplayPosition();
   // the colour bar's scale: for every frozen frame, at most once a second while live
@@ -290,11 +297,24 @@ function updateTag() {
   tag.dataset.index = index === null || index === undefined ? "" : String(index);
 }
 
-async function setView(view) {
+// The confidence view is offered only for a frame that carries a confidence map.
+function showViews(frame) {
+  const b = $("view-confidence");
+  b.disabled = !frame.has_confidence;
+  b.title = frame.has_confidence ? "Matcher confidence: black = no support, white = fully supported (c)" : NO_CONFIDENCE;
+}
+
+function applyView(view) {
   state.view = view;
-  $("view-color").classList.toggle("active", view === "color");
-  $("view-disparity").classList.toggle("active", view === "disparity");
+  for (const v of Object.keys(VIEWS)) $(`view-${v}`).classList.toggle("active", view === v);
   $("colorbar").classList.toggle("hidden", view !== "disparity");
+  $("confidence-bar").classList.toggle("hidden", view !== "confidence");
+  canvas.dataset.view = view;
+}
+
+async function setView(view) {
+  if (view === "confidence" && !(state.frame && state.frame.has_confidence)) return;
+  applyView(view);
   if (state.frame) {
     try { await showFrame(state.frame, state.gen); } catch (e) { showError(e.message); }
   }
@@ -501,6 +521,25 @@ function drawSegment(c, pts, s) {
   c.beginPath(); c.moveTo(...pts[0]); c.lineTo(...pts[1]); c.stroke();
 }
 
+// The stretches of the segment where the matcher's support is weak (the measurement's weak_stretches,
+// [t0, t1] fractions from the first point to the second): a dashed orange band under the samples,
+// wider than their dots, so the inlier colours stay readable on it.
+function drawWeak(c, pts, s, stretches) {
+  const [[x1, y1], [x2, y2]] = pts;
+  c.save();
+  c.lineCap = "butt";
+  c.strokeStyle = WEAK_COLOR;
+  c.lineWidth = 12 * s;
+  c.setLineDash([8 * s, 5 * s]);
+  for (const [t0, t1] of stretches) {
+    c.beginPath();
+    c.moveTo(x1 + t0 * (x2 - x1), y1 + t0 * (y2 - y1));
+    c.lineTo(x1 + t1 * (x2 - x1), y1 + t1 * (y2 - y1));
+    c.stroke();
+  }
+  c.restore();
+}
+
 // An end point drawn as a ring and four ticks that stop short of the point: the clicked pixel
 // itself stays visible, however large the handle is on a phone.
 function drawHandle(c, x, y, s, active) {
@@ -537,6 +576,9 @@ function draw() {
   const pts = state.points.map(([x, y]) => [x + 0.5, y + 0.5]);
   if (pts.length === 2) drawSegment(ctx, pts, s);
   const moving = state.press && !state.press.read;
+  const weak = res && pts.length === 2 && !moving && !state.dirty && Array.isArray(res.weak_stretches) ? res.weak_stretches : [];
+  if (weak.length) drawWeak(ctx, pts, s, weak);
+  canvas.dataset.weak = JSON.stringify(weak);
   if (res && res.samples_px && state.points.length === 2 && !moving && !state.dirty) {
     ctx.lineWidth = 0.8 * s;
     ctx.strokeStyle = "rgba(0,0,0,.7)";
@@ -936,9 +978,10 @@ function showError(message) {
 }
 
 // What a reason of the core's verdict means for the person, and what to do about it. The core's
-// phrases: "few valid samples", "methods disagree by N %", "end point on a depth edge", "segment
+// phrases: "low matcher confidence along the segment", "few valid samples", "methods disagree by N %", "end point on a depth edge", "segment
 // crosses several surfaces", "gap detected", "end point extrapolated", "uncertainty above N %".
 const ADVICE = [
+  [/confidence/i, "The matcher had little texture along the dashed orange stretch: measure on a textured part, or add light or texture (the Confidence view shows where)."],
   [/extrapolat|no depth/i, "Place the ends just inside the object's edges, where the depth view has colour."],
   [/edge|mixed/i, "Move the end a few pixels off the depth edge, onto the object itself."],
   [/few|valid|sparse|missing|hole/i, "Move closer or add light and texture so more of the segment has depth."],
@@ -1098,6 +1141,7 @@ function annotatedCanvas(img) {
   const s = Math.max(1, out.width / 900);
   const pts = [res.p1, res.p2].map(([x, y]) => [x + 0.5, y + 0.5]);
   drawSegment(c, pts, s);
+  if (Array.isArray(res.weak_stretches) && res.weak_stretches.length) drawWeak(c, pts, s, res.weak_stretches);
   pts.forEach(([x, y]) => drawHandle(c, x, y, s, false));
   const iv = interval95(res);
   const sub = [iv ? `95 %: ${fmt(iv.lo, false)} – ${fmt(iv.hi)}` : "uncertainty unknown", res.quality || ""].filter(Boolean).join(" · ");
@@ -1453,6 +1497,7 @@ $("frames").addEventListener("change", (e) => {
 $("freeze").addEventListener("click", () => (state.mode === "live" ? freeze() : goLive()));
 $("view-color").addEventListener("click", () => setView("color"));
 $("view-disparity").addEventListener("click", () => setView("disparity"));
+$("view-confidence").addEventListener("click", () => setView("confidence"));
 $("clear").addEventListener("click", clearPoints);
 $("read-depth").addEventListener("click", () => setReadMode(!state.readMode));
 $("zoom-reset").addEventListener("click", () => { resetZoom(); draw(); });
@@ -1480,6 +1525,7 @@ document.addEventListener("keydown", (e) => {
       break;
     case "f": state.mode === "live" ? freeze() : goLive(); break;
     case "d": setView(state.view === "color" ? "disparity" : "color"); break;
+    case "c": setView(state.view === "confidence" ? "color" : "confidence"); break;
     case "u": setUnits(keys[(keys.indexOf(state.units) + 1) % keys.length]); break;
     case "m": if (OPTIONS.methods.length) setMethod(OPTIONS.methods[(OPTIONS.methods.indexOf(state.method) + 1) % OPTIONS.methods.length]); break;
     case "r": toggleRecording(); break;

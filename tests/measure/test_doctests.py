@@ -7,7 +7,7 @@ import importlib
 
 import pytest
 
-MODULES = ["measure.types", "measure.distance", "measure.sequence", "measure.dline", "measure.censored"]
+MODULES = ["measure.types", "measure.distance", "measure.sequence", "measure.dline", "measure.censored", "measure.confidence"]
 
 
 @pytest.mark.parametrize("name", MODULES)

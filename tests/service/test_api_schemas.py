@@ -76,7 +76,7 @@ def test_real_answers_validate_against_the_documented_models(client):
     p1, p2 = frame["truth"]["p1_px"], frame["truth"]["p2_px"]
     record = call("POST", "/api/measure", "/api/measure", json={"frame_id": fid, "p1": p1, "p2": p2})
     mid = record["id"]
-    assert record["samples_px"] and record["quality"]
+    assert record["samples_px"] and record["quality"] and isinstance(record["weak_stretches"], list)
     call("GET", "/api/measurements", "/api/measurements")
     call("GET", "/api/measurements/{mid}", f"/api/measurements/{mid}")
     call("PATCH", "/api/measurements/{mid}", f"/api/measurements/{mid}", json={"name": "box", "note": "edge"})
@@ -103,7 +103,7 @@ def test_real_answers_validate_against_the_documented_models(client):
 def test_extra_fields_in_a_frame_answer_are_caught():
     """The check above can fail: an answer with a key the model does not declare is refused."""
     good = {"id": 1, "uid": "u", "width": 2, "height": 2, "timestamp": 0.0, "received": 0.0, "frozen": False,
-            "source": "sim", "meta": {}, "truth": None, "replay_index": None, "recording": ""}
+            "source": "sim", "meta": {}, "truth": None, "has_confidence": False, "replay_index": None, "recording": ""}
     schemas.FrameOut.model_validate(good)
     with pytest.raises(ValueError):
         schemas.FrameOut.model_validate({**good, "depth": 3})
