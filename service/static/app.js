@@ -237,7 +237,10 @@ function freeze() {
       state.mode = "frozen";
       updateFreezeButton();
       updateTag();
-      if (state.view === "disparity") loadScale(f);
+      // A view switched just before the freeze had its image load dropped by the new gen: show the
+      // frozen frame in the view the buttons say.
+      if (canvas.dataset.image !== imageUrl(f)) showFrame(f, gen).catch((e) => showError(e.message));
+      else if (state.view === "disparity") loadScale(f);
       return true;
     },
     (e) => {

@@ -111,6 +111,16 @@ def test_confidence_view_and_the_weak_stretch_of_a_wall_segment(tmp_path):
         page.keyboard.press("c")  # back to colour: the colour image again
         page.wait_for_function("document.getElementById('view-color').classList.contains('active')")
         page.wait_for_function("u => document.getElementById('canvas').dataset.image === u", arg=f"api/frames/{fid}/color.jpg")
+
+        # live again, then the view switched and the frame frozen in one go (before the confidence image
+        # can load): the frozen frame is shown in the view the buttons say, not left in colour
+        page.keyboard.press("f")
+        page.wait_for_function("document.getElementById('canvas').dataset.frozen === ''")
+        page.evaluate("() => { for (const key of ['c', 'f']) document.dispatchEvent(new KeyboardEvent('keydown', {key, bubbles: true})); }")
+        page.wait_for_function("document.getElementById('canvas').dataset.frozen === '1'")
+        again = int(page.get_attribute("#canvas", "data-frame-id"))
+        page.wait_for_function("u => document.getElementById('canvas').dataset.image === u", arg=f"api/frames/{again}/confidence.png",
+                               timeout=15_000)
         assert problems == [], "\n".join(problems)
 
 
