@@ -11,7 +11,9 @@ Steps (docs/method.md Eq. 9-15):
    gives the orientation, refined from the sides' own directions; each side lies at the median
    offset of its outline pixels plus half a pixel's footprint outward (Eq. 15), from the middle
    ``SIDE_SPAN`` of its length (corners are where outliers gather). Image-border pixels are no edge.
-4. The height: the top's centre above the supporting plane (``measure.height.height_above``, Eq. 12).
+4. The height: the top's centre above the supporting plane (``measure.height.height_above``, Eq. 12),
+   the top's plane refit on its interior, ``CREASE_BAND_PX`` inside the outline (side-face pixels near
+   a crease lie within the grown plane's tolerance and pull it down).
 5. One-sigma per dimension: both sides' median errors (MAD / sqrt(n / ``CORRELATED_PX``)), a
    pixel's footprint over sqrt(3) each, ``BLEED_PX`` footprints for a side against the background
    (edge fattening of unknown width), the plane's depth scale, and half the difference between the
@@ -30,7 +32,7 @@ import time
 import numpy as np
 
 from measure.height import height_above, window_plane
-from measure.planes import INLIER_SIGMAS, GrownPlane, Plane, grow_plane, sigma_of
+from measure.planes import INLIER_SIGMAS, GrownPlane, Plane, fit_plane, grow_plane, sigma_of
 from measure.sampling import check_point
 from measure.shape_types import BoxMeasurement
 from measure.support import angle_deg, check_options, cross2, parallel_levels, verdict
@@ -226,6 +228,32 @@ def _hidden_sides(frame: Frame, top: Plane, rect: dict) -> list[int]:
     return out
 
 
+def _interior_plane(frame: Frame, grown: GrownPlane, seed: int) -> GrownPlane:
+    """The grown top with its plane refit on the pixels at least ``CREASE_BAND_PX`` inside its outline,
+    for the height at the top's centre.
+
+    Near a crease the side face stays within the top's inlier tolerance for a few pixels (the more
+    noise, the wider the tolerance): grown over, they pull the plane down towards the sides and the
+    height at the centre with it. The crease band is where a side face can hide in the top's tolerance,
+    so the height's plane comes from inside it. The rectangle keeps the grown plane: at range the
+    interior is few pixels, and the outline's pixels are projected best by the plane fit over them
+    all (measured: docs/decisions/shape-uncertainty.md). With fewer than ``MIN_TOP_PX`` interior
+    pixels (a small or far top) the grown plane stays.
+    """
+    import cv2
+
+    k = 2 * CREASE_BAND_PX + 1
+    inner = cv2.erode(grown.mask.astype(np.uint8), np.ones((k, k), np.uint8), borderType=cv2.BORDER_REPLICATE).astype(bool)
+    if int(inner.sum()) < MIN_TOP_PX:
+        return grown
+    ys, xs = np.nonzero(inner)
+    try:
+        plane = fit_plane(frame, xs, ys, seed, start=grown.plane)
+    except MeasureError:
+        return grown
+    return GrownPlane(plane, grown.mask, grown.touches_border)
+
+
 def _not_the_clicked_plane(frame: Frame, top: Plane, x: float, y: float, seed: int) -> bool:
     """Whether the plane of the click's own window differs from the grown top's at the click by more
     than ``MERGED_SIGMAS`` of their combined disparity one-sigma (Eq. 11 covariances): a neighbour's top
@@ -254,10 +282,10 @@ def measure_box(frame: Frame, click_px: tuple[float, float], options: MeasureOpt
     opts = check_options(options)
     x, y = check_point(frame, click_px, "click_px")
     grown = grow_plane(frame, (x, y), opts.seed)
-    top, mask = grown.plane, grown.mask
-    n_top = int(mask.sum())
+    n_top = int(grown.mask.sum())
     if n_top < MIN_TOP_PX:
         raise MeasureError(f"the clicked face has only {n_top} pixels with depth; click the top face of a box nearer the camera")
+    top, mask = grown.plane, grown.mask
     ys, xs = np.nonzero(mask)
     cx, cy = float(xs.mean()), float(ys.mean())
     merged = _not_the_clicked_plane(frame, top, x, y, opts.seed)
@@ -280,7 +308,7 @@ def measure_box(frame: Frame, click_px: tuple[float, float], options: MeasureOpt
     outline = rect["outline_pos"]
     spread = [abs(dims[0] - outline[0] - outline[1]), abs(dims[1] - outline[2] - outline[3])]
     sig_dims = [math.hypot(s, d / 2.0) for s, d in zip(sig_dims, spread)]
-    height, s_h, _, _ = height_above(top, floor, cx, cy, 0.0)
+    height, s_h, _, _ = height_above(_interior_plane(frame, grown, opts.seed).plane, floor, cx, cy, 0.0)
     reasons: list[str] = []
     worst = max(d / v for d, v in zip(spread, dims)) if min(dims) > 0 else math.inf
     if worst > EDGE_DISAGREE:
