@@ -16,7 +16,7 @@ import random
 import httpx
 import pytest
 
-from browser_helpers import chromium, image_point, serve, watch
+from browser_helpers import image_point, serve, watch
 
 pytestmark = [pytest.mark.browser, pytest.mark.slow]
 
@@ -63,58 +63,57 @@ def _assert_frozen_and_measured(http, page, mid: str | None = None) -> None:
         assert http.get(f"/api/measurements/{mid}").json()["frame_id"] == fid
 
 
-def test_freeze_click_drag_at_human_speed(server, http):
+def test_freeze_click_drag_at_human_speed(server, http, browser):
     rng = random.Random(14)
     truth = http.get("/api/frames/latest").json()
     p1, p2 = truth["truth"]["p1_px"], truth["truth"]["p2_px"]
-    with chromium() as browser:
-        page = browser.new_page(viewport={"width": 1280, "height": 800})
-        problems = watch(page)
-        polls: list[str] = []
-        page.on("request", lambda r: polls.append(r.url) if "/api/frames/latest" in r.url else None)
-        page.goto(server + "/")
-        page.wait_for_function("document.getElementById('canvas').dataset.frameId", timeout=30_000)
-        # the live view follows the stream by long-polling for the next frame (figure printed, not asserted)
-        shown = page.evaluate(
-            """() => new Promise((done) => { const ids = new Set(); const t0 = performance.now();
-                 (function tick() { ids.add(document.getElementById('canvas').dataset.frameId);
-                   if (performance.now() - t0 < 1000) requestAnimationFrame(tick); else done(ids.size); })(); })"""
-        )
-        print(f"live view: {shown} frames/s shown")
-        assert polls and all("after=" in u and "wait=" in u for u in polls)
-        fps = http.get("/api/source").json()["measured_fps"]
-        scale = HUMAN_FPS / max(fps, HUMAN_FPS)  # a pause of n frames at 30 fps lasts n frames at the measured rate
-        print(f"source at {fps:.1f} fps: a person's pauses x {scale:.2f}")
+    page = browser.new_page(viewport={"width": 1280, "height": 800})
+    problems = watch(page)
+    polls: list[str] = []
+    page.on("request", lambda r: polls.append(r.url) if "/api/frames/latest" in r.url else None)
+    page.goto(server + "/")
+    page.wait_for_function("document.getElementById('canvas').dataset.frameId", timeout=30_000)
+    # the live view follows the stream by long-polling for the next frame (figure printed, not asserted)
+    shown = page.evaluate(
+        """() => new Promise((done) => { const ids = new Set(); const t0 = performance.now();
+             (function tick() { ids.add(document.getElementById('canvas').dataset.frameId);
+               if (performance.now() - t0 < 1000) requestAnimationFrame(tick); else done(ids.size); })(); })"""
+    )
+    print(f"live view: {shown} frames/s shown")
+    assert polls and all("after=" in u and "wait=" in u for u in polls)
+    fps = http.get("/api/source").json()["measured_fps"]
+    scale = HUMAN_FPS / max(fps, HUMAN_FPS)  # a pause of n frames at 30 fps lasts n frames at the measured rate
+    print(f"source at {fps:.1f} fps: a person's pauses x {scale:.2f}")
 
-        def pause(low_ms: float, high_ms: float) -> None:
-            page.wait_for_timeout(rng.uniform(low_ms, high_ms) * scale)
+    def pause(low_ms: float, high_ms: float) -> None:
+        page.wait_for_timeout(rng.uniform(low_ms, high_ms) * scale)
 
-        mid = None
-        for i in range(ROUNDS):
-            pause(200, 800)
-            if i % 2 == 0:  # freeze with the key, then click; otherwise the first click freezes
-                page.keyboard.press("f")
-                page.wait_for_function("document.getElementById('frame-tag').textContent.startsWith('frozen')")
-                _assert_frozen_and_measured(http, page)
-                pause(200, 600)
-            page.mouse.click(*image_point(page, truth, p1))
-            pause(200, 800)
-            page.mouse.click(*image_point(page, truth, p2))
-            mid = _wait_result(page, mid)
-            _assert_frozen_and_measured(http, page, mid)
-            # a drag long after measuring (every fifth round waits 3.2-4 s) must still measure the same frame
-            pause(*((3200, 4000) if i % 5 == 1 else (200, 800)))
-            x, y = image_point(page, truth, p2)
-            page.mouse.move(x, y)
-            page.mouse.down()
-            page.mouse.move(x - 40, y, steps=4)
-            page.mouse.up()
-            mid = _wait_result(page, mid)
-            _assert_frozen_and_measured(http, page, mid)
-            pause(100, 400)
-            page.keyboard.press("Escape")  # clear the points
-            page.keyboard.press("Escape")  # and go live
-            page.wait_for_function("document.getElementById('frame-tag').textContent.startsWith('live')")
-        fps = http.get("/api/source").json()["measured_fps"]
-        print(f"{ROUNDS} rounds at {fps:.1f} fps into a 4-frame ring: {len(problems)} problems")
-        assert problems == [], "\n".join(problems)
+    mid = None
+    for i in range(ROUNDS):
+        pause(200, 800)
+        if i % 2 == 0:  # freeze with the key, then click; otherwise the first click freezes
+            page.keyboard.press("f")
+            page.wait_for_function("document.getElementById('frame-tag').textContent.startsWith('frozen')")
+            _assert_frozen_and_measured(http, page)
+            pause(200, 600)
+        page.mouse.click(*image_point(page, truth, p1))
+        pause(200, 800)
+        page.mouse.click(*image_point(page, truth, p2))
+        mid = _wait_result(page, mid)
+        _assert_frozen_and_measured(http, page, mid)
+        # a drag long after measuring (every fifth round waits 3.2-4 s) must still measure the same frame
+        pause(*((3200, 4000) if i % 5 == 1 else (200, 800)))
+        x, y = image_point(page, truth, p2)
+        page.mouse.move(x, y)
+        page.mouse.down()
+        page.mouse.move(x - 40, y, steps=4)
+        page.mouse.up()
+        mid = _wait_result(page, mid)
+        _assert_frozen_and_measured(http, page, mid)
+        pause(100, 400)
+        page.keyboard.press("Escape")  # clear the points
+        page.keyboard.press("Escape")  # and go live
+        page.wait_for_function("document.getElementById('frame-tag').textContent.startsWith('live')")
+    fps = http.get("/api/source").json()["measured_fps"]
+    print(f"{ROUNDS} rounds at {fps:.1f} fps into a 4-frame ring: {len(problems)} problems")
+    assert problems == [], "\n".join(problems)
