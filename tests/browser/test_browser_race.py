@@ -4,14 +4,15 @@ is evicted within a few frame times. Invariant: the frame shown is the frame the
 measures, whatever the timing; 20 rounds, zero failed requests.
 
 A person's pauses (200-800 ms, a drag 3.2-4 s after measuring) are counted in frames of a 30 fps source:
-the source is asked for 90 fps and every pause lasts the same number of frames at the rate it measures
-(never longer than the person's), so each pause outlasts the ring as often as at 30 fps; only the page's
-and the server's own latency is not scaled, which leaves the frames less time, not more.
+the source is asked for 90 fps and every pause lasts the same number of frames at the rate the source ran
+since the previous pause (never longer than the person's), so each pause outlasts the ring as often as at
+30 fps; only the page's and the server's own latency is not scaled, which leaves the frames less time, not more.
 """
 
 from __future__ import annotations
 
 import random
+import time
 
 import httpx
 import pytest
@@ -74,6 +75,7 @@ def test_freeze_click_drag_at_human_speed(server, http, browser):
     page.goto(server + "/")
     page.wait_for_function("document.getElementById('canvas').dataset.frameId", timeout=30_000)
     # the live view follows the stream by long-polling for the next frame (figure printed, not asserted)
+    before, t0 = http.get("/api/source").json()["frames"], time.monotonic()
     shown = page.evaluate(
         """() => new Promise((done) => { const ids = new Set(); const t0 = performance.now();
              (function tick() { ids.add(document.getElementById('canvas').dataset.frameId);
@@ -81,12 +83,16 @@ def test_freeze_click_drag_at_human_speed(server, http, browser):
     )
     print(f"live view: {shown} frames/s shown")
     assert polls and all("after=" in u and "wait=" in u for u in polls)
-    fps = http.get("/api/source").json()["measured_fps"]
-    scale = HUMAN_FPS / max(fps, HUMAN_FPS)  # a pause of n frames at 30 fps lasts n frames at the measured rate
-    print(f"source at {fps:.1f} fps: a person's pauses x {scale:.2f}")
+    since = [before, t0]
+    scales: list[float] = []
 
     def pause(low_ms: float, high_ms: float) -> None:
-        page.wait_for_timeout(rng.uniform(low_ms, high_ms) * scale)
+        """A person's pause of low-high ms at 30 fps, as many frames at the source's rate since the last pause."""
+        frames, now = http.get("/api/source").json()["frames"], time.monotonic()
+        fps = (frames - since[0]) / (now - since[1])
+        since[:] = frames, now
+        scales.append(HUMAN_FPS / max(fps, HUMAN_FPS))  # never longer than the person's
+        page.wait_for_timeout(rng.uniform(low_ms, high_ms) * scales[-1])
 
     mid = None
     for i in range(ROUNDS):
@@ -115,5 +121,6 @@ def test_freeze_click_drag_at_human_speed(server, http, browser):
         page.keyboard.press("Escape")  # and go live
         page.wait_for_function("document.getElementById('frame-tag').textContent.startsWith('live')")
     fps = http.get("/api/source").json()["measured_fps"]
-    print(f"{ROUNDS} rounds at {fps:.1f} fps into a 4-frame ring: {len(problems)} problems")
+    print(f"{ROUNDS} rounds at {fps:.1f} fps into a 4-frame ring, pauses x {min(scales):.2f}-{max(scales):.2f}: "
+          f"{len(problems)} problems")
     assert problems == [], "\n".join(problems)
