@@ -10,7 +10,7 @@ from pathlib import Path
 
 from server_process import ROOT, start_serve
 
-__all__ = ["ROOT", "chromium", "image_point", "serve", "watch"]
+__all__ = ["ROOT", "chromium", "image_point", "launch", "serve", "watch"]
 CHROMIUM_ARGS = [
     "--no-sandbox",
     "--disable-gpu",
@@ -40,12 +40,17 @@ def serve(folder: Path, source: str, *args: str, config: str = "") -> Iterator[s
             proc.kill()
 
 
+def launch(pw) -> object:
+    """Debian's chromium, headless, from a started Playwright."""
+    return pw.chromium.launch(executable_path="/usr/bin/chromium", args=CHROMIUM_ARGS)
+
+
 @contextmanager
 def chromium() -> Iterator[object]:
     from playwright.sync_api import sync_playwright
 
     with sync_playwright() as pw:
-        b = pw.chromium.launch(executable_path="/usr/bin/chromium", args=CHROMIUM_ARGS)
+        b = launch(pw)
         try:
             yield b
         finally:

@@ -2,12 +2,17 @@
 
 from __future__ import annotations
 
+import errno
 import os
 import shutil
+import socket
+from collections.abc import Iterator
 from pathlib import Path
 
 import pytest
 from hypothesis import HealthCheck, settings
+
+from server_process import port_8000_taken
 
 # Property-based tests (tests/fuzz/): a small, reproducible budget in the default run; a nightly-style
 # exploration with `--hypothesis-profile=long` (README "Fuzzing"; DEPTHRULER_FUZZ_EXAMPLES sets its examples per test). No example database: the tree stays
@@ -61,3 +66,24 @@ def middlebury_dir() -> Path:
         pytest.skip(f"the Middlebury scenes are not at {root}: fetch them with `{FETCH_COMMAND}` "
                     "(or set DEPTHRULER_SHARED to a folder that holds data/middlebury)")
     return root
+
+
+@pytest.fixture(scope="module")
+def port_8000_held() -> Iterator[None]:
+    """Port 8000 held on every IPv4 address while a module's tests run: the modules that run or
+    configure ``serve`` use it, so the suite shows they do not depend on the default port
+    (tests/integration/test_busy_default_port.py checks that they do). Held already by another
+    program is the case under test too."""
+    holder = socket.socket()
+    try:
+        holder.bind(("0.0.0.0", 8000))
+        holder.listen()
+    except OSError as exc:
+        holder.close()
+        if exc.errno != errno.EADDRINUSE:
+            raise
+    try:
+        assert port_8000_taken(), "could not hold port 8000"
+        yield
+    finally:
+        holder.close()

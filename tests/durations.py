@@ -26,7 +26,8 @@ from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
 DURATION = re.compile(r"^(\d+\.\d+)s (setup|call|teardown)\s+(\S.*)$")
-SESSION = re.compile(r"^=+ (.*) in (\d+\.\d+)s( \([\d:]+\))? =+$")
+# the summary line, framed by "=" or, with -q (addopts), bare
+SESSION = re.compile(r"^(?:=+ )?(.*) in (\d+\.\d+)s( \([\d:]+\))?(?: =+)?$")
 COLLECTED = re.compile(r"(\d+)(?:/\d+)? tests? collected(?: \(\d+ deselected\))? in (\d+\.\d+)s")
 # The fast loop of docs/testing.md (keep the two the same).
 FAST_LOOP = ["-m", "not slow and not integration and not study and not browser"]

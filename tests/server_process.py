@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import errno
 import os
 import socket
 import subprocess
@@ -18,6 +19,17 @@ def free_port() -> int:
     with socket.socket() as s:
         s.bind(("127.0.0.1", 0))
         return s.getsockname()[1]
+
+
+def port_8000_taken() -> bool:
+    """Whether port 8000, ``depthruler serve``'s default, is held on the IPv4 wildcard address."""
+    try:
+        with socket.create_server(("0.0.0.0", 8000)):
+            return False
+    except OSError as exc:
+        if exc.errno == errno.EADDRINUSE:
+            return True
+        raise
 
 
 def start_serve(

@@ -18,7 +18,7 @@ import httpx
 import numpy as np
 import pytest
 
-from browser_helpers import chromium, image_point, serve, watch
+from browser_helpers import image_point, serve, watch
 from history.export import CSV_COLUMNS
 
 SPEC = "sim:poster?distance=2&lighting=indoor&contention=0.5&seed=7&fps=5"
@@ -30,12 +30,6 @@ pytestmark = [pytest.mark.browser, pytest.mark.slow]
 def server(tmp_path_factory):
     with serve(tmp_path_factory.mktemp("serve"), SPEC) as base:
         yield base
-
-
-@pytest.fixture(scope="module")
-def browser():
-    with chromium() as b:
-        yield b
 
 
 @pytest.fixture

@@ -6,15 +6,15 @@ from __future__ import annotations
 import httpx
 import pytest
 
-from browser_helpers import chromium, serve, watch
+from browser_helpers import serve, watch
 
 SPEC = "sim:charuco?distance=1.2&width=640&height=360&fps=5"
 
 pytestmark = [pytest.mark.browser, pytest.mark.slow]
 
 
-def test_the_check_button_shows_picture_findings_and_history(tmp_path):
-    with serve(tmp_path, SPEC) as base, chromium() as browser:
+def test_the_check_button_shows_picture_findings_and_history(tmp_path, browser):
+    with serve(tmp_path, SPEC) as base:
         ctx = browser.new_context(viewport={"width": 1440, "height": 1000})
         page = ctx.new_page()
         problems = watch(page)

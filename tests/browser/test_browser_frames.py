@@ -9,15 +9,15 @@ import re
 import httpx
 import pytest
 
-from browser_helpers import chromium, image_point, serve, watch
+from browser_helpers import image_point, serve, watch
 
 SPEC = "sim:poster?distance=6&lighting=indoor&seed=5&fps=8"
 
 pytestmark = [pytest.mark.browser, pytest.mark.slow]
 
 
-def test_measure_over_ten_frames_shows_frames_used_and_gain(tmp_path):
-    with serve(tmp_path, SPEC) as server, chromium() as browser:
+def test_measure_over_ten_frames_shows_frames_used_and_gain(tmp_path, browser):
+    with serve(tmp_path, SPEC) as server:
         page = browser.new_context(viewport={"width": 1440, "height": 900}).new_page()
         watch(page)
         page.goto(server + "/")

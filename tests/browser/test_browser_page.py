@@ -10,7 +10,7 @@ from pathlib import Path
 import httpx
 import pytest
 
-from browser_helpers import chromium, serve, watch
+from browser_helpers import serve, watch
 
 SPEC = "sim:poster?distance=2&lighting=indoor&contention=0.5&seed=7&fps=5"
 
@@ -22,12 +22,6 @@ def server(tmp_path_factory):
     folder = tmp_path_factory.mktemp("page")
     with serve(folder, SPEC, "--recordings", str(folder / "recordings")) as base:
         yield base, folder / "recordings"
-
-
-@pytest.fixture(scope="module")
-def browser():
-    with chromium() as b:
-        yield b
 
 
 def open_live(page, base) -> None:

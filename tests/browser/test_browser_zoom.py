@@ -9,7 +9,7 @@ import json
 import httpx
 import pytest
 
-from browser_helpers import chromium, serve, watch
+from browser_helpers import serve, watch
 
 SPEC = "sim:poster?distance=2&lighting=indoor&contention=0.5&seed=7&fps=5"
 
@@ -20,12 +20,6 @@ pytestmark = [pytest.mark.browser, pytest.mark.slow]
 def server(tmp_path_factory):
     with serve(tmp_path_factory.mktemp("zoom"), SPEC) as base:
         yield base
-
-
-@pytest.fixture(scope="module")
-def browser():
-    with chromium() as b:
-        yield b
 
 
 def open_live(page, server) -> dict:

@@ -14,6 +14,9 @@ from device.formats.recording import RecordingWriter
 from cli.main import app
 from factories import SMALL_H, SMALL_W, WALL_DISP, wall_frame, wall_length
 
+# serve's default port 8000 held meanwhile: none of these depends on it (tests/integration/test_busy_default_port.py)
+pytestmark = pytest.mark.usefixtures("port_8000_held")
+
 W, H, DISP = SMALL_W, SMALL_H, WALL_DISP
 
 

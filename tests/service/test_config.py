@@ -12,6 +12,9 @@ from cli.main import app
 from device import source_config
 from service.config import ConfigError, load_config, parse_config
 
+# serve's default port 8000 held meanwhile: none of these depends on it (tests/integration/test_busy_default_port.py)
+pytestmark = pytest.mark.usefixtures("port_8000_held")
+
 CONFIGS = Path(__file__).resolve().parents[2] / "configs"
 
 

@@ -16,6 +16,9 @@ from service_client import latest, make_client, measure
 
 from service.app import create_app
 
+# serve's default port 8000 held meanwhile: none of these depends on it (tests/integration/test_busy_default_port.py)
+pytestmark = pytest.mark.usefixtures("port_8000_held")
+
 ORIGIN = "http://127.0.0.1"  # make_client's base URL: the page's own origin
 
 
