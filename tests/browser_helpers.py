@@ -45,18 +45,6 @@ def launch(pw) -> object:
     return pw.chromium.launch(executable_path="/usr/bin/chromium", args=CHROMIUM_ARGS)
 
 
-@contextmanager
-def chromium() -> Iterator[object]:
-    from playwright.sync_api import sync_playwright
-
-    with sync_playwright() as pw:
-        b = launch(pw)
-        try:
-            yield b
-        finally:
-            b.close()
-
-
 def watch(page) -> list[str]:
     """Collect what must not happen on a page: script errors, console errors, API answers >= 400,
     state changes that are not JSON."""

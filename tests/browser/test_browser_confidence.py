@@ -12,7 +12,7 @@ import httpx
 import numpy as np
 import pytest
 
-from browser_helpers import chromium, image_point, serve, watch
+from browser_helpers import image_point, serve, watch
 from device import open_source
 
 SPEC = "sim:plain-wall?mode=stereo&width=640&height=360&distance=2.5&seed=3&fps=4"
@@ -50,8 +50,8 @@ def poster_px() -> tuple[list[float], list[float]]:
     return (a + 0.1 * (b - a)).tolist(), (b - 0.1 * (b - a)).tolist()
 
 
-def test_confidence_view_and_the_weak_stretch_of_a_wall_segment(tmp_path):
-    with serve(tmp_path, SPEC) as server, chromium() as browser:
+def test_confidence_view_and_the_weak_stretch_of_a_wall_segment(tmp_path, browser):
+    with serve(tmp_path, SPEC) as server:
         page = browser.new_context(viewport={"width": 1440, "height": 900}).new_page()
         problems = watch(page)
         images: list[str] = []
@@ -124,8 +124,8 @@ def test_confidence_view_and_the_weak_stretch_of_a_wall_segment(tmp_path):
         assert problems == [], "\n".join(problems)
 
 
-def test_a_source_without_confidence_disables_the_view(tmp_path):
-    with serve(tmp_path, "sim:boxes?confidence=false&width=320&height=180&fps=4") as server, chromium() as browser:
+def test_a_source_without_confidence_disables_the_view(tmp_path, browser):
+    with serve(tmp_path, "sim:boxes?confidence=false&width=320&height=180&fps=4") as server:
         page = browser.new_context(viewport={"width": 390, "height": 844}, has_touch=True, is_mobile=True).new_page()
         problems = watch(page)
         page.goto(server + "/")
