@@ -45,6 +45,12 @@ def launch(pw) -> object:
     return pw.chromium.launch(executable_path="/usr/bin/chromium", args=CHROMIUM_ARGS)
 
 
+def open_live(page, base: str) -> None:
+    """Open the page of the service at ``base`` and wait until it shows its first frame."""
+    page.goto(base + "/")
+    page.wait_for_function("document.getElementById('canvas').dataset.frameId", timeout=30_000)
+
+
 def watch(page) -> list[str]:
     """Collect what must not happen on a page: script errors, console errors, API answers >= 400,
     state changes that are not JSON."""

@@ -18,7 +18,7 @@ import httpx
 import numpy as np
 import pytest
 
-from browser_helpers import image_point, serve, watch
+from browser_helpers import image_point, open_live, serve, watch
 from history.export import CSV_COLUMNS
 
 SPEC = "sim:poster?distance=2&lighting=indoor&contention=0.5&seed=7&fps=5"
@@ -44,11 +44,6 @@ def page(browser):
 
 def shots_dir(tmp_path) -> Path:
     return Path(os.environ.get("DEPTHRULER_SCREENSHOTS", "") or tmp_path)
-
-
-def open_live(page, server) -> None:
-    page.goto(server + "/")
-    page.wait_for_function("document.getElementById('canvas').dataset.frameId", timeout=30_000)
 
 
 def freeze(page) -> dict:

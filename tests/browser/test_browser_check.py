@@ -6,7 +6,7 @@ from __future__ import annotations
 import httpx
 import pytest
 
-from browser_helpers import serve, watch
+from browser_helpers import open_live, serve, watch
 
 SPEC = "sim:charuco?distance=1.2&width=640&height=360&fps=5"
 
@@ -18,8 +18,7 @@ def test_the_check_button_shows_picture_findings_and_history(tmp_path, browser):
         ctx = browser.new_context(viewport={"width": 1440, "height": 1000})
         page = ctx.new_page()
         problems = watch(page)
-        page.goto(base + "/")
-        page.wait_for_function("document.getElementById('canvas').dataset.frameId", timeout=30_000)
+        open_live(page, base)
         assert page.locator("#check-history-empty").is_visible()  # no check yet
         page.click("#check-run")  # freezes the frame on screen, then checks it
         page.wait_for_function("document.getElementById('check-card').dataset.checkId", timeout=60_000)

@@ -12,7 +12,7 @@ import httpx
 import numpy as np
 import pytest
 
-from browser_helpers import image_point, serve, watch
+from browser_helpers import image_point, open_live, serve, watch
 from device import open_source
 
 SPEC = "sim:plain-wall?mode=stereo&width=640&height=360&distance=2.5&seed=3&fps=4"
@@ -56,8 +56,7 @@ def test_confidence_view_and_the_weak_stretch_of_a_wall_segment(tmp_path, browse
         problems = watch(page)
         images: list[str] = []
         page.on("request", lambda r: images.append(r.url) if "/api/frames/" in r.url and r.url.endswith((".png", ".jpg")) else None)
-        page.goto(server + "/")
-        page.wait_for_function("document.getElementById('canvas').dataset.frameId", timeout=30_000)
+        open_live(page, server)
         assert page.is_enabled("#view-confidence")
         page.keyboard.press("c")  # the view's key, as the footer lists it
         page.wait_for_function("document.getElementById('view-confidence').classList.contains('active')")
@@ -128,8 +127,7 @@ def test_a_source_without_confidence_disables_the_view(tmp_path, browser):
     with serve(tmp_path, "sim:boxes?confidence=false&width=320&height=180&fps=4") as server:
         page = browser.new_context(viewport={"width": 390, "height": 844}, has_touch=True, is_mobile=True).new_page()
         problems = watch(page)
-        page.goto(server + "/")
-        page.wait_for_function("document.getElementById('canvas').dataset.frameId", timeout=30_000)
+        open_live(page, server)
         page.wait_for_function("document.getElementById('view-confidence').disabled")
         assert "gives no confidence" in page.get_attribute("#view-confidence", "title")
         box = page.locator("#view-confidence").bounding_box()

@@ -9,7 +9,7 @@ import re
 import httpx
 import pytest
 
-from browser_helpers import image_point, serve, watch
+from browser_helpers import image_point, open_live, serve, watch
 
 SPEC = "sim:poster?distance=6&lighting=indoor&seed=5&fps=8"
 
@@ -20,8 +20,7 @@ def test_measure_over_ten_frames_shows_frames_used_and_gain(tmp_path, browser):
     with serve(tmp_path, SPEC) as server:
         page = browser.new_context(viewport={"width": 1440, "height": 900}).new_page()
         watch(page)
-        page.goto(server + "/")
-        page.wait_for_function("document.getElementById('canvas').dataset.frameId", timeout=30_000)
+        open_live(page, server)
         page.wait_for_function("Number(document.getElementById('canvas').dataset.frameId) >= 12", timeout=30_000)
         page.select_option("#frames", "10")
         page.keyboard.press("f")

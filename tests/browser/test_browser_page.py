@@ -10,7 +10,7 @@ from pathlib import Path
 import httpx
 import pytest
 
-from browser_helpers import serve, watch
+from browser_helpers import open_live, serve, watch
 
 SPEC = "sim:poster?distance=2&lighting=indoor&contention=0.5&seed=7&fps=5"
 
@@ -22,11 +22,6 @@ def server(tmp_path_factory):
     folder = tmp_path_factory.mktemp("page")
     with serve(folder, SPEC, "--recordings", str(folder / "recordings")) as base:
         yield base, folder / "recordings"
-
-
-def open_live(page, base) -> None:
-    page.goto(base + "/")
-    page.wait_for_function("document.getElementById('canvas').dataset.frameId", timeout=30_000)
 
 
 def small_targets(page) -> list[str]:

@@ -17,7 +17,7 @@ import time
 import httpx
 import pytest
 
-from browser_helpers import image_point, serve, watch
+from browser_helpers import image_point, open_live, serve, watch
 
 pytestmark = [pytest.mark.browser, pytest.mark.slow]
 
@@ -72,8 +72,7 @@ def test_freeze_click_drag_at_human_speed(server, http, browser):
     problems = watch(page)
     polls: list[str] = []
     page.on("request", lambda r: polls.append(r.url) if "/api/frames/latest" in r.url else None)
-    page.goto(server + "/")
-    page.wait_for_function("document.getElementById('canvas').dataset.frameId", timeout=30_000)
+    open_live(page, server)
     # the live view follows the stream by long-polling for the next frame (figure printed, not asserted)
     before, t0 = http.get("/api/source").json()["frames"], time.monotonic()
     shown = page.evaluate(

@@ -10,7 +10,7 @@ import sys
 import httpx
 import pytest
 
-from browser_helpers import ROOT, serve, watch
+from browser_helpers import ROOT, open_live, serve, watch
 
 pytestmark = [pytest.mark.browser, pytest.mark.slow]
 
@@ -31,8 +31,7 @@ def server(tmp_path_factory):
 def test_replay_badge_and_frame_stepping(server, browser):
     page = browser.new_page(viewport={"width": 1280, "height": 800})
     problems = watch(page)
-    page.goto(server + "/")
-    page.wait_for_function("document.getElementById('canvas').dataset.frameId", timeout=30_000)
+    open_live(page, server)
     page.wait_for_function("document.getElementById('source-badge').dataset.kind === 'replay'")
     assert page.text_content("#source-badge") == "REPLAY shelf-take-1"
     assert page.locator("#replay-bar").is_visible()

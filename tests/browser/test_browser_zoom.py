@@ -9,7 +9,7 @@ import json
 import httpx
 import pytest
 
-from browser_helpers import serve, watch
+from browser_helpers import open_live, serve, watch
 
 SPEC = "sim:poster?distance=2&lighting=indoor&contention=0.5&seed=7&fps=5"
 
@@ -22,9 +22,9 @@ def server(tmp_path_factory):
         yield base
 
 
-def open_live(page, server) -> dict:
-    page.goto(server + "/")
-    page.wait_for_function("document.getElementById('canvas').dataset.frameId", timeout=30_000)
+def open_live_frame(page, server) -> dict:
+    """The page opened live, and the newest frame's JSON (its truth: where the handles go)."""
+    open_live(page, server)
     return httpx.get(f"{server}/api/frames/latest").json()
 
 
@@ -69,7 +69,7 @@ def test_phone_4x_pinch_places_each_handle_within_half_a_pixel(server, browser):
     ctx = browser.new_context(viewport={"width": 390, "height": 844}, has_touch=True, is_mobile=True, device_scale_factor=2)
     page = ctx.new_page()
     problems = watch(page)
-    frame = open_live(page, server)
+    frame = open_live_frame(page, server)
     truth = frame["truth"]
     cdp = ctx.new_cdp_session(page)
     before = history_count(server)
@@ -114,7 +114,7 @@ def test_read_depth_tap_stores_nothing(server, browser):
     ctx = browser.new_context(viewport={"width": 390, "height": 844}, has_touch=True, is_mobile=True, device_scale_factor=2)
     page = ctx.new_page()
     problems = watch(page)
-    frame = open_live(page, server)
+    frame = open_live_frame(page, server)
     cdp = ctx.new_cdp_session(page)
     before = history_count(server)
     box = page.locator("#read-depth").bounding_box()
@@ -150,7 +150,7 @@ def test_read_depth_tap_stores_nothing(server, browser):
 def test_keyboard_only_measurement(server, browser):
     page = browser.new_page(viewport={"width": 1280, "height": 800})
     problems = watch(page)
-    frame = open_live(page, server)
+    frame = open_live_frame(page, server)
     truth = frame["truth"]
     before = history_count(server)
     for _ in range(40):  # Tab through the controls to the image
@@ -203,7 +203,7 @@ def test_keyboard_only_measurement(server, browser):
 def test_wheel_zoom_keeps_the_point_under_the_cursor_and_space_drag_pans(server, browser):
     page = browser.new_page(viewport={"width": 1280, "height": 800})
     problems = watch(page)
-    frame = open_live(page, server)
+    frame = open_live_frame(page, server)
     target = frame["truth"]["p1_px"]
     x, y = (round(c) for c in view_point(page, target))  # mouse events arrive in whole CSS px
     box = page.locator("#canvas").bounding_box()
