@@ -42,11 +42,21 @@ def diagonal_frame(seed: int = 0, outliers: float = 0.4):
     return Frame(np.zeros((H, W, 3), np.uint8), d.astype(np.float32), cam, BASELINE)
 
 
+def _as_result(m, h: int):
+    """A fitted scikit-learn ``MinCovDet`` as our McdResult (no exact fit: scikit-learn reports none)."""
+    from measure.mcd import McdResult
+
+    return McdResult(
+        m.location_, m.covariance_, m.raw_location_, m.raw_covariance_, m.support_, m.raw_support_,
+        m.dist_, h, False, "none", None, None, None, 0, float(np.sqrt(np.trace(m.covariance_))),
+    )
+
+
 def sklearn_mcd(points, *, support_fraction=None, seed=0, **_):
     """The same MCD through scikit-learn (no exact-fit reporting), as an McdResult."""
     from sklearn.covariance import MinCovDet
 
-    from measure.mcd import McdResult, default_h
+    from measure.mcd import default_h
 
     x = np.asarray(points, dtype=np.float64)
     x = x[:, None] if x.ndim == 1 else x
@@ -55,10 +65,7 @@ def sklearn_mcd(points, *, support_fraction=None, seed=0, **_):
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
         m = MinCovDet(support_fraction=h / n, random_state=seed).fit(x)
-    return McdResult(
-        m.location_, m.covariance_, m.raw_location_, m.raw_covariance_, m.support_, m.raw_support_,
-        m.dist_, h, False, "none", None, None, None, 0, float(np.sqrt(np.trace(m.covariance_))),
-    )
+    return _as_result(m, h)
 
 
 def sklearn_same_work(points, *, support_fraction=None, h=None, n_starts=500, n_best=10, max_iter=100, seed=0, **_):
@@ -69,7 +76,7 @@ def sklearn_same_work(points, *, support_fraction=None, h=None, n_starts=500, n_
     from sklearn.covariance import MinCovDet
     from sklearn.covariance._robust_covariance import select_candidates
 
-    from measure.mcd import _SUBSAMPLE, McdResult, default_h
+    from measure.mcd import _SUBSAMPLE, default_h
 
     x = np.asarray(points, dtype=np.float64)
     x = x[:, None] if x.ndim == 1 else x
@@ -87,10 +94,7 @@ def sklearn_same_work(points, *, support_fraction=None, h=None, n_starts=500, n_
         m.location_, m.support_, m.dist_ = loc[0], support[0], dist[0]
         m.correct_covariance(x)
         m.reweight_covariance(x)
-    return McdResult(
-        m.location_, m.covariance_, m.raw_location_, m.raw_covariance_, m.support_, m.raw_support_,
-        m.dist_, h, False, "none", None, None, None, 0, float(np.sqrt(np.trace(m.covariance_))),
-    )
+    return _as_result(m, h)
 
 
 @contextmanager

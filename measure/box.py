@@ -228,9 +228,9 @@ def _hidden_sides(frame: Frame, top: Plane, rect: dict) -> list[int]:
     return out
 
 
-def _interior_plane(frame: Frame, grown: GrownPlane, seed: int) -> GrownPlane:
-    """The grown top with its plane refit on the pixels at least ``CREASE_BAND_PX`` inside its outline,
-    for the height at the top's centre.
+def _interior_plane(frame: Frame, grown: GrownPlane, seed: int) -> Plane:
+    """The grown top's plane refit on the pixels at least ``CREASE_BAND_PX`` inside its outline, for the
+    height at the top's centre.
 
     Near a crease the side face stays within the top's inlier tolerance for a few pixels (the more
     noise, the wider the tolerance): grown over, they pull the plane down towards the sides and the
@@ -245,13 +245,12 @@ def _interior_plane(frame: Frame, grown: GrownPlane, seed: int) -> GrownPlane:
     k = 2 * CREASE_BAND_PX + 1
     inner = cv2.erode(grown.mask.astype(np.uint8), np.ones((k, k), np.uint8), borderType=cv2.BORDER_REPLICATE).astype(bool)
     if int(inner.sum()) < MIN_TOP_PX:
-        return grown
+        return grown.plane
     ys, xs = np.nonzero(inner)
     try:
-        plane = fit_plane(frame, xs, ys, seed, start=grown.plane)
+        return fit_plane(frame, xs, ys, seed, start=grown.plane)
     except MeasureError:
-        return grown
-    return GrownPlane(plane, grown.mask, grown.touches_border)
+        return grown.plane
 
 
 def _not_the_clicked_plane(frame: Frame, top: Plane, x: float, y: float, seed: int) -> bool:
@@ -308,7 +307,7 @@ def measure_box(frame: Frame, click_px: tuple[float, float], options: MeasureOpt
     outline = rect["outline_pos"]
     spread = [abs(dims[0] - outline[0] - outline[1]), abs(dims[1] - outline[2] - outline[3])]
     sig_dims = [math.hypot(s, d / 2.0) for s, d in zip(sig_dims, spread)]
-    height, s_h, _, _ = height_above(_interior_plane(frame, grown, opts.seed).plane, floor, cx, cy, 0.0)
+    height, s_h, _, _ = height_above(_interior_plane(frame, grown, opts.seed), floor, cx, cy, 0.0)
     reasons: list[str] = []
     worst = max(d / v for d, v in zip(spread, dims)) if min(dims) > 0 else math.inf
     if worst > EDGE_DISAGREE:
