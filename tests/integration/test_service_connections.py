@@ -33,7 +33,9 @@ def _measure_while(base: str, stop: threading.Event, answers: list[tuple[int, in
         while not stop.is_set():
             try:
                 f = http.get("/api/frames/latest").json()
-                r = http.post("/api/measure", json={"frame_id": f["id"], "p1": [20, 20], "p2": [300, 200], "options": {"method": "basic"}})
+                # the default method: `basic` has no answer when the simulator drops the depth under a click
+                # (1.2 % of frames at these points), an honest 422 that is not what this test is about
+                r = http.post("/api/measure", json={"frame_id": f["id"], "p1": [20, 20], "p2": [300, 200]})
                 answers.append((r.status_code, r.json().get("id") if r.status_code == 200 else None))
             except httpx.HTTPError as exc:
                 answers.append((0, type(exc).__name__))  # type: ignore[arg-type]
