@@ -17,8 +17,6 @@ from measure.robust import robust_with_terms
 from measure.sampling import ray
 from measure.sequence import MAX_FRAMES, measure_sequence
 from measure.options import METHODS
-from measure.height import measure_height
-from measure.path import measure_path
 from measure.shape_types import SHAPE_KINDS, BoxMeasurement, ShapeMeasurement
 from measure.types import MAX_CLICK_PX, Frame, MeasureError, MeasureOptions, Measurement, PinholeCamera
 from measure.zonly import measure_z_only
