@@ -114,7 +114,7 @@ def error_summary(counts: dict) -> str:
 
 @app.command("export")
 def export_command(
-    results: Path = typer.Argument(..., help="Results file written by `depthruler batch --out` (Parquet)."),
+    results: Path = typer.Argument(..., metavar="RESULTS", help="Results file written by `depthruler batch --out` (Parquet)."),
     csv_out: Path = typer.Option(..., "--csv", help="CSV file to write (formula-like text cells are neutralised)."),
     samples: bool = typer.Option(False, "--samples", help="Also write the per-sample columns samples_px and support."),
 ) -> None:
@@ -131,8 +131,8 @@ def export_command(
 
 @app.command("diff")
 def diff_command(
-    a: Path = typer.Argument(..., help="Results of the reference run (Parquet)."),
-    b: Path = typer.Argument(..., help="Results of the run to compare (Parquet)."),
+    a: Path = typer.Argument(..., metavar="A", help="Results of the reference run (Parquet)."),
+    b: Path = typer.Argument(..., metavar="B", help="Results of the run to compare (Parquet)."),
     top: int = typer.Option(10, "--top", min=0, help="List this many of the largest moves."),
     as_json: bool = typer.Option(False, "--json", help="Print the summary as JSON."),
 ) -> None:

@@ -129,7 +129,7 @@ def record(
 
 
 def replay(
-    path: Path = typer.Argument(..., help="Recording directory"),
+    path: Path = typer.Argument(..., metavar="RECORDING", help="Recording directory"),
     as_json: bool = typer.Option(False, "--json", help="Print the summary as JSON"),
 ) -> None:
     """Inspect a recording: manifest, frames, problems and how much of each disparity is valid.
@@ -206,7 +206,7 @@ def _replay_bag(path: Path, as_json: bool) -> None:
 
 
 def export(
-    path: Path = typer.Argument(..., help="Recording directory"),
+    path: Path = typer.Argument(..., metavar="RECORDING", help="Recording directory"),
     mcap: Path = typer.Option(..., "--mcap", help="MCAP file to write (opens in Foxglove and Rerun)"),
     measurements: Optional[Path] = typer.Option(None, "--measurements", help="JSON list of measurements made on it"),
     overwrite: bool = typer.Option(False, "--overwrite", help="Replace an existing MCAP file"),

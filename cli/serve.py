@@ -178,7 +178,7 @@ def _point(text: str, name: str) -> tuple[float, float]:
 
 
 def measure(
-    source: str = typer.Argument(..., help="Source spec (sim:poster?seed=1, replay:DIR, middlebury:DIR, oak, ...), or a recording folder, bag, video file or Middlebury scene folder."),
+    source: str = typer.Argument(..., metavar="SOURCE", help="Source spec (sim:poster?seed=1, replay:DIR, middlebury:DIR, oak, ...), or a recording folder, bag, video file or Middlebury scene folder."),
     p1: Optional[str] = typer.Option(None, "--p1", help="First point X,Y (pixels of the colour image) of a segment."),
     p2: Optional[str] = typer.Option(None, "--p2", help="Second point X,Y of the segment."),
     box: Optional[str] = typer.Option(None, "--box", help="Instead of a segment: a box's dimensions from a click X,Y on its top face."),
