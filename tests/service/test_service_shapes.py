@@ -162,3 +162,17 @@ def test_exports_carry_the_stored_shape(client, box):
     got = [float(row[k]) for k in ("length", "width", "height")]
     assert got == pytest.approx([v * 1000 for v in m["dimensions_m"]], abs=0.5)
     assert client.get("/api/measurements.json").json()["measurements"] == [m]
+
+
+def test_a_full_disk_is_507_and_leaves_no_row(client, panel, monkeypatch):
+    import errno
+
+    from history import frame_file
+
+    def enospc(*_a, **_k):
+        raise OSError(errno.ENOSPC, "No space left on device")
+
+    monkeypatch.setattr(frame_file, "write_durably", enospc)
+    r = _shape(client, _push(client, panel.frame), "area", panel.clicks_px)
+    assert r.status_code == 507 and "full" in r.json()["detail"], r.text
+    assert client.get("/api/measurements").json() == []
