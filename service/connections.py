@@ -13,7 +13,8 @@ at a time:
 
 A connection beyond :func:`connection_cap` is answered 503 at once and closed, before it is read.
 :func:`serve` raises the process's soft limit on open files to its hard limit, keeps
-``reserved_fds`` of them for the database, its readers, frame files and recordings, and runs uvicorn.
+``reserved_fds`` of them for the database, its readers, frame files and recordings, shortens the
+interpreter's switch interval (``SWITCH_INTERVAL_S``) and runs uvicorn.
 """
 
 from __future__ import annotations
@@ -21,9 +22,14 @@ from __future__ import annotations
 import asyncio
 import json
 import resource
+import sys
 from dataclasses import dataclass
 from typing import Any
 
+# The event loop gives up the interpreter lock at every socket write and waits for it again behind the
+# measurement, presave and capture threads; at the default 5 ms each wait, and each response costs
+# several (docs/decisions/measure-pool.md).
+SWITCH_INTERVAL_S = 0.0005
 LINGER_S = 0.5  # a refused connection is read and dropped this long, so the 503 is not lost to a reset
 
 
@@ -172,6 +178,7 @@ def serve(app: Any, host: str, port: int, limits: ConnectionLimits, *, log_level
     import uvicorn
 
     cap = connection_cap(limits, raise_fd_limit())
+    sys.setswitchinterval(SWITCH_INTERVAL_S)
     uvicorn.run(
         app, host=host, port=port, log_level=log_level, access_log=False,
         http=guarded(protocol_class(http), limits, cap), timeout_keep_alive=limits.keep_alive_s,  # type: ignore[arg-type]
