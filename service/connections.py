@@ -20,6 +20,7 @@ interpreter's switch interval (``SWITCH_INTERVAL_S``) and runs uvicorn.
 from __future__ import annotations
 
 import asyncio
+import ctypes
 import json
 import resource
 import sys
@@ -173,12 +174,28 @@ def protocol_class(http: str = "auto") -> type[asyncio.Protocol]:
     return H11Protocol
 
 
+M_MMAP_THRESHOLD = -3  # glibc's mallopt parameter
+MMAP_THRESHOLD_BYTES = 1 << 20
+
+
+def _return_large_blocks() -> None:
+    """Have glibc map every block of ``MMAP_THRESHOLD_BYTES`` or more on its own, so a freed frame
+    array goes back to the system: its threshold otherwise grows to the largest freed block (32 MB at
+    most) and frame-sized arrays, made and dropped by many threads, stay in its arenas. No-op off glibc."""
+    try:
+        libc = ctypes.CDLL("libc.so.6")
+        libc.mallopt(M_MMAP_THRESHOLD, MMAP_THRESHOLD_BYTES)
+    except (OSError, AttributeError):
+        pass
+
+
 def serve(app: Any, host: str, port: int, limits: ConnectionLimits, *, log_level: str = "warning", http: str = "auto") -> None:
     """Run ``app`` with uvicorn on ``host:port`` under ``limits`` until it is stopped."""
     import uvicorn
 
     cap = connection_cap(limits, raise_fd_limit())
     sys.setswitchinterval(SWITCH_INTERVAL_S)
+    _return_large_blocks()
     uvicorn.run(
         app, host=host, port=port, log_level=log_level, access_log=False,
         http=guarded(protocol_class(http), limits, cap), timeout_keep_alive=limits.keep_alive_s,  # type: ignore[arg-type]

@@ -44,6 +44,7 @@ async def health(state: State) -> dict[str, Any]:
         "free_bytes": disk["free_bytes"],
         "next_frame_bytes": disk["need_bytes"],
         "frames": len(state.ring),
+        "ring_bytes": state.ring.nbytes,
         "uptime_s": time.time() - state.started,
     }
 
