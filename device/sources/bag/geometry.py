@@ -69,7 +69,7 @@ class Rigid:
 
 
 def align_depth_to_color(depth_m: np.ndarray, depth_cam: PinholeCamera, color_cam: PinholeCamera, depth_to_color: Rigid) -> np.ndarray:
-    """Depth (m, depth camera pixels; 0 or NaN = none) -> depth (m) at the colour camera's pixels, NaN = none.
+    """Depth (m, depth camera pixels; 0 or NaN = none) -> depth (float32 m) at the colour camera's pixels, NaN = none.
 
     ``depth_to_color`` maps depth-camera points to colour-camera points (``p_c = R p_d + t``). Each valid
     depth pixel's footprint (its corners at +-0.5 px) is back-projected at its depth, moved to the colour
@@ -82,7 +82,7 @@ def align_depth_to_color(depth_m: np.ndarray, depth_cam: PinholeCamera, color_ca
     if z_d.shape != (depth_cam.height, depth_cam.width):
         raise BagError(f"depth image is {z_d.shape[1]}x{z_d.shape[0]} but its camera_info says {depth_cam.width}x{depth_cam.height}")
     if depth_cam == color_cam and depth_to_color.is_identity():
-        return np.where(np.isfinite(z_d) & (z_d > 0), z_d, np.nan)
+        return np.where(np.isfinite(z_d) & (z_d > 0), z_d, np.nan).astype(np.float32)
     v, u = np.nonzero(np.isfinite(z_d) & (z_d > 0))
     z = z_d[v, u]
     R, t = depth_to_color.rotation, depth_to_color.translation
@@ -122,18 +122,39 @@ def align_depth_to_color(depth_m: np.ndarray, depth_cam: PinholeCamera, color_ca
     y0 = y0.astype(np.int64)
     nx = np.minimum(x1.astype(np.int64) - x0 + 1, MAX_SPLAT_PX)
     ny = np.minimum(y1.astype(np.int64) - y0 + 1, MAX_SPLAT_PX)
-    zbuf = np.full(color_cam.width * color_cam.height, np.inf)
-    fallback = np.full(color_cam.width * color_cam.height, np.inf)
-    # A loop over the footprint's offsets (at most MAX_SPLAT_PX**2, usually 1-4), each vectorised over all pixels.
+    n_px = color_cam.width * color_cam.height
+    # Every (colour pixel, Z) a footprint fills, for its offsets (at most MAX_SPLAT_PX**2, usually 1-4).
+    spots, zs, prim = [], [], []
+    # Each offset visits only the footprints that reach it (most are 1-2 px a side, a few up to 8).
     for dy in range(int(ny.max(initial=0))):
-        for dx in range(int(nx.max(initial=0))):
-            xs, ys = x0 + dx, y0 + dy
-            m = (dx < nx) & (dy < ny) & (xs >= 0) & (xs < color_cam.width) & (ys >= 0) & (ys < color_cam.height)
-            np.minimum.at(zbuf, ys[m & primary] * color_cam.width + xs[m & primary], zc[m & primary])
-            np.minimum.at(fallback, ys[m & ~primary] * color_cam.width + xs[m & ~primary], zc[m & ~primary])
-    zbuf = np.where(np.isfinite(zbuf), zbuf, fallback)
-    zbuf[~np.isfinite(zbuf)] = np.nan
-    return zbuf.reshape(color_cam.height, color_cam.width)
+        rows = np.flatnonzero(ny > dy)
+        for dx in range(int(nx[rows].max(initial=0))):
+            k = rows[nx[rows] > dx]
+            xs, ys = x0[k] + dx, y0[k] + dy
+            m = (xs >= 0) & (xs < color_cam.width) & (ys >= 0) & (ys < color_cam.height)
+            k = k[m]
+            spots.append(ys[m] * color_cam.width + xs[m])
+            zs.append(zc[k])
+            prim.append(primary[k])
+    spot, z_all, is_primary = (np.concatenate(a) if a else np.zeros(0, t) for a, t in ((spots, np.int64), (zs, np.float64), (prim, bool)))
+    zbuf = scatter_min(np.full(n_px, np.inf), spot[is_primary], z_all[is_primary])
+    fallback = scatter_min(np.full(n_px, np.inf), spot[~is_primary], z_all[~is_primary])
+    out = np.where(np.isfinite(zbuf), zbuf, fallback).astype(np.float32)
+    out[~np.isfinite(out)] = np.nan
+    return out.reshape(color_cam.height, color_cam.width)
+
+
+def scatter_min(buf: np.ndarray, index: np.ndarray, values: np.ndarray) -> np.ndarray:
+    """``buf[i] = min(buf[i], values[k])`` for every ``k`` with ``index[k] == i`` (what ``np.minimum.at``
+    does), in place; returns ``buf``. Steps: keep the values below what ``buf`` holds, write them (of
+    several on one element, one wins), and repeat with those still below the element's new value. Each
+    round settles at least one value per element, and footprints of one surface do not overlap, so a
+    frame takes 2-3 rounds, the later ones on the few pixels where surfaces occlude each other."""
+    while index.size:
+        below = values < buf[index]
+        index, values = index[below], values[below]
+        buf[index] = values
+    return buf
 
 
 def pair_by_time(color_ns: np.ndarray, depth_ns: np.ndarray, max_skew_ns: int) -> tuple[np.ndarray, np.ndarray]:
