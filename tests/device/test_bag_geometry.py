@@ -63,18 +63,6 @@ def test_finer_depth_is_not_biased_towards_the_camera() -> None:
     assert abs(np.mean(inner) - 2.0) < 0.1 * sigma, np.mean(inner) - 2.0
 
 
-def test_scatter_min_is_minimum_at_with_many_duplicates():
-    from device.sources.bag.geometry import scatter_min
-
-    rng = np.random.default_rng(3)
-    index = rng.integers(0, 50, 5000)  # about 100 values on each element
-    values = rng.random(5000)
-    want = np.full(60, np.inf)
-    np.minimum.at(want, index, values)
-    got = scatter_min(np.full(60, np.inf), index, values)
-    assert np.array_equal(got, want)  # the same minima, and untouched elements stay inf
-
-
 def test_registered_disparity_in_one_float32_pass_matches_the_float64_conversion():
     from device.sources.bag.messages import pixels_to_disparity, pixels_to_metres
 

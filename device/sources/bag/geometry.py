@@ -123,38 +123,25 @@ def align_depth_to_color(depth_m: np.ndarray, depth_cam: PinholeCamera, color_ca
     nx = np.minimum(x1.astype(np.int64) - x0 + 1, MAX_SPLAT_PX)
     ny = np.minimum(y1.astype(np.int64) - y0 + 1, MAX_SPLAT_PX)
     n_px = color_cam.width * color_cam.height
-    # Every (colour pixel, Z) a footprint fills, for its offsets (at most MAX_SPLAT_PX**2, usually 1-4).
-    spots, zs, prim = [], [], []
-    # Each offset visits only the footprints that reach it (most are 1-2 px a side, a few up to 8).
+    # float32 buffers: rounding to float32 keeps order, so the nearest is the same as in float64
+    zc32 = zc.astype(np.float32)
+    zbuf = np.full(n_px, np.inf, np.float32)
+    fallback = np.full(n_px, np.inf, np.float32)
+    # A loop over the footprint's offsets (at most MAX_SPLAT_PX**2, usually 1-4), each over only the
+    # footprints that reach it (most are 1-2 px a side, a few up to 8).
     for dy in range(int(ny.max(initial=0))):
         rows = np.flatnonzero(ny > dy)
         for dx in range(int(nx[rows].max(initial=0))):
             k = rows[nx[rows] > dx]
             xs, ys = x0[k] + dx, y0[k] + dy
             m = (xs >= 0) & (xs < color_cam.width) & (ys >= 0) & (ys < color_cam.height)
-            k = k[m]
-            spots.append(ys[m] * color_cam.width + xs[m])
-            zs.append(zc[k])
-            prim.append(primary[k])
-    spot, z_all, is_primary = (np.concatenate(a) if a else np.zeros(0, t) for a, t in ((spots, np.int64), (zs, np.float64), (prim, bool)))
-    zbuf = scatter_min(np.full(n_px, np.inf), spot[is_primary], z_all[is_primary])
-    fallback = scatter_min(np.full(n_px, np.inf), spot[~is_primary], z_all[~is_primary])
-    out = np.where(np.isfinite(zbuf), zbuf, fallback).astype(np.float32)
-    out[~np.isfinite(out)] = np.nan
-    return out.reshape(color_cam.height, color_cam.width)
-
-
-def scatter_min(buf: np.ndarray, index: np.ndarray, values: np.ndarray) -> np.ndarray:
-    """``buf[i] = min(buf[i], values[k])`` for every ``k`` with ``index[k] == i`` (what ``np.minimum.at``
-    does), in place; returns ``buf``. Steps: keep the values below what ``buf`` holds, write them (of
-    several on one element, one wins), and repeat with those still below the element's new value. Each
-    round settles at least one value per element, and footprints of one surface do not overlap, so a
-    frame takes 2-3 rounds, the later ones on the few pixels where surfaces occlude each other."""
-    while index.size:
-        below = values < buf[index]
-        index, values = index[below], values[below]
-        buf[index] = values
-    return buf
+            k, spot = k[m], ys[m] * color_cam.width + xs[m]
+            first = primary[k]
+            np.minimum.at(zbuf, spot[first], zc32[k[first]])
+            np.minimum.at(fallback, spot[~first], zc32[k[~first]])
+    np.copyto(zbuf, fallback, where=np.isinf(zbuf))
+    zbuf[np.isinf(zbuf)] = np.nan
+    return zbuf.reshape(color_cam.height, color_cam.width)
 
 
 def pair_by_time(color_ns: np.ndarray, depth_ns: np.ndarray, max_skew_ns: int) -> tuple[np.ndarray, np.ndarray]:
