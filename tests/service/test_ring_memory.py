@@ -21,9 +21,9 @@ def _sim_frame():
 def test_simulated_frame_is_held_in_codes_and_comes_back_bit_for_bit():
     frame = _sim_frame()
     packed = PackedFrame.pack(frame)
-    assert packed.disparity.dtype == np.int16 and packed.confidence.dtype == np.uint8
+    assert packed.disparity.dtype == np.uint8 and packed.confidence.dtype == np.uint8  # 1/4 px below 64 px: a byte each
     full = frame.image.nbytes + frame.disparity.nbytes + frame.confidence.nbytes
-    assert packed.nbytes == frame.image.nbytes + frame.disparity.size * 3  # 2 + 1 bytes a pixel for 4 + 4
+    assert packed.nbytes == frame.image.nbytes + frame.disparity.size * 2  # 1 + 1 bytes a pixel for 4 + 4
     assert packed.nbytes < 0.6 * full
     packed._last = None  # as when the pushed frame is gone
     back = packed.unpack()
@@ -72,3 +72,13 @@ def test_health_states_the_ring_bytes(tmp_path):
         body = c.get("/api/health").json()
         assert body["ring_bytes"] > 0
         assert body["ring_bytes"] <= ring.nbytes + 10 * 48 * 64 * 8  # frames may arrive between the two reads
+
+
+def test_wide_disparity_in_fine_steps_is_held_as_int16_codes():
+    frame = _sim_frame()
+    d = frame.disparity.copy()
+    d[0, :4] = [300.0, 0.015625, -2.5, np.nan]  # beyond a byte, a 1/64 px step, a negative value
+    wide = PackedFrame.pack(type(frame)(frame.image, d, frame.camera, frame.baseline_m, confidence=frame.confidence))
+    assert wide.disparity.dtype == np.int16
+    wide._last = None
+    assert np.array_equal(wide.unpack().disparity.view(np.uint32), d.view(np.uint32))
