@@ -87,20 +87,23 @@ def decode_depth(msg: Any, topic: str, unit_m: float) -> np.ndarray:
 
 
 def pixels_to_metres(px: np.ndarray, unit_m: float) -> np.ndarray:
-    """:func:`depth_pixels` -> metres (float32, one pass), NaN where no depth."""
-    z = np.full(px.shape, np.nan, np.float32)
-    scale = np.float32(1.0 if px.dtype == np.float32 else unit_m)
+    """:func:`depth_pixels` -> metres (float32), NaN where no depth."""
+    z = px.astype(np.float32)
+    if px.dtype != np.float32:
+        z *= np.float32(unit_m)
     with np.errstate(invalid="ignore"):
-        np.multiply(px, scale, out=z, where=px > 0)  # NaN > 0 is False: NaN stays NaN
+        z[~(px > 0)] = np.nan  # 0, NaN and negative depth
     return z
 
 
 def pixels_to_disparity(px: np.ndarray, unit_m: float, fx: float, baseline_m: float) -> np.ndarray:
-    """:func:`depth_pixels` -> disparity ``d = fx * B / Z`` (float32 px, one pass), NaN where no depth."""
-    d = np.full(px.shape, np.nan, np.float32)
+    """:func:`depth_pixels` -> disparity ``d = fx * B / Z`` (float32 px), NaN where no depth: a conversion,
+    one division and one masked fill (a masked division runs several times slower)."""
     k = np.float32(fx * baseline_m / (1.0 if px.dtype == np.float32 else unit_m))
-    with np.errstate(invalid="ignore", over="ignore"):
-        np.divide(k, px, out=d, where=px > 0)
+    with np.errstate(invalid="ignore", divide="ignore", over="ignore"):
+        d = px.astype(np.float32)
+        np.divide(k, d, out=d)
+        d[~(px > 0)] = np.nan  # 0, NaN and negative depth: no disparity
     return d
 
 

@@ -85,6 +85,7 @@ class BagReader:
         self._reader = _open_reader(self.path)
         try:
             self.contents = self._index()
+            self._identity = self.contents.depth_to_color.is_identity()
         except BaseException:
             self.close()
             raise
@@ -371,7 +372,7 @@ class BagReader:
         # map, so they stay registered; clicked pixels then back-project with K alone.
         image = remap(image, self._maps(cam, c.color_distortion), nearest=False)
         depth_maps = self._maps(dcam, c.depth_distortion)
-        if depth_maps is None and dcam == cam and c.depth_to_color.is_identity():
+        if depth_maps is None and dcam == cam and self._identity:
             disparity = pixels_to_disparity(depth, unit, cam.fx, c.baseline_m)  # registered: one pass from the pixels
         else:
             z = align_depth_to_color(remap(pixels_to_metres(depth, unit), depth_maps, nearest=True), dcam, cam, c.depth_to_color)
