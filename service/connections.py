@@ -174,8 +174,9 @@ def protocol_class(http: str = "auto") -> type[asyncio.Protocol]:
     return H11Protocol
 
 
-M_MMAP_THRESHOLD = -3  # glibc's mallopt parameter
+M_MMAP_THRESHOLD, M_ARENA_MAX = -3, -8  # glibc's mallopt parameters
 MMAP_THRESHOLD_BYTES = 1 << 20
+MALLOC_ARENAS = 2  # one per core: each arena of the ~16 threads otherwise keeps what its thread freed
 
 
 def _return_large_blocks() -> None:
@@ -185,6 +186,7 @@ def _return_large_blocks() -> None:
     try:
         libc = ctypes.CDLL("libc.so.6")
         libc.mallopt(M_MMAP_THRESHOLD, MMAP_THRESHOLD_BYTES)
+        libc.mallopt(M_ARENA_MAX, MALLOC_ARENAS)
     except (OSError, AttributeError):
         pass
 
