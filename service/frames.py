@@ -51,11 +51,12 @@ class RingFrame:
     def frame(self) -> Frame:
         return self.packed.unpack()
 
-    def encoded(self, key: str, encode: Callable[[Frame], bytes]) -> bytes:
-        """``encode(frame)`` computed once per frame (the page polls the same frame repeatedly)."""
+    def encoded(self, key: str, encode: Callable[[Any], bytes], *, image_only: bool = False) -> bytes:
+        """``encode(frame)`` computed once per frame (the page polls the same frame repeatedly);
+        ``image_only``: ``encode`` reads only ``.image``, handed the packed frame (nothing unpacked)."""
         with self.lock:
             if key not in self.cache:
-                self.cache[key] = encode(self.frame)
+                self.cache[key] = encode(self.packed if image_only else self.frame)
             return self.cache[key]
 
 
