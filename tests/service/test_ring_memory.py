@@ -82,3 +82,37 @@ def test_wide_disparity_in_fine_steps_is_held_as_int16_codes():
     assert wide.disparity.dtype == np.int16
     wide._last = None
     assert np.array_equal(wide.unpack().disparity.view(np.uint32), d.view(np.uint32))
+
+
+def test_health_answers_while_every_worker_thread_is_taken(tmp_path):
+    # An export's chunks, thumbnails and lists run on the server's worker threads; health must not
+    # wait for one. The threads' limiter is held at its only token, then health is asked for.
+    import threading
+
+    import anyio.to_thread
+    from service_client import latest
+
+    with make_client(tmp_path) as c:
+        latest(c)
+        assert c.get("/api/health").status_code == 200  # learns the next frame's size, lays the reserve
+
+        async def take_every_thread():
+            limiter = anyio.to_thread.current_default_thread_limiter()
+            limiter.total_tokens = 1
+            await limiter.acquire_on_behalf_of(take_every_thread)
+            return limiter
+
+        limiter = c.portal.call(take_every_thread)
+        answered: list[int] = []
+        asker = threading.Thread(target=lambda: answered.append(c.get("/api/health").status_code), daemon=True)
+        try:
+            asker.start()
+            asker.join(20)
+            assert answered == [200]  # answered while no worker thread was free
+        finally:
+            async def give_back():
+                limiter.release_on_behalf_of(take_every_thread)
+                limiter.total_tokens = 40
+
+            c.portal.call(give_back)
+            asker.join(20)
