@@ -36,6 +36,7 @@ from pathlib import Path
 import httpx
 import numpy as np
 from bench.bench_export import fill
+from bench.load_probes import Prober, Viewer, _probe, pct  # noqa: F401  (_probe: the prober process's entry)
 from bench.results_file import RESULTS, machine, replace_section
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -103,56 +104,6 @@ def segment_points(frame: dict, rng: np.random.Generator) -> tuple[list[float], 
     return [w * rng.uniform(0.3, 0.45), h * rng.uniform(0.4, 0.6)], [w * rng.uniform(0.55, 0.7), h * rng.uniform(0.4, 0.6)]
 
 
-class Viewer(threading.Thread):
-    """Follows the live stream like the page: long-poll for the next frame, then fetch its image."""
-
-    def __init__(self, base: str) -> None:
-        super().__init__(daemon=True)
-        self.base, self.stop, self.shown = base, threading.Event(), 0
-
-    def run(self) -> None:
-        after, image = 0, "color.jpg"
-        with httpx.Client(base_url=self.base, timeout=30) as http:
-            while not self.stop.is_set():
-                r = http.get("/api/frames/latest", params={"after": after, "wait": 2})
-                if r.status_code != 200:
-                    continue
-                after = r.json()["id"]
-                img = http.get(f"/api/frames/{after}/{image}")
-                if img.status_code == 404 and image == "color.jpg":
-                    image = "color.png"  # a server without the JPEG route
-                    img = http.get(f"/api/frames/{after}/{image}")
-                self.shown += img.status_code == 200
-
-
-class Prober(threading.Thread):
-    """What a person feels while others load the service: every ``every_s``, the live frame (`GET
-    /api/frames/latest` without waiting, then its JPEG) and `GET /api/health`, each timed (ms)."""
-
-    def __init__(self, base: str, every_s: float = 0.1) -> None:
-        super().__init__(daemon=True)
-        self.base, self.every_s, self.stop = base, every_s, threading.Event()
-        self.live_ms: list[float] = []
-        self.health_ms: list[float] = []
-
-    def run(self) -> None:
-        with httpx.Client(base_url=self.base, timeout=120) as http:
-            while not self.stop.wait(self.every_s):
-                t0 = time.perf_counter()
-                r = http.get("/api/frames/latest")
-                if r.status_code == 200:
-                    img = http.get(f"/api/frames/{r.json()['id']}/color.jpg")
-                    if img.status_code == 200:
-                        self.live_ms.append((time.perf_counter() - t0) * 1e3)
-                t0 = time.perf_counter()
-                if http.get("/api/health").status_code == 200:
-                    self.health_ms.append((time.perf_counter() - t0) * 1e3)
-
-
-def pct(a: list[float] | np.ndarray, q: float) -> float:
-    return float(np.percentile(a, q)) if len(a) else float("nan")
-
-
 def rss_mb(pid: int) -> float:
     """Resident memory of process ``pid`` (MB, from /proc); NaN elsewhere."""
     try:
@@ -171,16 +122,15 @@ def run_exports(base: str) -> list[dict]:
     for kind in ("csv", "json"):
         prober = Prober(base, 0.05)
         prober.start()
-        time.sleep(0.5)
-        before = len(prober.health_ms), len(prober.live_ms)
+        time.sleep(2.0)  # the prober process has started
+        live0, health0 = prober.counts()
         t0, size = time.perf_counter(), 0
         with httpx.stream("GET", f"{base}/api/measurements.{kind}", timeout=600) as r:
             for chunk in r.iter_bytes():
                 size += len(chunk)
         wall = time.perf_counter() - t0
-        prober.stop.set()
-        prober.join(120)
-        health, live = prober.health_ms[before[0] :], prober.live_ms[before[1] :]
+        prober.finish()
+        health, live = prober.health_ms[health0:], prober.live_ms[live0:]
         rows.append({"kind": kind.upper(), "status": r.status_code, "export_s": wall, "mb": size / 1e6, "probes": len(health),
                      "health_p50": pct(health, 50), "health_p99": pct(health, 99), "health_max": max(health, default=float("nan")),
                      "live_p95": pct(live, 95)})  # fmt: skip
@@ -188,7 +138,8 @@ def run_exports(base: str) -> list[dict]:
 
 
 def run_load(
-    base: str, clients: int, per_client: int, per_frame: int, think_s: tuple[float, float], method: str, pid: int = 0
+    base: str, clients: int, per_client: int, per_frame: int, think_s: tuple[float, float], method: str, pid: int = 0,
+    late: int = 0, late_s: float = 0.0,
 ) -> dict:
     measure_ms: list[float] = []
     list_ms: list[float] = []
@@ -239,11 +190,35 @@ def run_load(
                 # once, as the page does: the request that draws it
                 timed(http, "GET", f"/api/measurements/{r.json()['id']}/{thumb}", thumb_ms)
 
+    late_status: list[int] = []
+
+    def late_client(k: int) -> None:
+        """A person who freezes a frame and measures on it at late_s/4, late_s/2 and late_s after the
+        freeze (never unfreezing in between) while the others load the service: each 410 is a frame
+        the service let go within a measurement session."""
+        rng = np.random.default_rng(1000 + k)
+        with httpx.Client(base_url=base, timeout=60, headers=JSON) as http:
+            frame = http.get("/api/frames/latest").json()
+            http.post(f"/api/frames/{frame['id']}/freeze").raise_for_status()
+            frozen_at = time.monotonic()
+            for at in (late_s / 4, late_s / 2, late_s):
+                time.sleep(max(0.0, frozen_at + at - time.monotonic()))
+                p1, p2 = segment_points(frame, rng)
+                body = {"frame_id": frame["id"], "p1": p1, "p2": p2, "options": {"method": method}}
+                while (r := http.post("/api/measure", json=body)).status_code == 429:
+                    time.sleep(float(r.headers.get("Retry-After", "1")))
+                with lock:
+                    late_status.append(r.status_code)
+            http.delete(f"/api/frames/{frame['id']}/freeze")
+
     viewer, prober = Viewer(base), Prober(base)
     viewer.start()
     prober.start()
-    time.sleep(1.0)  # the viewer has caught up with the stream
-    probed = len(prober.live_ms), len(prober.health_ms)
+    time.sleep(2.0)  # the viewer has caught up with the stream, the prober's process has started
+    probed = prober.counts()
+    lates = [threading.Thread(target=late_client, args=(k,), daemon=True) for k in range(late if late_s > 0 else 0)]
+    for t in lates:
+        t.start()
     rss0 = rss_mb(pid) if pid else float("nan")
     source_before = httpx.get(f"{base}/api/source").json()
     shown0 = viewer.shown
@@ -254,10 +229,11 @@ def run_load(
     wall = time.perf_counter() - t0
     cpu = (cpu_seconds(pid) if pid else float("nan")) - cpu0
     viewer.stop.set()
-    prober.stop.set()
+    prober.finish()
     viewer.join(10)
-    prober.join(60)
     source_after = httpx.get(f"{base}/api/source").json()
+    for t in lates:
+        t.join(late_s + 120)
     stream_frames = source_after["frames"] - source_before["frames"]
     ms = np.array(measure_ms)
 
@@ -268,6 +244,7 @@ def run_load(
         "ok": len(ms),
         "errors": errors,
         "busy": busy[0],
+        "late": (sum(s == 200 for s in late_status), sum(s == 410 for s in late_status), len(late_status)),
         "p50_ms": pct(ms, 50),
         "p95_ms": pct(ms, 95),
         "p99_ms": pct(ms, 99),
@@ -321,14 +298,15 @@ def run_version(code: Path, spec: str, shapes: list[int], clients: list[int], ar
             try:
                 for per_frame in shapes:
                     for c in clients:
-                        r = run_load(base, c, args.per_client, per_frame, (args.think_min, args.think_max), args.method, proc.pid)
+                        late = (args.late, args.late_s) if c == max(clients) else (0, 0.0)
+                        r = run_load(base, c, args.per_client, per_frame, (args.think_min, args.think_max), args.method, proc.pid, *late)
                         print(
                             f"  {c} clients, {per_frame}/frame: {r['ok']}/{r['requests']} ok, {len(r['errors'])} errors, {r['busy']} busy; "
                             f"measure p50 {r['p50_ms']:.1f} / p95 {r['p95_ms']:.1f} / p99 {r['p99_ms']:.1f} ms; list p95 "
                             f"{r['list_p95_ms']:.1f} ms, thumb p95 {r['thumb_p95_ms']:.1f} ms; live frame p95 {r['live_p95_ms']:.1f} ms, "
                             f"health p99 {r['health_p99_ms']:.1f} ms; live view {r['view_fps']:.1f} fps "
                             f"of the source's {r['source_fps']:.1f}; server CPU {r['cpu_ms_per_measure']:.1f} ms per measurement; "
-                            f"RSS {r['rss_mb'][0]:.0f} -> {r['rss_mb'][1]:.0f} MB",
+                            f"RSS {r['rss_mb'][0]:.0f} -> {r['rss_mb'][1]:.0f} MB; late measurements ok / 410 / all {r['late']}",
                             flush=True,
                         )
                         for e in r["errors"][:3]:
@@ -355,8 +333,28 @@ def _row(name: str, r: dict) -> str:
     return (
         f"| {name} | {r['per_frame']} | {r['clients']} | {r['ok']}/{r['requests']} | {len(r['errors'])} | {r['busy']} | {r['p50_ms']:.1f} | "
         f"{r['p95_ms']:.1f} | {r['p99_ms']:.1f} | {r['list_p95_ms']:.1f} | {r['thumb_p95_ms']:.1f} | {r['live_p95_ms']:.1f} | "
-        f"{r['health_p99_ms']:.1f} | {r['view_fps']:.1f} / {r['source_fps']:.1f} | {r['cpu_ms_per_measure']:.1f} | {r['rss_mb'][1]:.0f} |\n"
+        f"{r['health_p99_ms']:.1f} | {r['view_fps']:.1f} / {r['source_fps']:.1f} | {r['cpu_ms_per_measure']:.1f} | {r['rss_mb'][1]:.0f} | "
+        f"{_late(r)} |\n"
     )
+
+
+def _late(r: dict) -> str:
+    ok, gone, n = r["late"]
+    return f"{ok} / {gone} of {n}" if n else ""
+
+
+def _ratios(results: dict[str, dict], head: str, baseline: str) -> str:
+    """Per code and load shape: the live-frame p95 at the most clients over its 1-client value."""
+    lines = []
+    for name, key in ((f"baseline {baseline}", "baseline"), (f"this ({head})", "this")):
+        rows = (results.get(key) or {}).get("load") or []
+        for per_frame in sorted({r["per_frame"] for r in rows}):
+            shape = sorted((r for r in rows if r["per_frame"] == per_frame), key=lambda r: r["clients"])
+            if len(shape) > 1 and shape[0]["clients"] == 1:
+                top = shape[-1]
+                lines.append(f"{name}, {per_frame} per frame: live p95 {top['clients']} clients / 1 client = "
+                             f"{top['live_p95_ms']:.1f} / {shape[0]['live_p95_ms']:.1f} ms = {top['live_p95_ms'] / shape[0]['live_p95_ms']:.1f}x")
+    return "".join(f"- {line}\n" for line in lines)
 
 
 def _export_row(name: str, r: dict) -> str:
@@ -387,16 +385,19 @@ def record(results: dict[str, dict], args: argparse.Namespace, loads: list[float
         f"does; {args.per_client} measurements per client; after `per frame` measurements it takes a new frame (1: every "
         "measurement saves a frame; 5: a click and four adjustments). A 429 (`busy`) is tried again after its "
         "`Retry-After`, as the page does. One viewer follows the live stream meanwhile "
-        "(long-poll + JPEG), and a prober, every 100 ms, times the live frame (`GET /api/frames/latest` then its "
-        "JPEG: `live p95`) and `GET /api/health` (`health p99`). Latency (ms) is `POST /api/measure` alone (the "
+        "(long-poll + JPEG), and a prober in a process of its own, every 100 ms, times the live frame (`GET /api/frames/latest` "
+        "then its JPEG: `live p95`) and `GET /api/health` (`health p99`). At the most clients, "
+        f"{args.late} more clients each freeze a frame and measure on it {args.late_s / 4:.0f}, {args.late_s / 2:.0f} and "
+        f"{args.late_s:.0f} s later (`late ok / 410`). Latency (ms) is `POST /api/measure` alone (the "
         "answered attempt); the list and thumbnail columns are their p95; the server's CPU time (all its threads) is "
         "divided by the measurements, the steadier figure on a shared host; RSS (MB) at the end of the row. The baseline "
         "revision runs from `git archive` in the same run, one server at a time. Targets (issue 29): 32 clients, live "
         "p95 <= 3x its 1-client value, health p99 < 100 ms, no 410.\n\n"
         "| code | per frame | clients | ok | errors | busy | p50 | p95 | p99 | list p95 | thumb p95 | live p95 | health p99 | "
-        "live view / source fps | server CPU ms / measurement | RSS MB |\n"
-        "| --- | --- | --- | --- | --- | --- | --- | --- | --- | --- | --- | --- | --- | --- | --- | --- |\n"
+        "live view / source fps | server CPU ms / measurement | RSS MB | late ok / 410 |\n"
+        "| --- | --- | --- | --- | --- | --- | --- | --- | --- | --- | --- | --- | --- | --- | --- | --- | --- |\n"
         + _pairs(results, "load", head, args.baseline, _row)
+        + "\nLive-frame p95 at the most clients over its 1-client value (target <= 3x):\n\n" + _ratios(results, head, args.baseline)
     )
     if results["this"]["exports"]:
         body += (
@@ -430,6 +431,8 @@ def main(argv: list[str] | None = None) -> None:
     ap.add_argument("--source", default="sim:poster?distance=3&seed=1&fps=10")
     ap.add_argument("--method", default="robust", choices=["robust", "paper", "basic"])
     ap.add_argument("--exports", type=int, default=10_000, help="history size for the export rows (default 10000; 0: none)")
+    ap.add_argument("--late", type=int, default=4, help="clients at the most-clients row that measure long after freezing (default 4)")
+    ap.add_argument("--late-s", type=float, default=55.0, help="their last measurement, seconds after the freeze (default 55; 0: none)")
     ap.add_argument("--rss", type=float, default=60.0, help="seconds at most for an idle default server's ring to fill (default 60; 0: skip)")
     ap.add_argument("--baseline", default=BASELINE, help=f"revision to compare against (default {BASELINE}); '' for none")
     ap.add_argument("--no-record", action="store_true", help="print only; leave bench/RESULTS.md alone")

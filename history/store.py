@@ -135,6 +135,12 @@ class Store:
 
     # -- health ----------------------------------------------------------------------------------
 
+    @property
+    def frame_size_known(self) -> bool:
+        """Whether :meth:`status` can answer without encoding a frame or laying the reserve file (a
+        few system calls, no work to move off the event loop)."""
+        return self.space.need is not None and self.space.reserve.exists()
+
     def status(self, next_frame: Frame | None = None) -> dict[str, Any]:
         """``{"degraded": reason or "", "free_bytes", "need_bytes"}``: whether the next frame would be
         stored (:meth:`history.space.Space.shortage`). ``next_frame`` (the newest live frame) gives

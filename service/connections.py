@@ -13,17 +13,24 @@ at a time:
 
 A connection beyond :func:`connection_cap` is answered 503 at once and closed, before it is read.
 :func:`serve` raises the process's soft limit on open files to its hard limit, keeps
-``reserved_fds`` of them for the database, its readers, frame files and recordings, and runs uvicorn.
+``reserved_fds`` of them for the database, its readers, frame files and recordings, shortens the
+interpreter's switch interval (``SWITCH_INTERVAL_S``) and runs uvicorn.
 """
 
 from __future__ import annotations
 
 import asyncio
+import ctypes
 import json
 import resource
+import sys
 from dataclasses import dataclass
 from typing import Any
 
+# The event loop gives up the interpreter lock at every socket write and waits for it again behind the
+# measurement, presave and capture threads; at the default 5 ms each wait, and each response costs
+# several (docs/decisions/measure-pool.md).
+SWITCH_INTERVAL_S = 0.0005
 LINGER_S = 0.5  # a refused connection is read and dropped this long, so the 503 is not lost to a reset
 
 
@@ -167,11 +174,30 @@ def protocol_class(http: str = "auto") -> type[asyncio.Protocol]:
     return H11Protocol
 
 
+M_MMAP_THRESHOLD, M_ARENA_MAX = -3, -8  # glibc's mallopt parameters
+MMAP_THRESHOLD_BYTES = 1 << 20
+MALLOC_ARENAS = 2  # one per core: each arena of the ~16 threads otherwise keeps what its thread freed
+
+
+def _return_large_blocks() -> None:
+    """Have glibc map every block of ``MMAP_THRESHOLD_BYTES`` or more on its own, so a freed frame
+    array goes back to the system: its threshold otherwise grows to the largest freed block (32 MB at
+    most) and frame-sized arrays, made and dropped by many threads, stay in its arenas. No-op off glibc."""
+    try:
+        libc = ctypes.CDLL("libc.so.6")
+        libc.mallopt(M_MMAP_THRESHOLD, MMAP_THRESHOLD_BYTES)
+        libc.mallopt(M_ARENA_MAX, MALLOC_ARENAS)
+    except (OSError, AttributeError):
+        pass
+
+
 def serve(app: Any, host: str, port: int, limits: ConnectionLimits, *, log_level: str = "warning", http: str = "auto") -> None:
     """Run ``app`` with uvicorn on ``host:port`` under ``limits`` until it is stopped."""
     import uvicorn
 
     cap = connection_cap(limits, raise_fd_limit())
+    sys.setswitchinterval(SWITCH_INTERVAL_S)
+    _return_large_blocks()
     uvicorn.run(
         app, host=host, port=port, log_level=log_level, access_log=False,
         http=guarded(protocol_class(http), limits, cap), timeout_keep_alive=limits.keep_alive_s,  # type: ignore[arg-type]

@@ -23,6 +23,7 @@ from device import CalibrationError, Source, SourceEnded, SourceInfo, SourceTime
 from measure import Frame
 
 from service.frame_errors import FrameGone, FrameUnknown, NotAReplay, ReplayControlError, SeekOutOfRange, TooManyWaiters
+from service.packed import PackedFrame
 from service.provenance import RECORDED_KINDS, recorded_index
 
 __all__ = ["Capture", "FrameGone", "FrameRing", "FrameUnknown", "NotAReplay", "ReplayControlError", "RingFrame",
@@ -34,7 +35,7 @@ class RingFrame:
     """One buffered frame: its id, a uuid that names it in storage, and cached encodings."""
 
     id: int
-    frame: Frame
+    packed: PackedFrame  # the frame's arrays in as few bytes as give them back exactly
     uid: str = field(default_factory=lambda: uuid.uuid4().hex)
     received: float = field(default_factory=time.time)
     holds: int = 0  # clients that froze it and did not unfreeze it yet
@@ -46,11 +47,16 @@ class RingFrame:
     def frozen(self) -> bool:
         return self.holds > 0
 
-    def encoded(self, key: str, encode: Callable[[Frame], bytes]) -> bytes:
-        """``encode(frame)`` computed once per frame (the page polls the same frame repeatedly)."""
+    @property
+    def frame(self) -> Frame:
+        return self.packed.unpack()
+
+    def encoded(self, key: str, encode: Callable[[Any], bytes], *, image_only: bool = False) -> bytes:
+        """``encode(frame)`` computed once per frame (the page polls the same frame repeatedly);
+        ``image_only``: ``encode`` reads only ``.image``, handed the packed frame (nothing unpacked)."""
         with self.lock:
             if key not in self.cache:
-                self.cache[key] = encode(self.frame)
+                self.cache[key] = encode(self.packed if image_only else self.frame)
             return self.cache[key]
 
 
@@ -97,7 +103,7 @@ class FrameRing:
         with self._cond:
             fid = next(self._ids)
             self._next = fid + 1
-            entry = RingFrame(id=fid, frame=frame, holds=int(frozen), touched=self._clock())
+            entry = RingFrame(id=fid, packed=PackedFrame.pack(frame), holds=int(frozen), touched=self._clock())
             if uid:
                 entry.uid = uid
             self._frames[fid] = entry
@@ -234,10 +240,10 @@ class FrameRing:
         """Up to ``n`` frames received just before frame ``fid`` that show the same camera (size,
         intrinsics, baseline, source): newest first, stopping at the first that does not."""
         with self._cond:
-            ref = self.get(fid).frame
+            ref = self.get(fid).packed
             out = []
             for e in self._before(fid, n):
-                f = e.frame
+                f = e.packed
                 if (f.shape != ref.shape or f.camera != ref.camera or f.baseline_m != ref.baseline_m or f.doffs != ref.doffs
                         or f.meta.get("source") != ref.meta.get("source")):
                     break
@@ -247,6 +253,12 @@ class FrameRing:
     def __len__(self) -> int:
         with self._cond:
             return len(self._frames)
+
+    @property
+    def nbytes(self) -> int:
+        """Bytes of the frames' arrays and cached encodings the ring holds now."""
+        with self._cond:
+            return sum(e.packed.nbytes + sum(map(len, e.cache.values())) for e in self._frames.values())
 
     @property
     def frozen_ids(self) -> list[int]:

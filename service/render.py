@@ -114,8 +114,8 @@ def truth_json(truth: Any) -> dict[str, Any] | None:
 
 
 def frame_json(entry: RingFrame) -> dict[str, Any]:
-    f = entry.frame
-    h, w = f.disparity.shape
+    f = entry.packed  # its numbers and meta, nothing unpacked
+    h, w = f.shape
     meta = {k: v for k, v in dict(f.meta).items() if isinstance(v, (str, int, float, bool)) and k != "truth"}
     return {
         "id": entry.id,

@@ -293,6 +293,7 @@ class HealthOut(_Out):
     free_bytes: int | None
     next_frame_bytes: int | None
     frames: int
+    ring_bytes: int  # the frames' arrays and cached encodings the ring holds (bytes)
     uptime_s: float
 
 

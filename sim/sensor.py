@@ -406,6 +406,10 @@ def sense(view: View, model: SensorModel, rng: np.random.Generator) -> SensorOut
         c -= np.float32(0.35) * outlier
         c -= np.float32(0.5) * stray
         np.clip(c, 0.0, 1.0, out=c)
+        # in 8-bit steps, as a device's confidence map (DepthAI's 0-255): the service's ring holds it in a byte
+        c *= np.float32(255.0)
+        np.rint(c, out=c)
+        c /= np.float32(255.0)
         c[holes] = 0.0
         conf = c
     kept = ~holes

@@ -48,14 +48,14 @@ def frame_info(entry: FrameDep) -> dict[str, Any]:
 
 @router.get("/{frame_id}/color.png", **media_doc("image/png"))
 def color_png(entry: FrameDep) -> Response:
-    data = entry.encoded("color.png", lambda f: encode_png(f.image))
+    data = entry.encoded("color.png", lambda f: encode_png(f.image), image_only=True)
     return Response(data, media_type="image/png", headers={"Cache-Control": "private, max-age=3600"})
 
 
 @router.get("/{frame_id}/color.jpg", **media_doc("image/jpeg"))
 def color_jpg(entry: FrameDep) -> Response:
     """The colour image for the live view: JPEG quality 85 (color.png has the exact pixels)."""
-    data = entry.encoded("color.jpg", lambda f: encode_jpeg(f.image))
+    data = entry.encoded("color.jpg", lambda f: encode_jpeg(f.image), image_only=True)
     return Response(data, media_type="image/jpeg", headers={"Cache-Control": "private, max-age=3600"})
 
 
@@ -76,8 +76,8 @@ CONFIDENCE_SOURCES = (
 def confidence_png(entry: FrameDep) -> Response:
     """The frame's matcher confidence as a grey PNG of the frame's size: round(c * 255), black = no
     support (0), white = fully supported (1). 404 where the frame's source gives no confidence."""
-    if entry.frame.confidence is None:
-        source = str(entry.frame.meta.get("source", "")) or "unknown"
+    if entry.packed.confidence is None:
+        source = str(entry.packed.meta.get("source", "")) or "unknown"
         raise NoConfidence(f"frame {entry.id} has no confidence map: its source ({source}) gives none; {CONFIDENCE_SOURCES}")
     data = entry.encoded("confidence.png", lambda f: encode_png(confidence_image(f.confidence)))
     return Response(data, media_type="image/png", headers={"Cache-Control": "private, max-age=3600"})

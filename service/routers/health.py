@@ -24,7 +24,12 @@ async def health(state: State) -> dict[str, Any]:
     recording stopped by itself. Answered without the token, so a monitor can poll it."""
     source = state.capture.status()
     latest = state.ring.latest()
-    disk = await run_in_threadpool(state.store.status, latest.frame if latest else None)
+    if state.store.frame_size_known:
+        # on the loop: behind the worker threads an export or 32 measuring pages keep busy, a monitor's
+        # poll would wait for a thread
+        disk = state.store.status()
+    else:
+        disk = await run_in_threadpool(state.store.status, latest.frame if latest else None)
     reasons = [disk["degraded"]] if disk["degraded"] else []
     if source["state"] in SOURCE_DOWN:
         reasons.append(f"the source is {source['state']}: {source['message']}".rstrip(": "))
@@ -39,6 +44,7 @@ async def health(state: State) -> dict[str, Any]:
         "free_bytes": disk["free_bytes"],
         "next_frame_bytes": disk["need_bytes"],
         "frames": len(state.ring),
+        "ring_bytes": state.ring.nbytes,
         "uptime_s": time.time() - state.started,
     }
 

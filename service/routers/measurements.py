@@ -152,7 +152,7 @@ def _thumb(state: ServiceState, mid: int) -> bytes:
     data = state.store.thumb(mid)
     if data is None:
         entry = state.ring.find(uid)  # the frame is usually still in the ring: no file to read and decode
-        image, width = (quarter(entry.frame.image), entry.frame.image.shape[1]) if entry else state.store.preview(uid)
+        image, width = (quarter(entry.packed.image), entry.packed.image.shape[1]) if entry else state.store.preview(uid)
         data = make_thumb(image, width, outlines(kind, points))
         state.store.set_thumb(mid, data)
     return data

@@ -61,3 +61,17 @@ def test_finer_depth_is_not_biased_towards_the_camera() -> None:
     inner = aligned[:, 2:-2]
     assert np.isfinite(inner).all()
     assert abs(np.mean(inner) - 2.0) < 0.1 * sigma, np.mean(inner) - 2.0
+
+
+def test_registered_disparity_in_one_float32_pass_matches_the_float64_conversion():
+    from device.sources.bag.messages import pixels_to_disparity, pixels_to_metres
+
+    raw = np.array([[0, 1, 700, 65535], [2999, 3000, 12345, 0]], np.uint16)
+    with np.errstate(divide="ignore"):
+        want = np.where(raw > 0, 600.0 * 0.05 / (raw * 0.001), np.nan).astype(np.float32)
+    got = pixels_to_disparity(raw, 0.001, 600.0, 0.05)
+    assert got.dtype == np.float32
+    assert np.array_equal(np.isnan(got), raw == 0)
+    assert np.allclose(got, want, rtol=2e-7, equal_nan=True)  # within a float32 rounding step
+    z = pixels_to_metres(np.array([[0.0, -1.0, np.nan, 2.5]], np.float32), 0.001)  # 32FC1: metres as they are
+    assert np.array_equal(z, np.array([[np.nan, np.nan, np.nan, 2.5]], np.float32), equal_nan=True)

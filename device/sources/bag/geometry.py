@@ -69,7 +69,7 @@ class Rigid:
 
 
 def align_depth_to_color(depth_m: np.ndarray, depth_cam: PinholeCamera, color_cam: PinholeCamera, depth_to_color: Rigid) -> np.ndarray:
-    """Depth (m, depth camera pixels; 0 or NaN = none) -> depth (m) at the colour camera's pixels, NaN = none.
+    """Depth (m, depth camera pixels; 0 or NaN = none) -> depth (float32 m) at the colour camera's pixels, NaN = none.
 
     ``depth_to_color`` maps depth-camera points to colour-camera points (``p_c = R p_d + t``). Each valid
     depth pixel's footprint (its corners at +-0.5 px) is back-projected at its depth, moved to the colour
@@ -82,7 +82,7 @@ def align_depth_to_color(depth_m: np.ndarray, depth_cam: PinholeCamera, color_ca
     if z_d.shape != (depth_cam.height, depth_cam.width):
         raise BagError(f"depth image is {z_d.shape[1]}x{z_d.shape[0]} but its camera_info says {depth_cam.width}x{depth_cam.height}")
     if depth_cam == color_cam and depth_to_color.is_identity():
-        return np.where(np.isfinite(z_d) & (z_d > 0), z_d, np.nan)
+        return np.where(np.isfinite(z_d) & (z_d > 0), z_d, np.nan).astype(np.float32)
     v, u = np.nonzero(np.isfinite(z_d) & (z_d > 0))
     z = z_d[v, u]
     R, t = depth_to_color.rotation, depth_to_color.translation
@@ -122,17 +122,25 @@ def align_depth_to_color(depth_m: np.ndarray, depth_cam: PinholeCamera, color_ca
     y0 = y0.astype(np.int64)
     nx = np.minimum(x1.astype(np.int64) - x0 + 1, MAX_SPLAT_PX)
     ny = np.minimum(y1.astype(np.int64) - y0 + 1, MAX_SPLAT_PX)
-    zbuf = np.full(color_cam.width * color_cam.height, np.inf)
-    fallback = np.full(color_cam.width * color_cam.height, np.inf)
-    # A loop over the footprint's offsets (at most MAX_SPLAT_PX**2, usually 1-4), each vectorised over all pixels.
+    n_px = color_cam.width * color_cam.height
+    # float32 buffers: rounding to float32 keeps order, so the nearest is the same as in float64
+    zc32 = zc.astype(np.float32)
+    zbuf = np.full(n_px, np.inf, np.float32)
+    fallback = np.full(n_px, np.inf, np.float32)
+    # A loop over the footprint's offsets (at most MAX_SPLAT_PX**2, usually 1-4), each over only the
+    # footprints that reach it (most are 1-2 px a side, a few up to 8).
     for dy in range(int(ny.max(initial=0))):
-        for dx in range(int(nx.max(initial=0))):
-            xs, ys = x0 + dx, y0 + dy
-            m = (dx < nx) & (dy < ny) & (xs >= 0) & (xs < color_cam.width) & (ys >= 0) & (ys < color_cam.height)
-            np.minimum.at(zbuf, ys[m & primary] * color_cam.width + xs[m & primary], zc[m & primary])
-            np.minimum.at(fallback, ys[m & ~primary] * color_cam.width + xs[m & ~primary], zc[m & ~primary])
-    zbuf = np.where(np.isfinite(zbuf), zbuf, fallback)
-    zbuf[~np.isfinite(zbuf)] = np.nan
+        rows = np.flatnonzero(ny > dy)
+        for dx in range(int(nx[rows].max(initial=0))):
+            k = rows[nx[rows] > dx]
+            xs, ys = x0[k] + dx, y0[k] + dy
+            m = (xs >= 0) & (xs < color_cam.width) & (ys >= 0) & (ys < color_cam.height)
+            k, spot = k[m], ys[m] * color_cam.width + xs[m]
+            first = primary[k]
+            np.minimum.at(zbuf, spot[first], zc32[k[first]])
+            np.minimum.at(fallback, spot[~first], zc32[k[~first]])
+    np.copyto(zbuf, fallback, where=np.isinf(zbuf))
+    zbuf[np.isinf(zbuf)] = np.nan
     return zbuf.reshape(color_cam.height, color_cam.width)
 
 

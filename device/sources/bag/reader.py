@@ -27,10 +27,11 @@ from device.sources.bag.config import BagConfig, BagOptions
 from device.sources.bag.errors import BagError
 from device.sources.bag.geometry import Rigid, align_depth_to_color, pair_by_time
 from device.sources.bag.layout import Layout, detect_layout
-from device.sources.bag.messages import DEFAULT_ROS_DEPTH_UNIT_M, _stamp_ns, camera_from_info, decode_color, decode_depth
+from device.sources.bag.messages import (DEFAULT_ROS_DEPTH_UNIT_M, _stamp_ns, camera_from_info, decode_color, depth_pixels,
+                                         pixels_to_disparity, pixels_to_metres)
 from device.sources.bag.storage import _open_reader, _storage_name, topic_times
 from device.sources.bag.undistort import Distortion, distortion_from_info, remap, undistort_maps
-from device.sources.depth_folder import DEFAULT_BASELINE_M, depth_to_disparity
+from device.sources.depth_folder import DEFAULT_BASELINE_M
 
 
 @dataclass(frozen=True)
@@ -84,6 +85,7 @@ class BagReader:
         self._reader = _open_reader(self.path)
         try:
             self.contents = self._index()
+            self._identity = self.contents.depth_to_color.is_identity()
         except BaseException:
             self.close()
             raise
@@ -355,7 +357,8 @@ class BagReader:
                     if abs(_stamp_ns(msg) - sc) < abs(sd - sc):
                         depth_msg, depth_t, sd, di = msg, t, _stamp_ns(msg), dj
         image = decode_color(color_msg, c.layout.color_topic)
-        depth = decode_depth(depth_msg, c.layout.depth_topic, c.depth_unit_m or DEFAULT_ROS_DEPTH_UNIT_M)
+        depth = depth_pixels(depth_msg, c.layout.depth_topic)  # depth units or metres, as recorded
+        unit = c.depth_unit_m or DEFAULT_ROS_DEPTH_UNIT_M
         cam, dcam = c.color_camera, c.depth_camera
         try:
             if image.shape[:2] != (cam.height, cam.width):
@@ -368,8 +371,12 @@ class BagReader:
         # Distorted images onto the pinhole images of their K: colour and its registered depth by the same
         # map, so they stay registered; clicked pixels then back-project with K alone.
         image = remap(image, self._maps(cam, c.color_distortion), nearest=False)
-        depth = remap(depth, self._maps(dcam, c.depth_distortion), nearest=True)
-        z = align_depth_to_color(depth, dcam, cam, c.depth_to_color)
+        depth_maps = self._maps(dcam, c.depth_distortion)
+        if depth_maps is None and dcam == cam and self._identity:
+            disparity = pixels_to_disparity(depth, unit, cam.fx, c.baseline_m)  # registered: one pass from the pixels
+        else:
+            z = align_depth_to_color(remap(pixels_to_metres(depth, unit), depth_maps, nearest=True), dcam, cam, c.depth_to_color)
+            disparity = pixels_to_disparity(z, 1.0, cam.fx, c.baseline_m)
         skew = (sd - sc) / 1e9 if c.stamps_comparable else (depth_t - color_t) / 1e9
         meta = {
             "source": "bag",
@@ -392,7 +399,7 @@ class BagReader:
         }
         return Frame(
             image=image,
-            disparity=depth_to_disparity(z, cam.fx, c.baseline_m),
+            disparity=disparity,
             camera=cam,
             baseline_m=c.baseline_m,
             timestamp=(sc or color_t) / 1e9,  # the colour's stamp (device clock) where it has one

@@ -119,6 +119,6 @@ def remap(image: np.ndarray, maps: tuple[np.ndarray, np.ndarray] | None, *, near
     import cv2
 
     if nearest:
-        return cv2.remap(np.asarray(image, dtype=np.float64), maps[0], maps[1], cv2.INTER_NEAREST,
+        return cv2.remap(np.asarray(image, dtype=np.float32), maps[0], maps[1], cv2.INTER_NEAREST,
                          borderMode=cv2.BORDER_CONSTANT, borderValue=float("nan"))
     return cv2.remap(image, maps[0], maps[1], cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT, borderValue=0)

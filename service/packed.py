@@ -1,0 +1,123 @@
+"""A frame held in the ring in the fewest bytes that give its arrays back bit for bit.
+
+A quantized disparity (the simulator's 1/4 px, a DepthAI's 1/8 px, SGBM's 1/16 px: every step a power
+of two no finer than 1/64 px, below 512 px) is held as codes of its own step: uint8 when they fit
+below ``NAN_CODE_U8`` (NaN), else int16 codes ``round(d * 64)`` (NaN ``NAN_CODE``); an 8-bit confidence (a device's 0-255 map, the simulator's) as uint8 codes
+``round(c * 255)``. Each packing is checked by unpacking it and comparing bit for bit: an array it
+does not give back exactly (noise-free float disparity, a finer confidence) is held as it is. Why:
+the ring holds 30 frames for several-frame measurements, and at 1280x720 a float32 disparity and
+confidence are 7.4 of a frame's 10.1 MB (docs/decisions/measure-pool.md).
+"""
+
+from __future__ import annotations
+
+import weakref
+from collections.abc import Mapping
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+
+from measure import Frame, PinholeCamera
+
+DISPARITY_SCALE = np.float32(64.0)  # codes per pixel of disparity (1/64 px steps)
+NAN_CODE = np.int16(-32768)
+NAN_CODE_U8 = 255
+CONFIDENCE_SCALE = np.float32(255.0)
+
+
+def _pack_disparity(d: np.ndarray) -> tuple[np.ndarray, np.float32] | None:
+    """Codes of ``d`` (H x W float32 px) and their steps per pixel, or None when they would not give
+    ``d`` back exactly: uint8 (``NAN_CODE_U8`` = NaN) when the codes in ``d``'s own step fit in a
+    byte (the simulator's 1/4 px below 64 px), else int16 in 1/64 px steps."""
+    with np.errstate(invalid="ignore"):
+        scaled = d * DISPARITY_SCALE
+        if not np.all(np.isnan(scaled) | ((scaled > -32768) & (scaled <= 32767))):
+            return None
+        nan = np.isnan(scaled)
+        codes = np.where(nan, NAN_CODE, np.rint(scaled)).astype(np.int16)
+    valid = codes[~nan]
+    if valid.size and valid.min() >= 0:
+        bits = int(np.bitwise_or.reduce(valid))
+        step = 1 << min(6, (bits & -bits).bit_length() - 1) if bits else 64  # the coarsest power of two dividing every code
+        if int(valid.max()) // step < NAN_CODE_U8:
+            small = np.where(nan, NAN_CODE_U8, codes // step).astype(np.uint8)
+            scale = np.float32(DISPARITY_SCALE / step)
+            if _same(_unpack_disparity(small, scale), d):
+                return small, scale
+    return (codes, DISPARITY_SCALE) if _same(_unpack_disparity(codes, DISPARITY_SCALE), d) else None
+
+
+def _same(a: np.ndarray, b: np.ndarray) -> bool:
+    return bool(np.array_equal(a, b, equal_nan=True) and np.array_equal(np.signbit(a), np.signbit(b)))
+
+
+def _unpack_disparity(codes: np.ndarray, scale: np.float32) -> np.ndarray:
+    d = codes.astype(np.float32)
+    d /= scale
+    d[codes == (NAN_CODE_U8 if codes.dtype == np.uint8 else NAN_CODE)] = np.nan
+    return d
+
+
+def _pack_confidence(c: np.ndarray) -> np.ndarray | None:
+    """uint8 codes of ``c`` (H x W float32 in [0, 1]), or None when they would not give ``c`` back exactly."""
+    if not (np.all(c >= 0) and np.all(c <= 1)):
+        return None
+    codes = np.rint(c * CONFIDENCE_SCALE).astype(np.uint8)
+    return codes if np.array_equal(_unpack_confidence(codes), c) else None
+
+
+def _unpack_confidence(codes: np.ndarray) -> np.ndarray:
+    c = codes.astype(np.float32)
+    c /= CONFIDENCE_SCALE
+    return c
+
+
+@dataclass(eq=False)
+class PackedFrame:
+    """A :class:`measure.Frame` with its disparity and confidence as codes where that is exact.
+
+    ``camera``, ``baseline_m``, ``doffs``, ``meta`` and ``shape`` answer without unpacking;
+    :meth:`unpack` gives the frame back (the same object while anyone still holds it)."""
+
+    image: np.ndarray
+    disparity: np.ndarray  # uint8 or int16 codes, or the float32 disparity itself
+    disparity_scale: np.float32  # codes per pixel (1 for the float32 disparity)
+    confidence: np.ndarray | None  # uint8 codes, float32 values or None
+    camera: PinholeCamera
+    baseline_m: float
+    doffs: float
+    timestamp: float
+    meta: Mapping[str, Any]
+    _last: Any = None  # weak reference to the last unpacked Frame
+
+    @classmethod
+    def pack(cls, frame: Frame) -> PackedFrame:
+        disparity, scale = _pack_disparity(frame.disparity) or (frame.disparity, np.float32(1.0))
+        confidence = None if frame.confidence is None else _pack_confidence(frame.confidence)
+        packed = cls(frame.image, disparity, scale,
+                     frame.confidence if confidence is None else confidence, frame.camera, frame.baseline_m, frame.doffs,
+                     frame.timestamp, frame.meta)  # fmt: skip
+        packed._last = weakref.ref(frame)
+        return packed
+
+    @property
+    def shape(self) -> tuple[int, int]:
+        return self.disparity.shape  # type: ignore[return-value]
+
+    @property
+    def nbytes(self) -> int:
+        """Bytes of the arrays held (image, disparity, confidence)."""
+        return self.image.nbytes + self.disparity.nbytes + (0 if self.confidence is None else self.confidence.nbytes)
+
+    def unpack(self) -> Frame:
+        """The frame, arrays as they were pushed (bit for bit)."""
+        frame = self._last() if self._last is not None else None
+        if frame is None:
+            d = self.disparity if self.disparity.dtype == np.float32 else _unpack_disparity(self.disparity, self.disparity_scale)
+            c = self.confidence
+            if c is not None and c.dtype == np.uint8:
+                c = _unpack_confidence(c)
+            frame = Frame(self.image, d, self.camera, self.baseline_m, self.doffs, c, self.timestamp, self.meta)
+            self._last = weakref.ref(frame)
+        return frame

@@ -1,0 +1,118 @@
+"""The ring's memory: frames held as exact codes (bit for bit back), its bytes in /api/health, and a
+frozen frame kept for a measurement session however many newer frames arrive."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from factories import plane_frame, wall_frame
+from service_client import make_client
+
+from service.frames import FrameGone, FrameRing
+from service.packed import PackedFrame
+from sim.source import SimConfig, SimSource
+
+
+def _sim_frame():
+    with SimSource(SimConfig(width=160, height=90, fps=0)) as src:
+        return src.read()
+
+
+def test_simulated_frame_is_held_in_codes_and_comes_back_bit_for_bit():
+    frame = _sim_frame()
+    packed = PackedFrame.pack(frame)
+    assert packed.disparity.dtype == np.uint8 and packed.confidence.dtype == np.uint8  # 1/4 px below 64 px: a byte each
+    full = frame.image.nbytes + frame.disparity.nbytes + frame.confidence.nbytes
+    assert packed.nbytes == frame.image.nbytes + frame.disparity.size * 2  # 1 + 1 bytes a pixel for 4 + 4
+    assert packed.nbytes < 0.6 * full
+    packed._last = None  # as when the pushed frame is gone
+    back = packed.unpack()
+    assert back is not frame
+    assert back.disparity.dtype == np.float32 and back.confidence.dtype == np.float32
+    assert np.array_equal(back.disparity.view(np.uint32), frame.disparity.view(np.uint32))  # NaN bits too
+    assert np.array_equal(back.confidence.view(np.uint32), frame.confidence.view(np.uint32))
+    assert (back.camera, back.baseline_m, back.meta) == (frame.camera, frame.baseline_m, frame.meta)
+    assert packed.unpack() is back  # the same frame while anyone holds it
+
+
+def test_unquantized_disparity_is_held_as_it_is():
+    frame = plane_frame((0.0, 0.0, 1.0), 3.0, noise=0.3)  # float disparity, no 1/64 px steps
+    packed = PackedFrame.pack(frame)
+    assert packed.disparity is frame.disparity
+    packed._last = None
+    assert np.array_equal(packed.unpack().disparity, frame.disparity, equal_nan=True)
+
+
+def test_frozen_frame_answers_after_a_minute_of_newer_frames_and_is_released_after_its_lease():
+    now = [0.0]
+    ring = FrameRing(capacity=4, max_frozen=64, keep_viewed=0, freeze_ttl_s=60.0, clock=lambda: now[0])
+    kept = ring.push(wall_frame(0)).id
+    ring.freeze(kept)
+    for i in range(1, 600):  # 59.9 s of a 10 fps source
+        now[0] = i / 10
+        ring.push(wall_frame(i % 7))
+    assert ring.get(kept).frozen  # measured 59.9 s after the freeze: still there, and kept 60 s more
+    for i in range(600, 1190):  # 59 s more
+        now[0] = i / 10
+        ring.push(wall_frame(i % 7))
+    assert ring.get(kept).frozen
+    now[0] += 60.5
+    ring.push(wall_frame(1))
+    ring.push(wall_frame(2))
+    with pytest.raises(FrameGone):  # nobody used it for 60 s: released, then evicted as the oldest
+        ring.get(kept)
+
+
+def test_health_states_the_ring_bytes(tmp_path):
+    with make_client(tmp_path) as c:
+        from service_client import latest
+
+        latest(c)
+        ring = c.app.state.ring
+        body = c.get("/api/health").json()
+        assert body["ring_bytes"] > 0
+        assert body["ring_bytes"] <= ring.nbytes + 10 * 48 * 64 * 8  # frames may arrive between the two reads
+
+
+def test_wide_disparity_in_fine_steps_is_held_as_int16_codes():
+    frame = _sim_frame()
+    d = frame.disparity.copy()
+    d[0, :4] = [300.0, 0.015625, -2.5, np.nan]  # beyond a byte, a 1/64 px step, a negative value
+    wide = PackedFrame.pack(type(frame)(frame.image, d, frame.camera, frame.baseline_m, confidence=frame.confidence))
+    assert wide.disparity.dtype == np.int16
+    wide._last = None
+    assert np.array_equal(wide.unpack().disparity.view(np.uint32), d.view(np.uint32))
+
+
+def test_health_answers_while_every_worker_thread_is_taken(tmp_path):
+    # An export's chunks, thumbnails and lists run on the server's worker threads; health must not
+    # wait for one. The threads' limiter is held at its only token, then health is asked for.
+    import threading
+
+    import anyio.to_thread
+    from service_client import latest
+
+    with make_client(tmp_path) as c:
+        latest(c)
+        assert c.get("/api/health").status_code == 200  # learns the next frame's size, lays the reserve
+
+        async def take_every_thread():
+            limiter = anyio.to_thread.current_default_thread_limiter()
+            limiter.total_tokens = 1
+            await limiter.acquire_on_behalf_of(take_every_thread)
+            return limiter
+
+        limiter = c.portal.call(take_every_thread)
+        answered: list[int] = []
+        asker = threading.Thread(target=lambda: answered.append(c.get("/api/health").status_code), daemon=True)
+        try:
+            asker.start()
+            asker.join(20)
+            assert answered == [200]  # answered while no worker thread was free
+        finally:
+            async def give_back():
+                limiter.release_on_behalf_of(take_every_thread)
+                limiter.total_tokens = 40
+
+            c.portal.call(give_back)
+            asker.join(20)
