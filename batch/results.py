@@ -161,18 +161,24 @@ class ResultStore:
         self._written = 0
         reached("opened")
 
-    def done(self) -> dict[int, str]:
-        """task index -> task key of every row already written (parts and, on resume, the file)."""
+    def done(self):  # noqa: ANN201 — two numpy arrays
+        """(task indices, task keys) of every row already written (parts and, on resume, the file),
+        as two numpy arrays (a dict of a million tasks would cost the driver ~150 MB)."""
+        import numpy as np
+
         pa, pq = _pa()
-        done: dict[int, str] = {}
+        ids, keys = [], []
         sources = sorted(self.parts.glob("part-*.parquet")) + ([self.out] if self.out.is_file() else [])
         for p in sources:
             try:
                 t = pq.read_table(p, columns=["task", "task_key"])
             except Exception as exc:  # noqa: BLE001 — pyarrow raises several types for a damaged file
                 raise ResultsError(f"{p} is not a results file of depthruler batch ({exc}); use --overwrite to start again") from None
-            done.update(zip(t.column("task").to_pylist(), t.column("task_key").to_pylist()))
-        return done
+            ids.append(t.column("task").to_numpy())
+            keys.append(np.asarray(t.column("task_key").to_pylist(), dtype=object))
+        if not ids:
+            return np.zeros(0, dtype=np.int64), np.zeros(0, dtype=object)
+        return np.concatenate(ids).astype(np.int64), np.concatenate(keys)
 
     def write(self, parquet: bytes) -> None:
         """Store one finished group (a whole Parquet file's bytes) durably as the next part."""
