@@ -26,6 +26,7 @@ from pathlib import Path
 from bench.results_file import machine, replace_section
 
 SECTION = "## Batch re-measurement"
+MEMORY_SECTION = "## Batch driver memory"
 
 
 def make_archive(root: Path, recordings: int, frames: int, clicks: int) -> Path:
@@ -206,7 +207,21 @@ def main(argv: list[str] | None = None) -> None:
     ap.add_argument("--memory", type=int, metavar="N", help="only measure the driver's peak memory for N no-op-cheap tasks on Ray")
     args = ap.parse_args(argv)
     if args.memory:
-        print(driver_memory(args.memory))
+        started = datetime.now(timezone.utc)
+        m = driver_memory(args.memory)
+        text = "\n".join([
+            MEMORY_SECTION, "",
+            f"`bench/bench_batch.py --memory {args.memory}`: the driver (`read_tasks` + `run_batch` on `RayExecutor('local', num_cpus=2)`, "
+            "a fresh interpreter) over a table of no-op-cheap tasks (every task on a frame its small recording does not hold: an error "
+            "row, no frame read). Peak RSS (VmHWM) of the driver process.", "",
+            "| tasks | groups | rows written | peak MB after reading the table | after starting Ray | at the end (run + merge) | read s | run s |",
+            "| --- | --- | --- | --- | --- | --- | --- | --- |",
+            f"| {m['tasks']} | {m['groups']} | {m['rows']} | {m['read_mb']:.0f} | {m['ray_mb']:.0f} | {m['peak_mb']:.0f} | {m['read_s']:.1f} | {m['run_s']:.1f} |",
+            "", f"Machine: {machine()}; {started:%Y-%m-%d %H:%M} UTC; load average {os.getloadavg()[0]:.2f} at the end.", "",
+        ])  # fmt: skip
+        print(text)
+        if args.write:
+            replace_section(MEMORY_SECTION, text)
         return
     if min(args.recordings, args.frames, args.clicks, args.repeat) < 1:
         ap.error("--recordings, --frames, --clicks and --repeat must be at least 1")
