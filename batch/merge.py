@@ -24,7 +24,7 @@ from typing import BinaryIO
 
 import numpy as np
 
-CHUNK_BYTES = 32 << 20  # rows of one output row group, by their size in memory (the merge holds ~3x this)
+CHUNK_BYTES = 8 << 20  # rows of one output row group, by their size in memory (the merge holds ~3x this)
 
 
 class DuplicateTasks(ValueError):

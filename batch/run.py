@@ -110,7 +110,7 @@ def run_batch(
             f"{len(changed)} task(s) (first: row {changed[0] + 1}) differ from the ones {out} holds for those rows; "
             "the task table or the --set options changed since that run: use --overwrite"
         )
-    todo = table.take(~is_done)
+    todo = table.take(~is_done) if is_done.any() else table  # no copy of a million rows on a fresh run
     run = uuid.uuid4().hex[:12]
     groups = group_tasks(todo, getattr(executor, "workers", 1), defaults, run, schema=result_schema(extras(table)))
     skipped = len(table) - len(todo)
