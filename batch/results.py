@@ -8,9 +8,9 @@ Beside ``RESULTS.parquet`` a run keeps
 - ``RESULTS.parquet.merged/``: the parts folder, renamed once the merge is whole on disk.
 
 :meth:`ResultStore.finish` commits in four steps: (1) merge the rows of an earlier results file
-(``--resume``) and the parts into ``.tmp``, sorted by task, and fsync it; (2) rename ``.parts`` to
-``.merged``, the commit point; (3) rename ``.tmp`` onto ``RESULTS.parquet``; (4) remove
-``.merged``. :func:`recover`, run when a store opens, reads the state a killed process left: before
+(``--resume``) and the parts into ``.tmp``, sorted by task in bounded memory (:mod:`batch.merge`),
+and fsync it; (2) rename ``.parts`` to ``.merged``, the commit point; (3) rename ``.tmp`` onto
+``RESULTS.parquet``; (4) remove ``.merged``. :func:`recover`, run when a store opens, reads the state a killed process left: before
 step 2 the ``.tmp`` is discarded and the parts stay to be merged again; from step 2 on the merge is
 the truth and steps 3-4 are completed. Every task's row is then in exactly one of the results file
 and the parts, so ``--resume`` neither repeats nor drops a task; a merge that would hold a task id
@@ -161,18 +161,24 @@ class ResultStore:
         self._written = 0
         reached("opened")
 
-    def done(self) -> dict[int, str]:
-        """task index -> task key of every row already written (parts and, on resume, the file)."""
+    def done(self):  # noqa: ANN201 — two numpy arrays
+        """(task indices, task keys) of every row already written (parts and, on resume, the file),
+        as two numpy arrays (a dict of a million tasks would cost the driver ~150 MB)."""
+        import numpy as np
+
         pa, pq = _pa()
-        done: dict[int, str] = {}
+        ids, keys = [], []
         sources = sorted(self.parts.glob("part-*.parquet")) + ([self.out] if self.out.is_file() else [])
         for p in sources:
             try:
                 t = pq.read_table(p, columns=["task", "task_key"])
             except Exception as exc:  # noqa: BLE001 — pyarrow raises several types for a damaged file
                 raise ResultsError(f"{p} is not a results file of depthruler batch ({exc}); use --overwrite to start again") from None
-            done.update(zip(t.column("task").to_pylist(), t.column("task_key").to_pylist()))
-        return done
+            ids.append(t.column("task").to_numpy())
+            keys.append(np.asarray(t.column("task_key").to_pylist(), dtype=object))
+        if not ids:
+            return np.zeros(0, dtype=np.int64), np.zeros(0, dtype=object)
+        return np.concatenate(ids).astype(np.int64), np.concatenate(keys)
 
     def write(self, parquet: bytes) -> None:
         """Store one finished group (a whole Parquet file's bytes) durably as the next part."""
@@ -199,30 +205,28 @@ class ResultStore:
 
     def finish(self, metadata: dict[str, str] | None = None) -> int:
         """Commit everything to ``out`` sorted by task (module docstring) and return its row count."""
-        pa, pq = _pa()
-        table = read_table(self.parts)
-        if not table.num_rows and self.out.is_file():  # nothing new: the file is already the whole run
+        from batch.merge import DuplicateTasks, merge_sorted
+
+        _, pq = _pa()
+        parts = sorted(self.parts.glob("part-*.parquet"))
+        if not parts and self.out.is_file():  # nothing new: the file is already the whole run
             shutil.rmtree(self.parts, ignore_errors=True)
             return pq.ParquetFile(self.out).metadata.num_rows
-        tables = [t for t in ([pq.read_table(self.out)] if self.out.is_file() else []) + [table] if t.num_rows]
-        table = pa.concat_tables(tables, promote_options="permissive") if tables else pa.table({"task": pa.array([], pa.int64())})
-        if table.num_rows:
-            table = table.sort_by([("task", "ascending")])
-            tasks = table.column("task")
-            if len(tasks.unique()) != table.num_rows:
-                raise ResultsError(f"the rows of {self.out} and {self.parts} hold a task twice; nothing was merged: use --overwrite")
-        if metadata:
-            table = table.replace_schema_metadata({**(table.schema.metadata or {}), **{k.encode(): v.encode() for k, v in metadata.items()}})
+        sources = ([self.out] if self.out.is_file() else []) + parts
         try:
             with open(self.tmp, "wb") as fh:
-                pq.write_table(table, fh)
+                rows = merge_sorted(sources, fh, metadata)
                 fh.flush()
                 os.fsync(fh.fileno())
+        except DuplicateTasks as exc:
+            self.tmp.unlink(missing_ok=True)
+            raise ResultsError(f"the rows of {self.out} and {self.parts} hold a task twice ({exc}); nothing was merged: use --overwrite") from None
         except OSError as exc:
             with contextlib.suppress(OSError):
                 self.tmp.unlink(missing_ok=True)
             raise ResultsError(
-                f"cannot write {self.tmp} ({exc.strerror or exc}); all {table.num_rows} rows are kept in {self.parts}"
+                f"cannot write {self.tmp} ({exc.strerror or exc}); all {sum(pq.ParquetFile(p).metadata.num_rows for p in sources)} "
+                f"rows are kept in {self.parts}"
                 + (f" and {self.out}" if self.out.is_file() else "")
                 + ": free space (the merge needs about their size again), then run again with --resume"
             ) from None
@@ -234,4 +238,4 @@ class ResultStore:
         _sync_dir(self.out.parent)
         reached("committed")
         _remove_tree(self.merged)
-        return table.num_rows
+        return rows

@@ -26,7 +26,8 @@ from measure import Frame, MeasureError, measure_distance
 
 from batch.readers import FrameReader, reader_for
 from batch.schema import encode_rows, extra_column, measurement_column, result_schema
-from batch.tasks import Task, TaskGroup, measure_options
+from batch.tasks import Task, measure_options
+from batch.tasktable import TaskGroup, TaskTable
 
 
 def project_version() -> str:
@@ -109,8 +110,10 @@ def run_group(group: TaskGroup) -> GroupResult:
     return GroupResult(len(rows), sum(1 for r in rows if r["error"] is not None), encode_rows(rows, schema))
 
 
-def extras(tasks: Iterable[Task]) -> dict[str, list[Any]]:
+def extras(tasks: Iterable[Task] | TaskTable) -> dict[str, list[Any]]:
     """Each carried-through column of ``tasks`` and its values (for the run's result schema)."""
+    if isinstance(tasks, TaskTable):
+        return {k: [flatten(x) for x in v if x is not None] for k, v in tasks.extra.items()}
     cols: dict[str, list[Any]] = {}
     for t in tasks:
         for k, v in t.extra.items():

@@ -13,16 +13,19 @@ import json
 import time
 import uuid
 from collections import Counter
-from collections.abc import Callable, Iterable
+from collections.abc import Callable, Iterable, Sequence
 from pathlib import Path
 from typing import Any, Protocol
+
+import numpy as np
 
 from measure import MeasureError, MeasureOptions
 
 from batch.readers import close_readers
 from batch.rows import GroupResult, extras, project_version, run_group
 from batch.schema import result_schema
-from batch.tasks import OPTION_FIELDS, Task, TaskError, TaskGroup, group_tasks, parse_option
+from batch.tasks import OPTION_FIELDS, Task, TaskError, parse_option
+from batch.tasktable import TaskGroup, TaskTable, group_tasks
 
 __all__ = ["close_readers", "default_options", "error_counts", "run_batch", "run_tasks"]
 
@@ -75,7 +78,7 @@ def error_counts(out: Path) -> dict[str, Counter]:
 
 
 def run_batch(
-    tasks: list[Task],
+    tasks: TaskTable | Sequence[Task],
     out: Path,
     executor: Any,
     *,
@@ -95,19 +98,24 @@ def run_batch(
     from batch.results import ResultsError, ResultStore
 
     defaults = dict(defaults or {})
+    table = tasks if isinstance(tasks, TaskTable) else TaskTable.of(tasks)
     store = ResultStore(out, resume=resume, overwrite=overwrite)
-    done = store.done()
-    changed = [t.index for t in tasks if t.index in done and done[t.index] != t.key(defaults)]
+    done_ids, done_keys = store.done()
+    order = np.argsort(done_ids, kind="stable")
+    at = np.minimum(np.searchsorted(done_ids, table.ids, sorter=order), max(len(order) - 1, 0))
+    is_done = done_ids[order[at]] == table.ids if len(order) else np.zeros(len(table), dtype=bool)
+    changed = [int(table.ids[i]) for i in np.flatnonzero(is_done) if done_keys[order[at[i]]] != table[int(i)].key(defaults)]
     if changed:
         raise ResultsError(
             f"{len(changed)} task(s) (first: row {changed[0] + 1}) differ from the ones {out} holds for those rows; "
             "the task table or the --set options changed since that run: use --overwrite"
         )
-    todo = [t for t in tasks if t.index not in done]
+    todo = table.take(~is_done) if is_done.any() else table  # no copy of a million rows on a fresh run
     run = uuid.uuid4().hex[:12]
-    groups = group_tasks(todo, getattr(executor, "workers", 1), defaults, run, schema=result_schema(extras(tasks)))
+    groups = group_tasks(todo, getattr(executor, "workers", 1), defaults, run, schema=result_schema(extras(table)))
+    skipped = len(table) - len(todo)
     if on_start:
-        on_start(len(todo), len(tasks) - len(todo))
+        on_start(len(todo), skipped)
     t0 = time.perf_counter()
     try:
         n = run_tasks(executor, groups, store, on_group)
@@ -118,6 +126,6 @@ def run_batch(
         {"depthruler.version": project_version(), "depthruler.defaults": json.dumps(defaults), "depthruler.executor": executor.describe()}
     )
     return {
-        "run": run, "measured": n, "skipped": len(tasks) - len(todo), "rows": total, "groups": len(groups), "wall_s": wall,
+        "run": run, "measured": n, "skipped": skipped, "rows": total, "groups": len(groups), "wall_s": wall,
         "errors": error_counts(out),
     }  # fmt: skip

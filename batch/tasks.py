@@ -31,11 +31,14 @@ import math
 from collections.abc import Iterable, Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from measure import MeasureError, MeasureOptions
 
 from batch.errors import BatchError
+
+if TYPE_CHECKING:
+    from batch.tasktable import TaskTable
 
 REQUIRED = ("source", "frame", "p1_x", "p1_y", "p2_x", "p2_y")
 POINT_COLUMNS = REQUIRED[2:]
@@ -251,8 +254,8 @@ def _rows(path: Path, suffix: str) -> Iterator[dict[str, Any] | BadLine]:
         raise
 
 
-def read_tasks(path: Path | str) -> list[Task]:
-    """The tasks of a table, one per row, invalid ones included (see the module docstring); ``path``
+def read_tasks(path: Path | str) -> TaskTable:
+    """The tasks of a table, one per row, as columns (:class:`batch.tasktable.TaskTable`), invalid ones included (see the module docstring); ``path``
     may be a URL (:mod:`batch.remote`), whose relative sources are then read beside it."""
     from batch.remote import fetch_table, is_url, parent
 
@@ -265,20 +268,23 @@ def read_tasks(path: Path | str) -> list[Task]:
     return _tasks(read_rows(path), path.resolve().parent, path)
 
 
-def _tasks(rows: Iterable[dict[str, Any] | BadLine], base: Path | str, where: Path | str) -> list[Task]:
-    """Each row parsed as it is read; the table refused when it holds no row or lacks a required column."""
-    tasks: list[Task] = []
+def _tasks(rows: Iterable[dict[str, Any] | BadLine], base: Path | str, where: Path | str) -> TaskTable:
+    """Each row parsed as it is read into columns (no row kept as an object); the table refused
+    when it holds no row or lacks a required column."""
+    from batch.tasktable import TaskColumns
+
+    tasks = TaskColumns()
     columns: set[str] = set()
     for i, row in enumerate(rows):
         if isinstance(row, dict) and not columns.issuperset(row):
             columns.update(k for k in row if k is not None)
-        tasks.append(parse_row(i, row, base))
-    if not tasks:
+        tasks.add(parse_row(i, row, base))
+    if not len(tasks.index):
         raise TaskError(f"{where} holds no task rows")
     missing = [c for c in REQUIRED if c not in columns]
     if missing:
         raise TaskError(f"{where} lacks the column(s) {', '.join(missing)}; a task table needs {', '.join(REQUIRED)}")
-    return tasks
+    return tasks.table()
 
 
 def parse_row(index: int, row: dict[str, Any] | BadLine, base: Path | str) -> Task:
@@ -317,51 +323,3 @@ def parse_row(index: int, row: dict[str, Any] | BadLine, base: Path | str) -> Ta
         (pts[0], pts[1]), (pts[2], pts[3]), options, extra,
         error="; ".join(bad.values()) or None, error_field=",".join(bad) or None,
     )  # fmt: skip
-
-
-@dataclass(frozen=True)
-class TaskGroup:
-    """Tasks of one source, in frame order, for one worker call; ``defaults`` are the run's options.
-    The invalid tasks of a run come in groups of their own, with ``source`` empty."""
-
-    source: str
-    tasks: tuple[Task, ...]
-    defaults: dict[str, Any] = field(default_factory=dict)
-    run: str = ""
-    schema: Any = None  # the run's pyarrow result schema (batch.schema); None: built from these tasks
-
-
-def group_tasks(
-    tasks: list[Task], workers: int, defaults: dict[str, Any], run: str = "", max_group: int = 256, schema: Any = None
-) -> list[TaskGroup]:
-    """Tasks grouped by source, each group sorted by frame so every frame is read once.
-
-    A random-access source (a recording, the history) is cut further, at frame boundaries, into
-    groups of at most ``max_group`` tasks and at least enough groups to keep ``workers`` busy four
-    times over: results then stream to disk as groups finish, and the load balances. A source read
-    in order (a depth-PNG folder, a video) stays one group, or frames would be decoded twice.
-    Invalid tasks make groups of at most ``max_group`` that open no source.
-    """
-    by_source: dict[str, list[Task]] = {}
-    invalid = [t for t in tasks if t.error]
-    for t in tasks:
-        if not t.error:
-            by_source.setdefault(t.source, []).append(t)
-    target = max(1, min(max_group, math.ceil(len(tasks) / max(1, 4 * workers))))
-    groups = [TaskGroup("", tuple(invalid[i : i + max_group]), defaults, run, schema) for i in range(0, len(invalid), max_group)]
-    for source, items in by_source.items():
-        items.sort(key=lambda t: (str(type(t.frame)), t.frame, t.index))
-        if source_kind(source) not in RANDOM_ACCESS_KINDS:
-            groups.append(TaskGroup(source, tuple(items), defaults, run, schema))
-            continue
-        chunk: list[Task] = []
-        for t in items:
-            if len(chunk) >= target and t.frame != chunk[-1].frame:
-                groups.append(TaskGroup(source, tuple(chunk), defaults, run, schema))
-                chunk = []
-            chunk.append(t)
-        if chunk:
-            groups.append(TaskGroup(source, tuple(chunk), defaults, run, schema))
-    # The biggest first: a long group started last would leave the other workers idle at the end.
-    groups.sort(key=lambda g: len(g.tasks), reverse=True)
-    return groups

@@ -26,6 +26,7 @@ from pathlib import Path
 from bench.results_file import machine, replace_section
 
 SECTION = "## Batch re-measurement"
+MEMORY_SECTION = "## Batch driver memory"
 
 
 def make_archive(root: Path, recordings: int, frames: int, clicks: int) -> Path:
@@ -51,6 +52,64 @@ def make_archive(root: Path, recordings: int, frames: int, clicks: int) -> Path:
         w.writerow(["source", "frame", "p1_x", "p1_y", "p2_x", "p2_y"])
         w.writerows(rows)
     return table
+
+
+def noop_table(root: Path, n: int) -> Path:
+    """A table of ``n`` no-op-cheap tasks: one small recording, every task on a frame it does not
+    hold (4 tasks a frame), so each becomes an error row without a frame read or a measurement."""
+    from device import open_source
+    from device.formats.recording import RecordingWriter
+
+    with open_source("sim:poster?fps=0&width=320&height=240") as src, RecordingWriter(root / "rec", src.info) as w:
+        w.write(src.read())
+    table = root / "noop.csv"
+    with table.open("w", newline="") as fh:
+        w = csv.writer(fh)
+        w.writerow(["source", "frame", "p1_x", "p1_y", "p2_x", "p2_y"])
+        w.writerows(("rec", 1 + k // 4, 10 + k % 4, 20, 300, 200) for k in range(n))
+    return table
+
+
+DRIVER = """
+import json, resource, sys, time
+from pathlib import Path
+from batch.executors import RayExecutor
+from batch.run import run_batch
+from batch.tasks import read_tasks
+
+def hwm():
+    return int(next(l for l in Path("/proc/self/status").read_text().splitlines() if l.startswith("VmHWM")).split()[1]) / 1024
+
+t0 = time.perf_counter()
+tasks = read_tasks(sys.argv[1])
+read = (time.perf_counter() - t0, hwm())
+ex = RayExecutor("local", num_cpus=2)
+started = hwm()
+t1 = time.perf_counter()
+s = run_batch(tasks, Path(sys.argv[2]), ex, overwrite=True)
+ex.close()
+print(json.dumps({"tasks": len(tasks), "rows": s["rows"], "groups": s["groups"], "read_s": read[0], "read_mb": read[1],
+                  "ray_mb": started, "run_s": time.perf_counter() - t1, "peak_mb": hwm()}))
+"""
+
+
+def driver_memory(n: int) -> dict:
+    """The driver's peak RSS (VmHWM, MB) for ``n`` no-op-cheap tasks on a local Ray instance of 2
+    CPUs, in a fresh interpreter: after reading the table, after starting Ray, at the end."""
+    import json
+    import subprocess
+    import sys
+
+    tmp = Path(tempfile.mkdtemp(prefix="bench_batch_mem_"))
+    try:
+        table = noop_table(tmp, n)
+        env = {**os.environ, "PYTHONPATH": os.pathsep.join([str(Path(__file__).resolve().parents[1]), os.environ.get("PYTHONPATH", "")])}
+        out = subprocess.run([sys.executable, "-c", DRIVER, str(table), str(tmp / "out.parquet")], env=env, capture_output=True, text=True, check=False)
+        if out.returncode:
+            raise RuntimeError(out.stderr[-3000:])
+        return json.loads(out.stdout.strip().splitlines()[-1])
+    finally:
+        shutil.rmtree(tmp, ignore_errors=True)
 
 
 def cpu_s(pid: int) -> float | None:
@@ -145,7 +204,25 @@ def main(argv: list[str] | None = None) -> None:
     ap.add_argument("--clicks", type=int, default=6, help="measurements per frame (default 6)")
     ap.add_argument("--repeat", type=int, default=7, help="timed runs per configuration (default 7)")
     ap.add_argument("--write", action="store_true", help=f"record the table in bench/RESULTS.md ({SECTION!r})")
+    ap.add_argument("--memory", type=int, metavar="N", help="only measure the driver's peak memory for N no-op-cheap tasks on Ray")
     args = ap.parse_args(argv)
+    if args.memory:
+        started = datetime.now(timezone.utc)
+        m = driver_memory(args.memory)
+        text = "\n".join([
+            MEMORY_SECTION, "",
+            f"`bench/bench_batch.py --memory {args.memory}`: the driver (`read_tasks` + `run_batch` on `RayExecutor('local', num_cpus=2)`, "
+            "a fresh interpreter) over a table of no-op-cheap tasks (every task on a frame its small recording does not hold: an error "
+            "row, no frame read). Peak RSS (VmHWM) of the driver process.", "",
+            "| tasks | groups | rows written | peak MB after reading the table | after starting Ray | at the end (run + merge) | read s | run s |",
+            "| --- | --- | --- | --- | --- | --- | --- | --- |",
+            f"| {m['tasks']} | {m['groups']} | {m['rows']} | {m['read_mb']:.0f} | {m['ray_mb']:.0f} | {m['peak_mb']:.0f} | {m['read_s']:.1f} | {m['run_s']:.1f} |",
+            "", f"Machine: {machine()}; {started:%Y-%m-%d %H:%M} UTC; load average {os.getloadavg()[0]:.2f} at the end.", "",
+        ])  # fmt: skip
+        print(text)
+        if args.write:
+            replace_section(MEMORY_SECTION, text)
+        return
     if min(args.recordings, args.frames, args.clicks, args.repeat) < 1:
         ap.error("--recordings, --frames, --clicks and --repeat must be at least 1")
     load_before = os.getloadavg()

@@ -309,7 +309,7 @@ def test_eval_middlebury_same_on_ray(ray_session, middlebury_dir):
 
 
 def test_groups_read_each_frame_once_and_new_fields_flow_through(archive, tmp_path, monkeypatch):
-    from batch.tasks import group_tasks
+    from batch.tasktable import group_tasks
     from measure import measure_distance
 
     tasks = read_tasks(write_tasks(tmp_path / "t.csv", archive, methods=("robust",), jitter=(0, 1, 2)))
