@@ -14,17 +14,20 @@ speed drifts from run to run) and records the table in bench/RESULTS.md.
 from __future__ import annotations
 
 import argparse
+import math
 import os
 import time
 from datetime import datetime, timezone
 import warnings
-from contextlib import contextmanager
+from contextlib import ExitStack, contextmanager
 from unittest import mock
 
 import numpy as np
 from bench.results_file import machine, replace_section
 
-W, H, FX, BASELINE = 1280, 720, 1000.0, 0.08
+W, H, FX, BASELINE_M = 1280, 720, 1000.0, 0.08
+# The core before issue 29's speed work: `--baseline` times it side by side with this code.
+BASELINE = "123ba59"
 
 
 def diagonal_frame(seed: int = 0, outliers: float = 0.4):
@@ -35,11 +38,11 @@ def diagonal_frame(seed: int = 0, outliers: float = 0.4):
     cam = PinholeCamera(FX, FX, (W - 1) / 2, (H - 1) / 2, W, H)
     xs, ys = np.meshgrid((np.arange(W) - cam.cx) / FX, (np.arange(H) - cam.cy) / FX)
     z = 3.0 / (0.25 * xs - 0.1 * ys + 1.0)
-    d = FX * BASELINE / z + rng.normal(0, 0.15, z.shape)
+    d = FX * BASELINE_M / z + rng.normal(0, 0.15, z.shape)
     bad = rng.random(z.shape) < outliers
     d = np.where(bad, d * rng.uniform(0.5, 1.5, z.shape), d)
     d = np.round(d * 4) / 4
-    return Frame(np.zeros((H, W, 3), np.uint8), d.astype(np.float32), cam, BASELINE)
+    return Frame(np.zeros((H, W, 3), np.uint8), d.astype(np.float32), cam, BASELINE_M)
 
 
 def _as_result(m, h: int):
@@ -127,26 +130,39 @@ def _timed(fn) -> tuple[float, float]:
     return (time.process_time() - c0) * 1e3, (time.perf_counter() - t0) * 1e3
 
 
-def _time_side_by_side(call, repeats: int, ref_repeats: int, same_work: bool = False) -> tuple[np.ndarray, np.ndarray]:
-    """CPU and wall ms per call of ``call`` with our FAST-MCD (``repeats`` calls) and under the
-    scikit-learn backend (``ref_repeats`` calls), interleaved in blocks: this host has episodes of
-    a few seconds in which everything runs 1.5-2x slower, and interleaving puts both sides in the
-    same episodes instead of timing all of ours in one. Each row: cpu, wall. The caller has run
-    ``call`` once each way already (the warm-up)."""
-    mine, ref = [], []
+def _time_side_by_side(call, repeats: int, ref_repeats: int, same_work: bool = False, other=None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """CPU and wall ms per call of ``call`` with our FAST-MCD (``repeats`` calls), under the
+    scikit-learn backend (``ref_repeats`` calls) and, given ``other`` (k -> k rows of the baseline
+    revision's timings of the same call), of the baseline, interleaved in blocks: this host has
+    episodes of a few seconds in which everything runs 1.5-2x slower, and interleaving puts every
+    side in the same episodes instead of timing all of ours in one. Each row: cpu, wall. The caller
+    has run ``call`` once each way already (the warm-up)."""
+    mine, ref, base = [], [], []
     per_block = max(1, repeats // ref_repeats)
     while len(mine) < repeats or len(ref) < ref_repeats:
-        mine.extend(_timed(call) for _ in range(min(per_block, repeats - len(mine))))
+        k = min(per_block, repeats - len(mine))
+        mine.extend(_timed(call) for _ in range(k))
+        if other is not None and k:
+            base.extend(other(k))
         if len(ref) < ref_repeats:
             with sklearn_backend(same_work):
                 ref.append(_timed(call))
-    return np.array(mine), np.array(ref)
+    return np.array(mine), np.array(ref), np.array(base).reshape(-1, 2)
 
 
-def run_realistic(cases, repeats: int = 5, ref_repeats: int = 1) -> dict[str, dict[str, float]]:
+def _vs_baseline(row: dict, base: np.ndarray, mine: np.ndarray) -> None:
+    """The baseline revision's CPU median and p99 (ms) and our median's ratio to its median."""
+    row["baseline_cpu_median_ms"] = float(np.median(base[:, 0]))
+    row["baseline_cpu_p99_ms"] = float(np.percentile(base[:, 0], 99))
+    row["vs_baseline"] = float(np.median(mine) / np.median(base[:, 0]))
+
+
+def run_realistic(cases, repeats: int = 5, ref_repeats: int = 1, baseline=None, offset: int = 0) -> dict[str, dict[str, float]]:
     """Per method: CPU ms per measurement over ``cases`` (each timed ``repeats`` times, the reference
-    ``ref_repeats`` times, interleaved), the ratio of the medians, the samples per segment and the
-    share of cases where both give the same distance (to 0.1 mm)."""
+    ``ref_repeats`` times and, given a :class:`bench.measure_baseline.Baseline` holding the cases from
+    index ``offset`` on, the baseline revision ``repeats`` times, interleaved), the ratios of the
+    medians, the samples per segment and the share of cases where ours and the reference give the
+    same distance (to 0.1 mm), and ours and the baseline."""
     from threadpoolctl import threadpool_limits
 
     from measure import MeasureError, MeasureOptions, measure_distance
@@ -155,8 +171,8 @@ def run_realistic(cases, repeats: int = 5, ref_repeats: int = 1) -> dict[str, di
     with threadpool_limits(1):
         for method in ("robust", "paper"):
             opts = MeasureOptions(method=method)
-            mine, ref, samples, same = [], [], [], []
-            for frame, p1, p2 in cases:
+            mine, ref, base, samples, same, same_base = [], [], [], [], [], []
+            for i, (frame, p1, p2) in enumerate(cases):
                 call = lambda: measure_distance(frame, p1, p2, opts)  # noqa: E731
                 try:
                     m = call()
@@ -164,9 +180,14 @@ def run_realistic(cases, repeats: int = 5, ref_repeats: int = 1) -> dict[str, di
                         r = call()
                 except MeasureError:
                     continue
-                a, b = _time_side_by_side(call, repeats, ref_repeats, same_work=True)
+                other = None
+                if baseline is not None:
+                    same_base.append(abs(m.distance_m - baseline.time(offset + i, method, 0)[1]) <= 1e-4)
+                    other = lambda k: baseline.time(offset + i, method, k)[0]  # noqa: E731
+                a, b, c = _time_side_by_side(call, repeats, ref_repeats, same_work=True, other=other)
                 mine.extend(a[:, 0])
                 ref.extend(b[:, 0])
+                base.extend(c)
                 samples.append(m.n_samples)
                 same.append(abs(m.distance_m - r.distance_m) <= 1e-4)
             rows[method] = {
@@ -176,10 +197,15 @@ def run_realistic(cases, repeats: int = 5, ref_repeats: int = 1) -> dict[str, di
                 "sklearn_cpu_median_ms": float(np.median(ref)), "speedup": float(np.median(ref) / np.median(mine)),
                 "same_answer": float(np.mean(same)),
             }
+            if base:
+                _vs_baseline(rows[method], np.array(base), np.array(mine))
+                rows[method]["same_as_baseline"] = float(np.mean(same_base))
     return rows
 
 
-def run(repeats: int = 200, ref_repeats: int = 20) -> dict[str, dict[str, float]]:
+def run(repeats: int = 200, ref_repeats: int = 20, baseline=None) -> dict[str, dict[str, float]]:
+    """The diagonal: per method our and the scikit-learn reference's times (and, given a
+    :class:`bench.measure_baseline.Baseline` holding the diagonal as case 0, the baseline revision's)."""
     from threadpoolctl import threadpool_limits
 
     from measure import MeasureOptions, measure_distance
@@ -194,7 +220,9 @@ def run(repeats: int = 200, ref_repeats: int = 20) -> dict[str, dict[str, float]
             m = call()  # these two answers are also the warm-up
             with sklearn_backend():
                 ref_m = call()
-            mine, ref = _time_side_by_side(call, repeats, ref_repeats)
+            other = None if baseline is None else (lambda k: baseline.time(0, method, k)[0])  # noqa: E731
+            base_m = math.nan if baseline is None else baseline.time(0, method, 0)[1]
+            mine, ref, base = _time_side_by_side(call, repeats, ref_repeats, other=other)
             (ours_cpu, ours), (ref_cpu, ref) = mine.T, ref.T
             rows[method] = {
                 "n_samples": m.n_samples,
@@ -209,6 +237,9 @@ def run(repeats: int = 200, ref_repeats: int = 20) -> dict[str, dict[str, float]
                 "distance_m": m.distance_m,
                 "sklearn_distance_m": ref_m.distance_m,
             }
+            if base.size:
+                _vs_baseline(rows[method], base, ours_cpu)
+                rows[method]["same_as_baseline"] = float(abs(m.distance_m - base_m) <= 1e-4)
     return rows
 
 
@@ -241,8 +272,40 @@ def _realistic_row(run_no: int, method: str, r: dict) -> str:
             f"{r['cpu_p99_ms']:.2f} | {r['sklearn_cpu_median_ms']:.1f} | {r['speedup']:.1f}x | {100 * r['same_answer']:.0f} % |")
 
 
+BASELINE_HEADER = (
+    "| run | workload | method | CPU median / p99 ms | baseline CPU median / p99 ms | ratio to baseline | same distance |\n"
+    "| --- | --- | --- | --- | --- | --- | --- |"
+)
+
+
+def _baseline_row(run_no: int, workload: str, method: str, r: dict) -> str:
+    return (f"| {run_no} | {workload} | {method} | {r['cpu_median_ms']:.2f} / {r['cpu_p99_ms']:.2f} | "
+            f"{r['baseline_cpu_median_ms']:.2f} / {r['baseline_cpu_p99_ms']:.2f} | {r['vs_baseline']:.2f} | {100 * r['same_as_baseline']:.0f} % |")
+
+
+def _baseline_lines(runs: list[dict], realistic: list[dict], baseline: str) -> list[str]:
+    """The table of ours against the baseline revision, when the runs timed one."""
+    pairs = [(i + 1, "diagonal", rows) for i, rows in enumerate(runs)] + [(i + 1, "realistic clicks", rows) for i, rows in enumerate(realistic)]
+    table = sorted((_baseline_row(n, w, m, r), n, w) for n, w, rows in pairs for m, r in rows.items() if "vs_baseline" in r)
+    if not table:
+        return []
+    ratios = {w: [r["vs_baseline"] for n, ww, rows in pairs if ww == w for m, r in rows.items() if m == "robust" and "vs_baseline" in r]
+              for w in ("realistic clicks", "diagonal")}
+    return [
+        "",
+        f"Against the baseline revision {baseline} (its measurement core from `git archive` in a child process, the",
+        "same frames and clicks, each block of our calls followed by as many of its, CPU time in each process,",
+        "one BLAS thread; `--baseline REV`):",
+        "",
+        BASELINE_HEADER,
+        *(row for row, _, _ in sorted(table, key=lambda x: (x[1], x[2]))),
+        "",
+        "Robust, our median over the baseline's: " + "; ".join(f"{w} {min(v):.2f}-{max(v):.2f}" for w, v in ratios.items() if v) + ".",
+    ]
+
+
 def report(runs: list[dict[str, dict[str, float]]], load: tuple[float, float], date: str,
-           realistic: list[dict[str, dict]] = ()) -> str:
+           realistic: list[dict[str, dict]] = (), baseline: str = "") -> str:
     """The RESULTS.md section: every run's rows, the machine, and whether the targets hold."""
     from threadpoolctl import threadpool_info
 
@@ -288,6 +351,7 @@ def report(runs: list[dict[str, dict[str, float]]], load: tuple[float, float], d
             f"{min(speedups):.0f}-{max(speedups):.0f}x on the diagonal (where scikit-learn switches to its "
             "subset merging at its own settings).",
         ]
+    lines += _baseline_lines(runs, list(realistic), baseline)
     return "\n".join(lines) + "\n"
 
 
@@ -297,6 +361,7 @@ def main(argv: list[str] | None = None) -> None:
     ap.add_argument("--repeats", type=int, default=200, help="timed calls of our pipeline per run (default 200)")
     ap.add_argument("--cases", type=int, default=48, help="realistic click cases (default 48)")
     ap.add_argument("--write", action="store_true", help=f"record the table in bench/RESULTS.md ({SECTION!r})")
+    ap.add_argument("--baseline", default=BASELINE, help=f"revision to time side by side (default {BASELINE}); '' for none")
     args = ap.parse_args(argv)
     if args.runs < 1 or args.repeats < 1 or args.cases < 1:
         ap.error("--runs, --repeats and --cases must be at least 1")
@@ -304,15 +369,23 @@ def main(argv: list[str] | None = None) -> None:
     runs, realistic = [], []
     cases = realistic_cases(args.cases)
     print(HEADER)
-    for i in range(args.runs):
-        rows = run(repeats=args.repeats)
-        runs.append(rows)
-        for method, r in rows.items():
-            print(_row(i + 1, method, r), flush=True)
-        realistic.append(run_realistic(cases))
-        for method, r in realistic[-1].items():
-            print(_realistic_row(i + 1, method, r), flush=True)
-    text = report(runs, (load_before, os.getloadavg()[0]), datetime.now(timezone.utc).strftime("%Y-%m-%d %H:%M UTC"), realistic)
+    with ExitStack() as stack:
+        base = None
+        if args.baseline:
+            from bench.measure_baseline import Baseline
+
+            base = stack.enter_context(Baseline(args.baseline))
+            base.load([(diagonal_frame(), (0.0, 0.0), (W - 1.0, H - 1.0))] + cases)
+        for i in range(args.runs):
+            rows = run(repeats=args.repeats, baseline=base)
+            runs.append(rows)
+            for method, r in rows.items():
+                print(_row(i + 1, method, r), flush=True)
+            realistic.append(run_realistic(cases, baseline=base, offset=1))
+            for method, r in realistic[-1].items():
+                print(_realistic_row(i + 1, method, r), flush=True)
+    label = f"{args.baseline} ({base.short})" if base is not None else ""
+    text = report(runs, (load_before, os.getloadavg()[0]), datetime.now(timezone.utc).strftime("%Y-%m-%d %H:%M UTC"), realistic, label)
     print(text.split("\n\n")[-1].strip())
     if args.write:
         replace_section(SECTION, text)

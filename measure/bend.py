@@ -62,38 +62,51 @@ def _median(r: np.ndarray) -> np.ndarray:
 def _scale(r: np.ndarray, floor: float) -> tuple[np.ndarray, np.ndarray]:
     """Each row's robust scale 1.4826 MAD (floored) and its median."""
     med = _median(r)
-    return np.maximum(1.4826 * _median(np.abs(r - med[:, None])), floor), med
+    dev = r - med[:, None]
+    np.abs(dev, out=dev)
+    return np.maximum(1.4826 * _median(dev), floor), med
 
 
-def _fit(t: np.ndarray, H: np.ndarray | None, w: np.ndarray, d: np.ndarray) -> np.ndarray:
+def _fit(terms: np.ndarray, H: np.ndarray | None, w: np.ndarray | None) -> np.ndarray:
     """Weighted least squares of d on the columns 1, t (and H, the hinge column of each candidate):
-    ``w`` (K, n) -> coefficients (K, 2 or 3), from the normal equations' sums."""
-    cols = [np.ones_like(w), np.broadcast_to(t, w.shape)] + ([] if H is None else [H])
-    p = len(cols)
-    wc = [w * c for c in cols]
-    A = np.empty((w.shape[0], p, p))
-    for i in range(p):
-        for j in range(i, p):
-            A[:, i, j] = A[:, j, i] = np.einsum("kn,kn->k", wc[i], cols[j])
+    weights ``w`` (K, n; None: all one) -> coefficients (K, 2 or 3), from the normal equations' sums.
+    ``terms`` (n, 5) holds each sample's 1, t, t², d, t d: one product with the weights gives the
+    line's five sums (as measure.dline's IRLS), one more with the weighted hinge column the hinge's."""
+    k = 1 if H is None else H.shape[0]
+    sums = np.broadcast_to(terms.sum(axis=0), (k, 5)) if w is None else w @ terms
+    p = 2 if H is None else 3
+    A = np.empty((k, p, p))
+    y = np.empty((k, p))
+    A[:, 0, 0], A[:, 0, 1], A[:, 1, 1] = sums[:, 0], sums[:, 1], sums[:, 2]
+    y[:, 0], y[:, 1] = sums[:, 3], sums[:, 4]
+    if H is not None:
+        wh = H if w is None else w * H
+        hs = wh @ terms[:, [0, 1, 3]]
+        A[:, 0, 2], A[:, 1, 2], A[:, 2, 2] = hs[:, 0], hs[:, 1], np.einsum("kn,kn->k", wh, H)
+        y[:, 2] = hs[:, 2]
+        A[:, 2, 0], A[:, 2, 1] = A[:, 0, 2], A[:, 1, 2]
+    A[:, 1, 0] = A[:, 0, 1]
     A += 1e-9 * np.eye(p)
-    y = np.stack([c @ d for c in wc], axis=1)
     return np.linalg.solve(A, y[..., None])[..., 0]
 
 
 def _residuals(t: np.ndarray, H: np.ndarray | None, d: np.ndarray, beta: np.ndarray) -> np.ndarray:
     r = d[None] - beta[:, :1] - beta[:, 1:2] * t[None]
-    return r if H is None else r - beta[:, 2:3] * H
+    if H is not None:
+        r -= beta[:, 2:3] * H
+    return r
 
 
-def _robust(t: np.ndarray, H: np.ndarray | None, d: np.ndarray, floor: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+def _robust(t: np.ndarray, H: np.ndarray | None, d: np.ndarray, floor: float, terms: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Two passes: least squares, then least squares on the samples within 3 robust sigmas; the
-    coefficients, the residuals and their robust scale."""
-    k = 1 if H is None else H.shape[0]
-    beta = _fit(t, H, np.ones((k, t.size)), d)
+    coefficients, the residuals and their robust scale. ``terms``: as :func:`_fit`'s."""
+    beta = _fit(terms, H, None)
     r = _residuals(t, H, d, beta)
     s, med = _scale(r, floor)
-    w = (np.abs(r - med[:, None]) <= 3.0 * s[:, None]).astype(np.float64)
-    beta = _fit(t, H, w, d)
+    r -= med[:, None]
+    np.abs(r, out=r)
+    w = (r <= 3.0 * s[:, None]).astype(np.float64)
+    beta = _fit(terms, H, w)
     r = _residuals(t, H, d, beta)
     return beta, r, _scale(r, floor)[0]
 
@@ -113,15 +126,18 @@ def hinge_ends(t: np.ndarray, d: np.ndarray, length: float, quantum: float, nois
     t0s = t0s[(left >= MIN_PIECE_SAMPLES) & (n - left >= MIN_PIECE_SAMPLES)]
     if t0s.size == 0:
         return None
-    _, _, s1 = _robust(t, None, d, floor)
-    b2, r2, s2 = _robust(t, np.maximum(t[None] - t0s[:, None], 0.0), d, floor)
+    terms = np.stack([np.ones_like(t), t, t * t, d, t * d], axis=1)
+    _, _, s1 = _robust(t, None, d, floor, terms)
+    if s1[0] <= floor:
+        return None  # every s2 is floored there too: the crease cannot lower the scale (condition 1)
+    b2, r2, s2 = _robust(t, np.maximum(t[None] - t0s[:, None], 0.0), d, floor, terms)
     k = int(np.argmin(s2))
     s1 = float(s1[0])
     n_eff = n / correlation_inflation(r2[k]) ** 2
     if not n_eff * math.log(s1 * s1 / (s2[k] * s2[k])) > PENALTY * 2.0 * math.log(max(n_eff, 2.0)):
         return None
-    inliers = float(np.mean(np.abs(r2[k] - np.median(r2[k])) <= 3.0 * s2[k]))
-    if inliers < MIN_INLIERS or s2[k] > LOCAL_ROUGHNESS * max(noise, floor):
+    inl = np.abs(r2[k] - np.median(r2[k])) <= 3.0 * s2[k]
+    if float(np.mean(inl)) < MIN_INLIERS or s2[k] > LOCAL_ROUGHNESS * max(noise, floor):
         return None
     a, b, c = (float(v) for v in b2[k])
     t0 = float(t0s[k])
@@ -131,7 +147,6 @@ def hinge_ends(t: np.ndarray, d: np.ndarray, length: float, quantum: float, nois
         return None
     ends = (a, a + b * length + c * (length - t0))
     # No extrapolation: each end's value lies within the range of its piece's inlying samples (and a quantum).
-    inl = np.abs(r2[k] - np.median(r2[k])) <= 3.0 * s2[k]
     for e, piece in ((0, inl & (t < t0)), (1, inl & (t >= t0))):
         if piece.sum() < MIN_PIECE_SAMPLES or not (d[piece].min() - quantum <= ends[e] <= d[piece].max() + quantum):
             return None

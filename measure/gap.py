@@ -4,7 +4,7 @@
   extension beyond an end point (away from the other) is the Tukey bisquare M-estimate of its valid
   pixels' depths (``extension_depth``); a gap when both are in front of the refined end points,
   ``Z_ext1 < Z1'`` and ``Z_ext2 < Z2'``.
-- The robust method's rule (``is_clear_gap``), in disparity: each end's surface (``end_surface``) is
+- The robust method's rule (``clear_gap_ends``), in disparity: each end's surface is
   its extension's valid pixels together with the segment's samples next to the click that lie in
   front of the segment's robust line and are not supported by it (``leading_run``). It needs
   ``MIN_EXTENSION_SAMPLES`` samples, and its Tukey location must exceed the segment's line at the end
@@ -75,16 +75,17 @@ class EndSurface:
     n_valid: int
 
 
-def end_surface(frame: Frame, start: tuple[float, float], other: tuple[float, float], length: int, leading: np.ndarray) -> EndSurface:
-    """Robust disparity (px) of the ``length``-px extension beyond ``start`` together with ``leading``
-    (the segment's samples next to ``start`` that lie in front of its line, nearest first)."""
+def _end_run(frame: Frame, start: tuple[float, float], other: tuple[float, float], length: int, leading: np.ndarray) -> np.ndarray:
+    """The samples of one end's surface (px): its extension's valid pixels and ``leading``."""
     px = extension_pixels(frame, start, other, length)
     d = frame.disparity[px[:, 1], px[:, 0]]
     d = d[valid_disparity(frame, d)].astype(np.float64)
     # Nearest to the end first on both sides: the run is in image order through the click.
-    run = np.concatenate([d[::-1], np.asarray(leading, dtype=np.float64)])
-    if run.size == 0:
-        return EndSurface(math.nan, math.nan, 0)
+    return np.concatenate([d[::-1], np.asarray(leading, dtype=np.float64)])
+
+
+def _surface_of(run: np.ndarray) -> EndSurface:
+    """Tukey location of a non-empty run and its correlation-inflated standard error."""
     loc, se = tukey_location(run)
     inflate = correlation_inflation(run - loc)
     return EndSurface(loc, se * inflate, int(run.size))
@@ -97,15 +98,35 @@ def leading_run(residuals: np.ndarray, support: np.ndarray) -> int:
     return int(np.argmin(ahead)) if not ahead.all() else int(ahead.size)
 
 
-def is_clear_gap(ends: tuple[EndSurface, EndSurface], d_segment: tuple[float, float], se_segment: tuple[float, float], doffs: float = 0.0) -> bool:
-    """The robust method's gap rule (module docstring): at each end, a surface of at least
-    ``MIN_EXTENSION_SAMPLES`` samples whose disparity exceeds the segment's there (``d_segment``, px,
-    with standard errors ``se_segment``) by ``GAP_STEP_REL`` of it and by ``GAP_SIGMAS`` combined
-    standard errors; ``doffs`` (px) turns disparity into inverse depth."""
-    for e, d, s in zip(ends, d_segment, se_segment):
-        if e.n_valid < MIN_EXTENSION_SAMPLES or not (math.isfinite(e.disparity) and math.isfinite(d) and d + doffs > 0):
-            return False
-        step = e.disparity - d
-        if not (step > GAP_STEP_REL * (d + doffs) and step > GAP_SIGMAS * math.hypot(e.se, s)):
-            return False
-    return True
+def _clear_at(e: EndSurface, d: float, s: float, doffs: float) -> bool:
+    """The gap rule at one end: surface ``e`` against the segment's disparity ``d`` (px, standard error ``s``)."""
+    if e.n_valid < MIN_EXTENSION_SAMPLES or not (math.isfinite(e.disparity) and math.isfinite(d) and d + doffs > 0):
+        return False
+    step = e.disparity - d
+    return step > GAP_STEP_REL * (d + doffs) and step > GAP_SIGMAS * math.hypot(e.se, s)
+
+
+def clear_gap_ends(frame: Frame, xy1: tuple[float, float], xy2: tuple[float, float], length: int, leading: tuple[np.ndarray, np.ndarray],
+                   d_segment: tuple[float, float], se_segment: tuple[float, float]) -> tuple[EndSurface, EndSurface] | None:
+    """Both ends' surfaces when they show a clear gap, else None (the module docstring's rule): at each
+    end, the ``length``-px extension's valid pixels beyond the click together with its ``leading``
+    samples (the segment's next to the click in front of its line, nearest first), a surface of at
+    least ``MIN_EXTENSION_SAMPLES`` samples whose Tukey location exceeds the segment's disparity there
+    (``d_segment``, px, standard errors ``se_segment``) by ``GAP_STEP_REL`` of it and by ``GAP_SIGMAS``
+    combined standard errors. End by end: the second end is not read once the first shows no gap, and
+    no Tukey location is computed where it cannot pass (a weighted mean lies within its samples' range,
+    so an end whose largest sample does not exceed the segment's disparity by ``GAP_STEP_REL`` has none)."""
+    ends = []
+    for (a, b), lead, d, s in zip(((xy1, xy2), (xy2, xy1)), leading, d_segment, se_segment):
+        run = _end_run(frame, a, b, length, lead)
+        if run.size < MIN_EXTENSION_SAMPLES or not (math.isfinite(d) and d + frame.doffs > 0):
+            return None
+        top = float(run.max())
+        # 1e-9: the bound holds for the float mean too (its rounding is far below it).
+        if top + 1e-9 * (abs(top) + 1.0) - d <= GAP_STEP_REL * (d + frame.doffs):
+            return None
+        e = _surface_of(run)
+        if not _clear_at(e, d, s, frame.doffs):
+            return None
+        ends.append(e)
+    return ends[0], ends[1]

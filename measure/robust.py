@@ -12,7 +12,7 @@ Steps (pixels in, metres out):
    ``measure.neighbourhood``) or, for an extrapolated end, its click window (``_observed_ends``).
 4. Back-project each end on its clicked pixel's ray at that depth (Eq. 2): no depth at the click is
    needed (warning "endpoint has no depth within window").
-5. Gap detection on evidence at both ends (``measure.gap.is_clear_gap``): on a gap, the clicks' rays
+5. Gap detection on evidence at both ends (``measure.gap.clear_gap_ends``): on a gap, the clicks' rays
    at the ends' surfaces.
 6. One-sigma from the fit, click, quantization, model-choice and structure terms, calibrated
    (``measure.uncertainty``); the 95 % interval and the verdict (``measure.verdict``). A line that
@@ -38,7 +38,7 @@ from measure.censored import censored_line, few_levels
 from measure.confidence import LOW_CONFIDENCE_REASON, low_confidence, support_inflation
 from measure.dline import DisparityLine, fit_disparity_line
 from measure.edges import on_edge, on_surface_edge
-from measure.gap import end_surface, is_clear_gap, leading_run
+from measure.gap import clear_gap_ends, leading_run
 from measure.neighbourhood import end_plane
 from measure.request import BEYOND_RANGE, MIN_FIT_SAMPLES, NO_DEPTH, Request, fit_samples, focal_baseline, resolved, validate_request
 from measure.sampling import SegmentSamples, ray, sample_segment, valid_disparity
@@ -154,13 +154,11 @@ def _robust(request: Request, samples: SegmentSamples, terms: dict[str, float] |
         res = samples.disparity - line.at(t)
         k1 = leading_run(res, line.support)
         k2 = leading_run(res[::-1], line.support[::-1])
-        ends_s = (
-            end_surface(frame, xy1, xy2, options.extension_px, samples.disparity[:k1]),
-            end_surface(frame, xy2, xy1, options.extension_px, samples.disparity[::-1][:k2]),
-        )
         cov_g = line.cov_at(0.0, length)
         se_g = (inflate * math.sqrt(max(0.0, float(cov_g[0, 0]))), inflate * math.sqrt(max(0.0, float(cov_g[1, 1]))))
-        if is_clear_gap(ends_s, (line.at(0.0), line.at(length)), se_g, frame.doffs):
+        ends_s = clear_gap_ends(frame, xy1, xy2, options.extension_px, (samples.disparity[:k1], samples.disparity[::-1][:k2]),
+                                (line.at(0.0), line.at(length)), se_g)
+        if ends_s is not None:
             zg1, zg2 = (fb / (e.disparity + frame.doffs) for e in ends_s)
             g1, g2 = r1 * zg1, r2 * zg2
             gd = float(np.linalg.norm(g2 - g1))
