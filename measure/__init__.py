@@ -17,7 +17,7 @@ from measure.robust import robust_with_terms
 from measure.sampling import ray
 from measure.sequence import MAX_FRAMES, measure_sequence
 from measure.options import METHODS
-from measure.shape_types import SHAPE_KINDS, BoxMeasurement, ShapeMeasurement
+from measure.shape_types import SHAPE_KINDS, BoxMeasurement, ShapeMeasurement, outlines
 from measure.types import MAX_CLICK_PX, Frame, MeasureError, MeasureOptions, Measurement, PinholeCamera
 from measure.zonly import measure_z_only
 
@@ -47,6 +47,7 @@ __all__ = [
     "measure_z_only",
     "option",
     "options_of",
+    "outlines",
     "ray",
     "robust_with_terms",
     "signed_error_pct",

@@ -31,7 +31,7 @@ import numpy as np
 
 from device.errors import RecordingError
 from device.formats.recording import Recording, jsonable, open_recording
-from measure.shape_types import outlines
+from measure import outlines
 
 TOPIC_COLOR = "/camera/color"
 TOPIC_DEPTH = "/camera/depth"

@@ -8,8 +8,7 @@ from typing import Annotated, Any, Literal
 from fastapi import APIRouter, Query, Request
 from fastapi.responses import Response, StreamingResponse
 
-from measure import measure_distance, measure_sequence, weak_stretches
-from measure.shape_types import outlines
+from measure import measure_distance, measure_sequence, outlines, weak_stretches
 
 from history.export import csv_chunks, json_chunks
 
