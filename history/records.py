@@ -3,7 +3,8 @@
 :func:`row_values` turns a request and its result (``Measurement.to_dict()``, metres) into the
 values of :data:`history.schema.MEASUREMENT_INSERT`; :func:`record` turns a row (or the same
 values with their id, :func:`record_of_values`) into the record: points in px, lengths in
-metres (None where not finite), the result's newer fields, ``name``, ``note`` and ``pinned``.
+metres (None where not finite), the result's newer fields, ``name``, ``note``, ``pinned`` and
+``kind``. Shape rows (``kind`` other than "segment") are :mod:`history.shape_records`' own.
 """
 
 from __future__ import annotations
@@ -13,7 +14,8 @@ import math
 from collections.abc import Mapping
 from typing import Any
 
-from history.schema import MEASUREMENT_INSERT, MEASUREMENTS_COLUMNS
+from history.schema import MEASUREMENT_INSERT, MEASUREMENTS_COLUMNS, SEGMENT
+from history.shape_records import head, shape_record
 
 FIXED_RESULT_KEYS = frozenset(
     ("distance_m", "method", "fit", "p1_m", "p2_m", "basic_distance_m", "uncertainty_m", "n_samples", "n_valid",
@@ -37,7 +39,7 @@ def row_values(
         json.dumps(options), result["distance_m"], result["method"], result["fit"], json.dumps(result["p1_m"]),
         json.dumps(result["p2_m"]), result["basic_distance_m"], result["uncertainty_m"], result["n_samples"],
         result["n_valid"], result["n_support"], json.dumps(result["samples_px"]), json.dumps(result["support"]),
-        int(result["gap_detected"]), json.dumps(result["warnings"]), result["elapsed_ms"], thumb, json.dumps(extra),
+        int(result["gap_detected"]), json.dumps(result["warnings"]), result["elapsed_ms"], thumb, json.dumps(extra), SEGMENT,
     )  # fmt: skip
 
 
@@ -64,20 +66,21 @@ def _as_stored(name: str, value: Any) -> Any:
     return value
 
 
+def kind_of(row: Mapping[str, Any]) -> str:
+    """What a row measured: its ``kind``, "segment" for a row of a database not migrated yet."""
+    return str(row["kind"]) if "kind" in row.keys() else SEGMENT
+
+
 def record(row: Mapping[str, Any]) -> dict[str, Any]:
-    """The record of a row (an ``sqlite3.Row`` or a mapping with the same keys); the per-sample
-    arrays only when the row has them."""
+    """The record of a row (an ``sqlite3.Row`` or a mapping with the same keys): a segment's with the
+    per-sample arrays only when the row has them, a shape's as :func:`history.shape_records.shape_record`."""
+    if kind_of(row) != SEGMENT:
+        return shape_record(row)
     keys = row.keys()
     extra = json.loads(row["extra"] or "{}")
     return {
         **extra,  # newer Measurement fields (quality, reasons, ...) and frame_index; never shadow ours
-        "name": str(extra.get("name", "")),
-        "note": str(extra.get("note", "")),
-        "id": row["id"],
-        "created": row["created"],
-        "frame_id": row["frame_id"],
-        "frame_uid": row["frame_uid"],
-        "source": row["source"],
+        **head(row, extra, SEGMENT),
         "p1": [row["p1_x"], row["p1_y"]],
         "p2": [row["p2_x"], row["p2_y"]],
         "options": json.loads(row["options"]),

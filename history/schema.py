@@ -3,7 +3,9 @@
 Two tables: ``frames`` (one row per saved frame file, ``file`` relative to :func:`frames_dir`;
 ``file = ''`` once the size cap deleted the file) and ``measurements`` (one row per measurement:
 clicked points in px, options as JSON, the result's fields in metres, and ``extra``, a JSON object
-of the result's newer fields, the name, the note and the request's context).
+of the result's newer fields, the name, the note and the request's context). ``kind`` says what a
+row measured: "segment" (two clicks; every row of a database from before shapes), or a shape kind
+("box", "height", "path", "area") whose clicks and result live in ``extra`` (:mod:`history.shape_records`).
 
 The service writes through :func:`open_writer` (WAL, synchronous=FULL, checkpoints left to the
 store's own thread); its threads read through :func:`open_reader`; anyone else (the batch) reads
@@ -55,12 +57,14 @@ MIGRATIONS = (  # columns added since the first schema: (table, column, declarat
     ("frames", "bytes", "INTEGER NOT NULL DEFAULT 0"),
     ("measurements", "pinned", "INTEGER NOT NULL DEFAULT 0"),
     ("measurements", "extra", "TEXT NOT NULL DEFAULT '{}'"),
+    ("measurements", "kind", "TEXT NOT NULL DEFAULT 'segment'"),  # rows from before shapes were all segments
 )
+SEGMENT = "segment"
 FRAME_INSERT = ("uid", "file", "width", "height", "timestamp", "source", "created", "bytes")
-MEASUREMENT_INSERT = tuple(name for name, _ in MEASUREMENTS_COLUMNS if name != "id") + ("extra",)
+MEASUREMENT_INSERT = tuple(name for name, _ in MEASUREMENTS_COLUMNS if name != "id") + ("extra", "kind")
 SLIM_COLUMNS = tuple(
     name for name, _ in MEASUREMENTS_COLUMNS if name not in ("samples_px", "support", "thumb")
-) + ("pinned", "extra")  # every column but the per-sample arrays and the thumbnail
+) + ("pinned", "extra", "kind")  # every column but the per-sample arrays and the thumbnail
 # What a reader outside the service relies on (checked by open_read_only).
 READ_COLUMNS = {
     "measurements": ("id", "frame_uid", "source", "p1_x", "p1_y", "p2_x", "p2_y", "options"),
@@ -135,10 +139,13 @@ def open_read_only(db: Path) -> sqlite3.Connection:
 
 
 def measurement_inputs(con: sqlite3.Connection) -> list[sqlite3.Row]:
-    """What re-measuring every stored measurement needs, oldest first: ``id``, ``frame_uid``,
+    """What re-measuring every stored segment needs, oldest first: ``id``, ``frame_uid``,
     ``source``, ``p1_x`` .. ``p2_y`` (px), ``options`` (JSON) and its frame's ``file`` (None: no
-    frame row; '': deleted by the size cap)."""
+    frame row; '': deleted by the size cap). Shape rows are left out: two points do not re-measure
+    them. A database the service has not migrated yet (no ``kind`` column) holds segments only."""
+    has_kind = "kind" in {r[1] for r in con.execute("PRAGMA table_info(measurements)")}
+    where = f"WHERE m.kind = '{SEGMENT}' " if has_kind else ""
     return con.execute(
         "SELECT m.id, m.frame_uid, m.source, m.p1_x, m.p1_y, m.p2_x, m.p2_y, m.options, f.file "
-        "FROM measurements m LEFT JOIN frames f ON f.uid = m.frame_uid ORDER BY m.id"
+        f"FROM measurements m LEFT JOIN frames f ON f.uid = m.frame_uid {where}ORDER BY m.id"
     ).fetchall()

@@ -40,6 +40,7 @@ from history.export import csv_chunks
 from history.frame_file import SUFFIX, encode_frame
 from history.records import record, record_of_values, row_values
 from history.saved_frames import SavedFrames, load_frame
+from history.shape_records import shape_row_values
 from history.space import Space, is_full
 from measure import Frame
 
@@ -205,11 +206,38 @@ class Store:
         stored record. ``context`` (e.g. ``frame_index`` of a replay) is kept with the result's extra
         fields. When this returns, both are durable; when it raises (StoreError), neither the row
         nor a file of its own is left."""
+        return self._insert(frame_uid, frame, lambda created: row_values(
+            created, frame_id, frame_uid, source, p1, p2, options, result, thumb, context))  # fmt: skip
+
+    def add_shape(
+        self,
+        *,
+        frame_id: int,
+        frame_uid: str,
+        frame: Frame,
+        source: str,
+        kind: str,
+        points: list[tuple[float, float]],
+        on: list[tuple[float, float]] | None,
+        options: dict[str, Any],
+        result: dict[str, Any],
+        draw_px: list[tuple[float, float]],
+        context: dict[str, Any] | None = None,
+    ) -> dict[str, Any]:
+        """:meth:`add` for a shape of ``kind`` ("box", "height", "path", "area"; ``result`` its
+        ``to_dict()``, ``points`` and ``on`` the clicks, ``draw_px`` what to draw, px): the same
+        durability, and its record as :func:`history.shape_records.shape_record` gives it."""
+        return self._insert(frame_uid, frame, lambda created: shape_row_values(
+            created, frame_id, frame_uid, source, kind, points, on, options, result, draw_px, context))  # fmt: skip
+
+    def _insert(self, frame_uid: str, frame: Frame, values_at: Callable[[float], tuple[Any, ...]]) -> dict[str, Any]:
+        """Save ``frame`` as ``frame_uid`` (once per uid), commit the row ``values_at(created)`` with the
+        others queued meanwhile (steps in the module docstring) and return its record."""
         with self.frames.lock(frame_uid):  # a delete of the frame's last measurement waits for this
             size = self.frames.save(frame_uid, frame)
             h, w = frame.disparity.shape
             created = time.time()
-            values = row_values(created, frame_id, frame_uid, source, p1, p2, options, result, thumb, context)
+            values = values_at(created)
             frame_row = (frame_uid, f"{frame_uid}{SUFFIX}", w, h, float(frame.timestamp), str(frame.meta.get("source", "")), created, size)
             row = _Pending(frame_row, values)
             with self._books:
@@ -309,11 +337,21 @@ class Store:
 
     def segment(self, mid: int) -> tuple[str, list[float], list[float]]:
         """The frame uid and the clicked points (px) of measurement ``mid`` (a thumbnail's inputs),
-        without decoding its record; raises :class:`MeasurementUnknown`."""
+        without decoding its record; raises :class:`MeasurementUnknown`. A shape's are its first and
+        last click; :meth:`drawing` has its whole outline."""
         row = self._one("SELECT frame_uid, p1_x, p1_y, p2_x, p2_y FROM measurements WHERE id=?", (mid,))
         if row is None:
             raise MeasurementUnknown(f"no measurement {mid}; GET /api/measurements lists them")
         return row["frame_uid"], [row["p1_x"], row["p1_y"]], [row["p2_x"], row["p2_y"]]
+
+    def drawing(self, mid: int) -> tuple[str, str, list[list[float]]]:
+        """The frame uid, the kind and what to draw (px) of measurement ``mid``: a segment's two
+        clicks, a shape's ``draw_px``; raises :class:`MeasurementUnknown`."""
+        uid, p1, p2 = self.segment(mid)
+        row = self._one("SELECT kind, extra FROM measurements WHERE id=?", (mid,))
+        if row is None or row["kind"] == schema.SEGMENT:
+            return uid, schema.SEGMENT, [p1, p2]
+        return uid, str(row["kind"]), json.loads(row["extra"] or "{}").get("shape", {}).get("draw_px") or [p1, p2]
 
     def pin(self, mid: int, pinned: bool = True) -> dict[str, Any]:
         """Pin (or unpin) a measurement: the history cap never deletes the frame of a pinned one."""
@@ -340,15 +378,19 @@ class Store:
         self.cache.changed(mid)
         return self.record(mid)
 
-    def list_slim(self, limit: int = 100, before: int | None = None) -> list[dict[str, Any]]:
+    def list_slim(self, limit: int = 100, before: int | None = None, kind: str | None = None) -> list[dict[str, Any]]:
         """Records without ``samples_px`` and ``support`` (the bulk of a record), newest first,
-        ``limit`` of them with an id below ``before`` (the last id of the previous page)."""
-        return json.loads(self.list_slim_json(limit, before))
+        ``limit`` of them with an id below ``before`` (the last id of the previous page), of ``kind``
+        only ("segment", "box", ...) when given."""
+        return json.loads(self.list_slim_json(limit, before, kind))
 
-    def list_slim_json(self, limit: int = 100, before: int | None = None) -> bytes:
+    def list_slim_json(self, limit: int = 100, before: int | None = None, kind: str | None = None) -> bytes:
         """:meth:`list_slim` as JSON bytes, from the records encoded at their first listing
         (:mod:`history.cache`), so a page costs little server CPU under the GIL."""
-        where, args = ("WHERE id < ?", (before, limit)) if before is not None else ("", (limit,))
+        conditions = [("id < ?", before)] if before is not None else []
+        conditions += [("kind = ?", kind)] if kind is not None else []
+        where = ("WHERE " + " AND ".join(c for c, _ in conditions)) if conditions else ""
+        args = (*(v for _, v in conditions), limit)
         changes = self.cache.changes
         ids = [r[0] for r in self._all(f"SELECT id FROM measurements {where} ORDER BY id DESC LIMIT ?", args)]
         parts = self.cache.slim(ids)

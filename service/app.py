@@ -32,7 +32,7 @@ from service.config import ServerConfig
 from service.frames import Capture, FrameRing
 from service.guard import RequestGuard, allowed_hosts_for
 from service.recorder import Recorder
-from service.routers import checks, frames, health, measurements, options, recordings
+from service.routers import checks, frames, health, measurements, options, recordings, shapes
 from service.state import ServiceState
 from service.workers import MeasurePool
 
@@ -109,7 +109,7 @@ def create_app(source: str | Callable[[], Source], settings: ServerConfig | None
 
     errors.install(app)
 
-    for module in (health, frames, measurements, recordings, checks, options):
+    for module in (health, frames, measurements, shapes, recordings, checks, options):
         app.include_router(module.router)
     app.mount("/", StaticFiles(directory=STATIC_DIR, html=True), name="static")
     hosts = allowed_hosts_for(settings.host, settings.allowed_hosts)

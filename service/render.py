@@ -77,19 +77,22 @@ def quarter(image: np.ndarray) -> np.ndarray:
     return cv2.resize(image, None, fx=0.25, fy=0.25, interpolation=cv2.INTER_AREA)
 
 
-def make_thumb(image: np.ndarray, full_width: int, p1: tuple[float, float], p2: tuple[float, float]) -> bytes:
+def make_thumb(image: np.ndarray, full_width: int, lines: list[tuple[list[list[float]], bool]]) -> bytes:
     """A small JPEG of a frame's colour ``image`` (full size, or a reduced decode of a frame
-    ``full_width`` pixels wide) with the measured segment (full-size pixels) drawn on it; bilinear
-    resize + JPEG."""
+    ``full_width`` pixels wide) with the measurement drawn on it: ``lines`` are polylines (points in
+    full-size pixels, closed or not; a segment is one line of its two clicks, whose ends get dots);
+    bilinear resize + JPEG."""
     h, w = image.shape[:2]
     s = THUMB_WIDTH / full_width
     small = cv2.resize(image, (THUMB_WIDTH, max(1, round(h * THUMB_WIDTH / w))), interpolation=cv2.INTER_LINEAR)
-    a = (round((p1[0] + 0.5) * s * 16), round((p1[1] + 0.5) * s * 16))
-    b = (round((p2[0] + 0.5) * s * 16), round((p2[1] + 0.5) * s * 16))
-    cv2.line(small, a, b, (0, 0, 0), 4, cv2.LINE_AA, shift=4)
-    cv2.line(small, a, b, (40, 220, 255), 2, cv2.LINE_AA, shift=4)
-    for p in (a, b):
-        cv2.circle(small, p, 4 * 16, (40, 220, 255), -1, cv2.LINE_AA, shift=4)
+    scaled = [(np.round((np.asarray(pts, float).reshape(-1, 2) + 0.5) * s * 16).astype(np.int32), closed) for pts, closed in lines]
+    scaled = [(pts, closed) for pts, closed in scaled if len(pts)]
+    for colour, width in (((0, 0, 0), 4), ((40, 220, 255), 2)):  # a dark rim under the line, for any background
+        cv2.polylines(small, [pts for pts, closed in scaled if not closed], False, colour, width, cv2.LINE_AA, shift=4)
+        cv2.polylines(small, [pts for pts, closed in scaled if closed], True, colour, width, cv2.LINE_AA, shift=4)
+    if len(scaled) == 1 and len(scaled[0][0]) == 2:
+        for p in scaled[0][0]:
+            cv2.circle(small, tuple(int(v) for v in p), 4 * 16, (40, 220, 255), -1, cv2.LINE_AA, shift=4)
     return encode_jpeg(small, THUMB_JPEG_QUALITY)
 
 

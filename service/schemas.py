@@ -5,7 +5,7 @@ from __future__ import annotations
 import re
 from typing import Annotated, Any, Literal
 
-from pydantic import AfterValidator, BaseModel, ConfigDict, Field, Strict, create_model, field_validator, model_validator
+from pydantic import AfterValidator, BaseModel, ConfigDict, Field, RootModel, Strict, create_model, field_validator, model_validator
 
 from measure import MAX_FRAMES, METHODS, MeasureOptions, OptionField, describe_options, options_of
 
@@ -77,6 +77,40 @@ class MeasureIn(BaseModel):
     # Measure over this many frames of a still scene: the frame and the ones received just before it
     # (measure.sequence; robust method only).
     frames: Annotated[int, Strict(), Field(ge=1, le=MAX_FRAMES)] = 1
+
+
+Point = tuple[FiniteNumber, FiniteNumber]
+MAX_SHAPE_POINTS = 256  # clicks of a path or an area; each leg of a path is a segment's measurement
+ONE_CLICK = {"box": "a click on its top face", "height": "a click on the object"}
+LEAST_CLICKS = {"path": (2, "in order along it"), "area": (3, "in order around it")}
+
+
+class ShapeIn(BaseModel):
+    """``POST /api/shapes`` body: a box, a height, a path or an area on frame ``frame_id``; ``points``
+    in pixels of its colour image (box, height: exactly 1; path: >= 2; area: >= 3, in order);
+    ``on`` a height's base plane (1 click on it, or >= 3 around a region of it; null: the plane the
+    object stands on); ``options`` as ``POST /api/measure``'s."""
+
+    model_config = ConfigDict(extra="forbid")
+    frame_id: Id
+    kind: Literal["box", "height", "path", "area"]
+    points: Annotated[list[Point], Field(min_length=1, max_length=MAX_SHAPE_POINTS)]
+    on: Annotated[list[Point], Field(min_length=1, max_length=MAX_SHAPE_POINTS)] | None = None
+    options: OptionsIn = OptionsIn()
+
+    @model_validator(mode="after")
+    def _clicks_fit_the_kind(self) -> ShapeIn:
+        n, kind = len(self.points), self.kind
+        if kind in ONE_CLICK and n != 1:
+            raise ValueError(f"a {kind} takes exactly 1 point ({ONE_CLICK[kind]}), got {n}; send one point")
+        if kind in LEAST_CLICKS and n < LEAST_CLICKS[kind][0]:
+            least, order = LEAST_CLICKS[kind]
+            raise ValueError(f"{'an' if kind == 'area' else 'a'} {kind} needs at least {least} points {order}, got {n}; add points")
+        if self.on is not None and kind != "height":
+            raise ValueError(f"'on' names the base plane of a height only; leave it out (or null) for a {kind}")
+        if self.on is not None and len(self.on) == 2:
+            raise ValueError("'on' is 1 click on the base plane or at least 3 around a region of it, got 2; add a click")
+        return self
 
 
 class BoardIn(BaseModel):
@@ -348,15 +382,55 @@ class MeasurementOut(BaseModel):
     reasons: list[str] | None = None
     frame_index: int | None = None
     weak_stretches: list[list[float]] | None = None
+    kind: Literal["segment"] = "segment"
+
+
+class ShapeOut(BaseModel):
+    """A stored shape measurement (``POST /api/shapes``): the clicks (``points``, ``on``, px), the
+    answer (``value`` in ``unit`` "m" or "m2", 1σ ``uncertainty``, 95 % ``interval``; None for a box,
+    whose ``dimensions_m`` are length >= width and height with their 1σ and 95 % intervals), the
+    verdict, ``draw_px`` (what to draw, px: a path's vertices, an area's corners, a height's top point
+    and its foot, a box's 4 top then 4 base corners) and ``result``, the core's answer unabridged."""
+
+    model_config = ConfigDict(extra="allow")
+    id: int
+    kind: Literal["box", "height", "path", "area"]
+    created: float
+    created_at: float
+    name: str
+    note: str
+    frame_id: int
+    frame_uid: str
+    source: str
+    options: OptionsIn
+    points: list[list[float]]
+    on: list[list[float]] | None
+    quality: str
+    reasons: list[str]
+    value: float | None
+    unit: Literal["m", "m2"]
+    uncertainty: float | None
+    interval: list[float | None] | None
+    dimensions_m: list[float | None] | None
+    dimension_sigmas_m: list[float | None] | None
+    dimension_intervals_m: list[list[float | None]] | None
+    draw_px: list[list[float | None]]
+    result: dict[str, Any]
+    elapsed_ms: float
+    pinned: bool
+
+
+class AnyMeasurementOut(RootModel[MeasurementOut | ShapeOut]):
+    """A stored measurement of any kind: a segment (``kind`` "segment") or a shape."""
 
 
 class MeasurementsOut(_Out):
-    measurements: list[MeasurementOut]
+    measurements: list[AnyMeasurementOut]
 
 
 class ReopenOut(_Out):
     frame: FrameOut
-    measurement: MeasurementOut
+    measurement: AnyMeasurementOut
 
 
 class DeletedOut(_Out):

@@ -13,6 +13,7 @@ from measure import measure_distance, measure_sequence, weak_stretches
 from history.export import csv_chunks, json_chunks
 
 from service.deps import MeasurementDep, MeasurementId, State
+from service.frames import RingFrame
 from service.provenance import provenance
 from service.render import encode_png, frame_json, make_thumb, png_from_jpeg, quarter
 from service.schemas import (
@@ -20,18 +21,20 @@ from service.schemas import (
     AnnotationIn,
     DeletedOut,
     MeasureIn,
+    AnyMeasurementOut,
     MeasurementOut,
     MeasurementsOut,
     ReopenOut,
     json_doc,
     media_doc,
 )
+from service.shapes import outlines
 from service.state import ServiceState
 
 router = APIRouter(prefix="/api", tags=["measurements"])
 
 
-def _json(obj: Any) -> Response:
+def json_response(obj: Any) -> Response:
     """JSON encoded here, on the worker thread: FastAPI would encode a returned dict on the event
     loop, where a record with its samples stalls every other request for a millisecond or more."""
     return Response(json.dumps(obj, separators=(",", ":"), allow_nan=False).encode(), media_type="application/json")
@@ -58,25 +61,25 @@ def _measure(state: ServiceState, body: MeasureIn) -> Response:
         result = measure_distance(frame, body.p1, body.p2, core)
     # where along the segment the clicked frame's matcher had weak support, for the page to mark
     weak = {"weak_stretches": weak_stretches(frame.confidence, body.p1, body.p2).round(4).tolist()}
-    source, context = provenance(frame, state.capture.info, state.capture.spec)
+    stored = stored_frame(state, entry)
     if body.frames > 1:
         # The ids of the frames pooled, oldest first (the motion check may keep fewer than offered).
-        context |= {"frames_requested": body.frames, "frame_ids": [e.id for e in used[len(used) - result.frames_used :]]}
+        stored["context"] |= {"frames_requested": body.frames, "frame_ids": [e.id for e in used[len(used) - result.frames_used :]]}
     record = state.store.add(
-        frame_id=entry.id,
-        frame_uid=entry.uid,
-        frame=frame,
-        source=source,
-        p1=body.p1,
-        p2=body.p2,
-        options=options,
-        result=result.to_dict() | weak,
-        context=context,
+        **stored, p1=body.p1, p2=body.p2, options=options, result=result.to_dict() | weak
     )  # returns once the measurement and its frame are on disk; the thumbnail is drawn on request
-    return _json(record)
+    return json_response(record)
+
+
+def stored_frame(state: ServiceState, entry: RingFrame) -> dict[str, Any]:
+    """The arguments of ``Store.add`` / ``Store.add_shape`` that say which frame was measured: its
+    ring id and uid, the frame, the source's description and the request's context (provenance)."""
+    source, context = provenance(entry.frame, state.capture.info, state.capture.spec)
+    return {"frame_id": entry.id, "frame_uid": entry.uid, "frame": entry.frame, "source": source, "context": context}
 
 
 Units = Literal["m", "cm", "mm", "in"]
+Kind = Literal["segment", "box", "height", "path", "area"]
 
 
 def _attachment(name: str) -> dict[str, str]:
@@ -105,30 +108,31 @@ def measurements_json(state: State) -> StreamingResponse:
     return StreamingResponse(chunks, media_type="application/json", headers=_attachment("depthruler-measurements.json"))
 
 
-@router.get("/measurements", **json_doc(list[MeasurementOut], csv=True))
+@router.get("/measurements", **json_doc(list[AnyMeasurementOut], csv=True))
 def measurements(
     state: State,
     request: Request,
     format: Literal["json", "csv"] = "json",
     limit: Annotated[int, Query(ge=1, le=10_000)] = 1000,
     before: Annotated[int | None, Query(ge=1, le=MAX_ID)] = None,
+    kind: Kind | None = None,
 ) -> Response:
     """The history, newest first, slim: every field but the per-sample arrays (``samples_px``,
     ``support``: ``GET /api/measurements/{id}`` has them). Pages: ``limit`` records with an id
-    below ``before`` (pass the last id of the previous page). Encoded here, on a worker thread,
-    not on the event loop."""
+    below ``before`` (pass the last id of the previous page); ``kind`` keeps one kind ("segment",
+    "box", "height", "path", "area"). Encoded here, on a worker thread, not on the event loop."""
     if format == "csv":
         return _csv(state, "m", request)
-    return Response(state.store.list_slim_json(limit, before), media_type="application/json")
+    return Response(state.store.list_slim_json(limit, before, kind), media_type="application/json")
 
 
-@router.get("/measurements/{mid}", **json_doc(MeasurementOut))
+@router.get("/measurements/{mid}", **json_doc(AnyMeasurementOut))
 def measurement(record: MeasurementDep) -> Response:
     """The full record, with the per-sample arrays."""
-    return _json(record)
+    return json_response(record)
 
 
-@router.patch("/measurements/{mid}", **json_doc(MeasurementOut))
+@router.patch("/measurements/{mid}", **json_doc(AnyMeasurementOut))
 def annotate(state: State, mid: MeasurementId, body: AnnotationIn) -> dict[str, Any]:
     """Name and/or note a measurement (works on a full disk: the history keeps a reserve for it)."""
     return state.store.annotate(mid, body.name, body.note)
@@ -144,12 +148,12 @@ def delete_measurement(state: State, mid: MeasurementId) -> dict[str, Any]:
 def _thumb(state: ServiceState, mid: int) -> bytes:
     """The measurement's thumbnail, drawn on first request from its frame (still in the ring, else
     its saved file) and kept in memory."""
-    uid, p1, p2 = state.store.segment(mid)
+    uid, kind, points = state.store.drawing(mid)
     data = state.store.thumb(mid)
     if data is None:
         entry = state.ring.find(uid)  # the frame is usually still in the ring: no file to read and decode
         image, width = (quarter(entry.frame.image), entry.frame.image.shape[1]) if entry else state.store.preview(uid)
-        data = make_thumb(image, width, p1, p2)
+        data = make_thumb(image, width, outlines(kind, points))
         state.store.set_thumb(mid, data)
     return data
 
@@ -183,12 +187,12 @@ def reopen(state: State, record: MeasurementDep) -> dict[str, Any]:
     return {"frame": frame_json(entry), "measurement": record}
 
 
-@router.post("/measurements/{mid}/pin", **json_doc(MeasurementOut))
+@router.post("/measurements/{mid}/pin", **json_doc(AnyMeasurementOut))
 def pin(state: State, mid: MeasurementId) -> dict[str, Any]:
     """Keep this measurement's frame whatever the history cap (``--history-max-gb``)."""
     return state.store.pin(mid, True)
 
 
-@router.delete("/measurements/{mid}/pin", **json_doc(MeasurementOut))
+@router.delete("/measurements/{mid}/pin", **json_doc(AnyMeasurementOut))
 def unpin(state: State, mid: MeasurementId) -> dict[str, Any]:
     return state.store.pin(mid, False)

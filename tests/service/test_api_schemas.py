@@ -77,6 +77,10 @@ def test_real_answers_validate_against_the_documented_models(client):
     record = call("POST", "/api/measure", "/api/measure", json={"frame_id": fid, "p1": p1, "p2": p2})
     mid = record["id"]
     assert record["samples_px"] and record["quality"] and isinstance(record["weak_stretches"], list)
+    mid_px = [(a + b) / 2 for a, b in zip(p1, p2)]
+    shape = call("POST", "/api/shapes", "/api/shapes", json={"frame_id": fid, "kind": "path", "points": [p1, mid_px, p2]})
+    assert shape["kind"] == "path" and len(shape["result"]["parts"]) == 2
+    call("GET", "/api/measurements/{mid}", f"/api/measurements/{shape['id']}")
     call("GET", "/api/measurements", "/api/measurements")
     call("GET", "/api/measurements/{mid}", f"/api/measurements/{mid}")
     call("PATCH", "/api/measurements/{mid}", f"/api/measurements/{mid}", json={"name": "box", "note": "edge"})

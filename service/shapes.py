@@ -1,0 +1,66 @@
+"""The shapes the service measures (a box, a height, a path, an area): the core's call for each kind,
+and what the page and the thumbnail draw of the answer, in pixels of the frame.
+
+:func:`measure_shape` calls ``measure.measure_box`` / ``measure_height`` / ``measure_path`` /
+``measure_area`` (raising ``measure.MeasureError`` on bad input); :func:`draw_px` gives the points
+to draw: a path's vertices and an area's corners as clicked, a height's top point and its foot on
+the base plane projected with the frame's pinhole camera (u = fx X / Z + cx, v = fy Y / Z + cy), a
+box's four top corners then its four base corners. :func:`outlines` turns them into the polylines of
+a thumbnail.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Sequence
+
+from measure import (
+    BoxMeasurement, Frame, MeasureOptions, PinholeCamera, ShapeMeasurement, measure_area, measure_box, measure_height, measure_path,
+)
+
+Point = tuple[float, float]
+
+
+def measure_shape(frame: Frame, kind: str, points: Sequence[Point], on: Sequence[Point] | None,
+                  options: MeasureOptions) -> ShapeMeasurement | BoxMeasurement:
+    """The core's answer for ``kind`` ("box", "height": one point; "path", "area": the points in
+    order; ``on`` a height's base clicks, None for the plane found under it)."""
+    if kind == "box":
+        return measure_box(frame, tuple(points[0]), options)
+    if kind == "height":
+        return measure_height(frame, tuple(points[0]), [tuple(p) for p in on] if on else None, options)
+    measure = measure_path if kind == "path" else measure_area
+    return measure(frame, [tuple(p) for p in points], options)
+
+
+def _px(p: Sequence[float]) -> list[float | None]:
+    return [float(v) if math.isfinite(v) else None for v in p]
+
+
+def _project(camera: PinholeCamera, p: Sequence[float]) -> list[float | None]:
+    x, y, z = (float(v) for v in p)
+    if not (math.isfinite(z) and z > 0):
+        return [None, None]
+    return _px((camera.fx * x / z + camera.cx, camera.fy * y / z + camera.cy))
+
+
+def draw_px(result: ShapeMeasurement | BoxMeasurement, camera: PinholeCamera) -> list[list[float | None]]:
+    """What to draw of ``result`` on its frame (px; None for a coordinate that is not finite): see
+    the module docstring."""
+    if isinstance(result, BoxMeasurement):
+        return [_px(p) for p in (*result.corners_px, *result.base_corners_px)]
+    if result.kind == "height":
+        return [_project(camera, p) for p in result.points_m]
+    return [_px(p) for p in result.clicks_px]
+
+
+def outlines(kind: str, points: list[list[float | None]]) -> list[tuple[list[list[float]], bool]]:
+    """The polylines (points, closed) that draw a measurement of ``kind`` from its ``draw_px``: a
+    segment's or a height's line, a path's polyline, an area's polygon, a box's top rectangle, base
+    rectangle and four vertical edges. Points that are not finite are left out."""
+    finite = [[float(v) for v in p] for p in points if all(v is not None and math.isfinite(v) for v in p)]
+    if kind == "box" and len(finite) == 8:
+        top, base = finite[:4], finite[4:]
+        return [(top, True), (base, True), *(([t, b], False) for t, b in zip(top, base))]
+    return [(finite, kind in ("area", "box"))]
+
