@@ -620,12 +620,16 @@ function verdictColor(q) {
 }
 
 function drawLabel(c, pts, s, label, color, sub) {
-  const mx = (pts[0][0] + pts[1][0]) / 2, my = (pts[0][1] + pts[1][1]) / 2;
+  let mx = (pts[0][0] + pts[1][0]) / 2;
+  const my = (pts[0][1] + pts[1][1]) / 2;
   c.font = `600 ${Math.round(16 * s)}px system-ui, sans-serif`;
   let w = c.measureText(label).width;
   let subFont = `${Math.round(12 * s)}px system-ui, sans-serif`;
   if (sub) { c.font = subFont; w = Math.max(w, c.measureText(sub).width); }
   w += 16 * s;
+  // inside the part of the image in view (a shape near the border keeps its label readable)
+  const [x0, x1] = c === ctx ? [state.zoom.x, state.zoom.x + canvas.width / state.zoom.k] : [0, c.canvas.width];
+  mx = Math.min(Math.max(mx, x0 + w / 2 + 2 * s), x1 - w / 2 - 2 * s);
   const h = (sub ? 42 : 26) * s;
   const top = Math.max(2 * s, my - h - 10 * s);
   c.fillStyle = "rgba(15,18,22,.85)";
@@ -1245,7 +1249,7 @@ function historyItem(m) {
   }
   const warnings = m.warnings || [];
   const method = m.method || (m.options && m.options.method) || "";
-  text.querySelector(".h-meta").textContent = [kindLabel(m), sourceLabel(m), method, when].filter(Boolean).join(" · ") + (warnings.length ? " · ⚠ " + warnings.length : "");
+  text.querySelector(".h-meta").textContent = [isShape(m) ? kindLabel(m) : "", sourceLabel(m), method, when].filter(Boolean).join(" · ") + (warnings.length ? " · ⚠ " + warnings.length : "");
   text.querySelector(".h-meta").title = [...(m.reasons || []), ...warnings].join("\n");
   text.querySelector(".h-note").textContent = m.note || "";
   const edit = Object.assign(document.createElement("button"), { className: "h-btn h-edit", title: "Name and note", textContent: "✎" });

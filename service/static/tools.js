@@ -275,7 +275,7 @@ function showShapeCard(res) {
   d.dataset.metres = res.unit === "m" && res.value !== null ? String(res.value) : "";
   const ivEl = $("interval");
   if (res.kind === "box") {
-    ivEl.textContent = "length × width × height · 95 % intervals below";
+    ivEl.textContent = "length × width × height";
     ivEl.dataset.low = ivEl.dataset.high = "";
     dims.replaceChildren(...DIMENSIONS.map((name, i) => dimensionRow(res, name, i)));
     dims.classList.remove("hidden");
@@ -337,6 +337,7 @@ function legRows(res) {
 
 // What a shape verdict's reason means for the person, and what to do (the core's phrases in measure/).
 const SHAPE_ADVICE = [
+  [/edges uncertain|crease/i, "The top's edges are unclear: move so the top face stands out against what is behind it, and light it."],
   [/top face|not a box|box top/i, "Click the middle of the box's top face, with the whole top in view."],
   [/border|cut|outside/i, "Step back or turn so the whole object is inside the image."],
   [/hidden|occlu|in front/i, "Move so nothing stands in front of the box's faces."],
@@ -390,29 +391,36 @@ function drawCollecting(c, pts, s) {
 // edge from its top to its foot, the box's top rectangle, its base and its height edges. Returns the
 // image point the value's label hangs from.
 function drawMeasured(c, res, s) {
-  const px = (res.draw_px || []).filter((p) => Array.isArray(p) && p.every((v) => v !== null && isFinite(v)));
-  const pts = px.map(([x, y]) => [x + 0.5, y + 0.5]);
-  if (!pts.length) return null;
+  const ok = (p) => Array.isArray(p) && p.length === 2 && p.every((v) => v !== null && isFinite(v));
+  const raw = res.draw_px || [];
+  const at = (p) => (ok(p) ? [p[0] + 0.5, p[1] + 0.5] : null); // null: a point the service could not place
   const color = verdictColor(res.quality);
-  if (res.kind === "path") strokePath(c, pts, s, color, 2.6, false);
-  else if (res.kind === "area") {
-    fillPolygon(c, pts, "rgba(255,201,77,.18)");
-    strokePath(c, pts, s, color, 2.6, true);
-  } else if (res.kind === "height" && pts.length >= 2) {
-    strokePath(c, pts.slice(0, 2), s, color, 2.6, false);
-    strokePath(c, [[pts[1][0] - 12 * s, pts[1][1]], [pts[1][0] + 12 * s, pts[1][1]]], s, BASE_COLOR, 2.2, false); // the foot
-  } else if (res.kind === "box" && pts.length >= 8) {
-    const top = pts.slice(0, 4), base = pts.slice(4, 8);
-    strokePath(c, base, s, BASE_COLOR, 1.6, true, [6, 5]);
-    top.forEach((p, i) => strokePath(c, [p, base[i]], s, BASE_COLOR, 1.6, false, [6, 5]));
-    // the height edge: from the top corner nearest the bottom of the image, where it is in view
-    const near = top.reduce((best, p, i) => (p[1] > top[best][1] ? i : best), 0);
-    strokePath(c, [top[near], base[near]], s, color, 2.6, false);
-    fillPolygon(c, top, "rgba(255,201,77,.16)");
-    strokePath(c, top, s, color, 2.6, true);
+  if (res.kind === "box" && raw.length === 8) {
+    const top = raw.slice(0, 4).map(at), base = raw.slice(4, 8).map(at);
+    const edges = top.map((t, i) => [t, base[i]]).filter(([t, b]) => t && b);
+    if (base.every(Boolean)) strokePath(c, base, s, BASE_COLOR, 1.6, true, [6, 5]);
+    for (const e of edges) strokePath(c, e, s, BASE_COLOR, 1.6, false, [6, 5]);
+    // the height edge: from the top corner lowest in the image, the one nearest the camera's view
+    if (edges.length) strokePath(c, edges.reduce((a, b) => (b[0][1] > a[0][1] ? b : a)), s, color, 2.6, false);
+    if (top.every(Boolean)) {
+      fillPolygon(c, top, "rgba(255,201,77,.16)");
+      strokePath(c, top, s, color, 2.6, true);
+    }
+  } else {
+    const pts = raw.map(at).filter(Boolean);
+    if (res.kind === "path") strokePath(c, pts, s, color, 2.6, false);
+    else if (res.kind === "area") {
+      fillPolygon(c, pts, "rgba(255,201,77,.18)");
+      strokePath(c, pts, s, color, 2.6, true);
+    } else if (res.kind === "height" && pts.length >= 2) {
+      strokePath(c, pts.slice(0, 2), s, color, 2.6, false);
+      strokePath(c, [[pts[1][0] - 12 * s, pts[1][1]], [pts[1][0] + 12 * s, pts[1][1]]], s, BASE_COLOR, 2.2, false); // the foot
+    }
   }
-  canvas.dataset.drawn = JSON.stringify(px);
-  const xs = pts.map((p) => p[0]), ys = pts.map((p) => p[1]);
+  const drawn = raw.filter(ok);
+  if (c === ctx) canvas.dataset.drawn = JSON.stringify(raw); // what the frame on screen shows
+  if (!drawn.length) return null;
+  const xs = drawn.map((p) => p[0] + 0.5), ys = drawn.map((p) => p[1] + 0.5);
   return [(Math.min(...xs) + Math.max(...xs)) / 2, Math.min(...ys)];
 }
 

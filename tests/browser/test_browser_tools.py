@@ -16,7 +16,7 @@ import pytest
 from browser_helpers import open_live, serve, watch
 from sim.scenes import SceneParams, get_view
 
-SPEC = "sim:boxes?distance=1.2&seed=3&fps=5"
+SPEC = "sim:boxes?distance=1.2&contention=0&seed=3&fps=5"  # no wrong-pair matches: every frame of 80 measured
 VIEWPORTS = {"mouse": dict(viewport={"width": 1366, "height": 800}),
              "touch": dict(viewport={"width": 390, "height": 844}, has_touch=True, is_mobile=True, device_scale_factor=2)}
 
@@ -142,3 +142,100 @@ def test_tools_collect_points_with_undo_and_switching_clears(hand, server, scene
     choose(hand, "distance")
     assert placed(page) == [] and page.locator("#shape-measure").is_hidden() and page.locator("#undo-point").is_disabled()
     assert page.text_content("#result-title") == "Distance"
+
+
+def wait_measured(page, previous: str | None) -> dict:
+    """The stored measurement the card shows, once it shows one other than ``previous``."""
+    page.wait_for_function(
+        "prev => { const d = document.getElementById('distance').dataset; return d.id && d.id !== prev; }",
+        arg=previous or "", timeout=30_000,
+    )
+    return {"id": page.get_attribute("#distance", "data-id")}
+
+
+def shown_equals_stored(page, stored: dict) -> None:
+    """The card says what the history holds: the value as text and to the last bit, its interval, the verdict."""
+    kind = stored.get("kind", "segment")
+    text = page.text_content("#distance")
+    word = {"good": "✓ good", "check": "⚠ check", "unreliable": "✕ unreliable"}[stored["quality"]]
+    assert page.text_content("#verdict") == word
+    if kind == "segment":
+        assert float(page.get_attribute("#distance", "data-metres")) == stored["distance_m"]
+        assert text == f"{stored['distance_m']:.3f} m"
+        return
+    if kind == "box":
+        dims = page.locator("#dims .dim")
+        assert [float(dims.nth(i).get_attribute("data-metres")) for i in range(3)] == stored["dimensions_m"]
+        assert [[float(dims.nth(i).get_attribute(a)) for a in ("data-low", "data-high")] for i in range(3)] == stored["dimension_intervals_m"]
+        assert text == " × ".join(f"{v:.3f}" for v in stored["dimensions_m"]) + " m"
+        return
+    assert float(page.get_attribute("#distance", "data-value")) == stored["value"]
+    assert text == f"{stored['value']:.3f} " + {"m": "m", "m2": "m²"}[stored["unit"]]
+    assert [float(page.get_attribute("#interval", a)) for a in ("data-low", "data-high")] == stored["interval"]
+    assert page.text_content("#interval").startswith(text)
+
+
+def drawn(page) -> list:
+    return json.loads(page.get_attribute("#canvas", "data-drawn"))
+
+
+def test_each_tool_measures_and_shows_the_stored_value(hand, server, scene):
+    """Distance, path, area, height and box in turn on one frozen frame: the value on screen is the
+    stored one, and the scene's truth (box 0.5 x 0.4 x 0.6 m; the height of its top; the distance, the
+    path and the area from the true depth under the clicks). By mouse the tools are chosen with their keys and a
+    path or area ended with Enter; by touch with the buttons. Then two shapes reopened from the
+    history come back drawn from their stored draw_px."""
+    page = hand.page
+    frame = frozen_frame(hand, server)
+    clicks = {"distance": [scene.front[1], scene.front[3]], "path": scene.front[:3], "area": scene.front,
+              "height": [scene.top], "box": [scene.top]}
+    keys = {"distance": "l", "path": "p", "area": "a", "height": "h", "box": "b"}
+    stored, previous = {}, None
+    for kind, pts in clicks.items():
+        if hand.how == "mouse":
+            page.keyboard.press(keys[kind])
+            assert page.get_attribute("#canvas", "data-tool") == kind
+        else:
+            choose(hand, kind)
+        if kind == "height":  # an auto-measured point taken back: the answer goes, the point too
+            hand.place(frame, pts[0])
+            previous = wait_measured(page, previous)["id"]
+            hand.press("#undo-point")
+            assert placed(page) == [] and page.get_attribute("#distance", "data-id") is None and drawn(page) == []
+        for p in pts:
+            hand.place(frame, p)
+        if kind in ("path", "area"):
+            page.wait_for_function("n => JSON.parse(document.getElementById('canvas').dataset.points).length === n", arg=len(pts))
+            page.keyboard.press("Enter") if hand.how == "mouse" else hand.press("#shape-measure")
+        previous = wait_measured(page, previous)["id"]
+        record = httpx.get(f"{server}/api/measurements/{previous}").json()
+        stored[kind] = record
+        assert record.get("kind", "segment") == ("segment" if kind == "distance" else kind)
+        assert near(record["points"] if kind != "distance" else [record["p1"], record["p2"]], pts)
+        shown_equals_stored(page, record)
+        if kind != "distance":
+            assert drawn(page) == record["draw_px"]
+        print(f"{hand.how} {kind}: {page.text_content('#distance')} ({record['quality']})")
+
+    assert stored["distance"]["distance_m"] == pytest.approx(scene.path_m(clicks["distance"]), rel=0.02)
+    assert stored["path"]["value"] == pytest.approx(scene.path_m(clicks["path"]), rel=0.02)
+    assert stored["area"]["value"] == pytest.approx(scene.area_m2(clicks["area"]), rel=0.03)
+    assert stored["height"]["value"] == pytest.approx(scene.dims[2], rel=0.02)
+    assert stored["box"]["dimensions_m"] == pytest.approx(list(scene.dims), rel=0.03)
+    assert stored["path"]["unit"] == "m" and stored["area"]["unit"] == "m2"
+
+    # reopened from the history after going live: the shape on its saved frame, with its tool
+    hand.press("#freeze")
+    page.wait_for_function("document.getElementById('frame-tag').textContent.startsWith('live')")
+    for kind in ("box", "path"):
+        record = stored[kind]
+        row = page.locator(f"#history li[data-id='{record['id']}']")
+        assert row.get_attribute("data-kind") == kind and row.locator(".h-meta").text_content().startswith(kind)
+        row.locator(".h-dist").click() if hand.how == "mouse" else row.locator(".h-dist").tap()
+        page.wait_for_function(
+            "id => document.getElementById('distance').dataset.id === id && document.getElementById('canvas').dataset.frozen === '1'",
+            arg=str(record["id"]),
+        )
+        assert page.get_attribute("#canvas", "data-tool") == kind and near(placed(page), record["points"], 0.0)
+        assert drawn(page) == record["draw_px"] and page.text_content("#saved").startswith(f"Saved measurement #{record['id']}")
+        shown_equals_stored(page, record)
