@@ -10,10 +10,14 @@ unit (:data:`UNITS`), rounded to what each measurement's uncertainty supports
 ``source_kind`` and ``recording`` say what the frame was read from ("replay" and the recording's
 folder, "bag" or "video" and the file; empty for measurements stored before the service kept them). Text
 cells go through :mod:`history.csv_safe`, so a name or note typed as a formula is written as text.
-The CSV never writes the per-sample arrays, so its rows are read without them.
+The CSV never writes the per-sample arrays, so its rows are read without them. ``kind`` says what a
+row measured; a shape's row (:mod:`history.shape_records`) fills ``uncertainty_1sigma``, the
+interval, the verdict, ``method`` and ``fit`` (its kind), ``value`` in ``value_unit`` (the unit, or
+its square for an area), a box's ``length``/``width``/``height`` with their 1σ, and its clicks
+(``points_px``), and leaves a segment's cells blank; a segment leaves the shape's cells blank.
 
 JSON (:func:`json_chunks`): ``{"measurements": [...]}``, every record with its per-sample arrays
-copied as the JSON text the database holds, never decoded and encoded again.
+copied as the JSON text the database holds, never decoded and encoded again (a shape has none).
 """
 
 from __future__ import annotations
@@ -28,6 +32,7 @@ from typing import Any
 
 from history import csv_safe
 from history.records import record
+from history.schema import SEGMENT
 
 UNITS = {"m": 1.0, "cm": 100.0, "mm": 1000.0, "in": 1 / 0.0254}
 
@@ -36,7 +41,10 @@ CSV_COLUMNS = (
     "interval_low", "interval_high", "quality", "reasons", "method", "fit", "basic_distance",
     "p1_x_px", "p1_y_px", "p2_x_px", "p2_y_px", "p1_X", "p1_Y", "p1_Z", "p2_X", "p2_Y", "p2_Z",
     "n_samples", "n_valid", "n_support", "gap_detected", "warnings", "frame_url",
+    "kind", "value", "value_unit", "length", "width", "height", "length_1sigma", "width_1sigma", "height_1sigma", "points_px",
 )  # fmt: skip
+SHAPE_CELLS = CSV_COLUMNS.index("value")  # where a shape's own cells start; a segment leaves them blank
+SEGMENT_ONLY = CSV_COLUMNS.index("frame_url") - CSV_COLUMNS.index("basic_distance")  # cells a shape leaves blank
 
 
 def supported_decimals(sigma: float | None, factor: float) -> int:
@@ -47,27 +55,63 @@ def supported_decimals(sigma: float | None, factor: float) -> int:
     return int(min(6, max(0, 1 - math.floor(math.log10(sigma * factor)))))
 
 
-def _row(r: dict[str, Any], units: str, base_url: str) -> list[Any]:
-    k = UNITS[units]
-    dec = supported_decimals(r["uncertainty_m"], k)
+def _rounded(v: Any, sigma: float | None, factor: float) -> Decimal | str:
+    """``v`` (m or m²) times ``factor``, to the decimals ``sigma`` supports; "" for None. A Decimal is a
+    number to the CSV writer (csv_safe leaves it, so -0.250 stays a negative length) and keeps the
+    rounding's trailing zeros, which a float would drop."""
+    return "" if v is None else Decimal(f"{float(v) * factor:.{supported_decimals(sigma, factor)}f}")
+
+
+def _sigma(v: float | None, factor: float) -> str:
+    return "" if v is None else f"{v * factor:.2g}"
+
+
+def _segment_cells(r: dict[str, Any], k: float) -> list[Any]:
+    """The cells from ``distance`` to ``warnings`` of a segment (lengths in a unit of ``k`` per metre)."""
+    sigma = r["uncertainty_m"]
 
     def length(v: Any) -> Decimal | str:
-        # A Decimal is a number to the CSV writer (csv_safe leaves it, so -0.250 stays a negative
-        # length) and keeps the rounding's trailing zeros, which a float would drop.
-        return "" if v is None else Decimal(f"{float(v) * k:.{dec}f}")
+        return _rounded(v, sigma, k)
 
-    sigma = "" if r["uncertainty_m"] is None else f"{r['uncertainty_m'] * k:.2g}"
     lo, hi = (list(r.get("interval_m") or []) + [None, None])[:2]
-    created = time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime(r["created"]))
     return [
-        r["id"], created, r["name"], r["note"], r["source"], r.get("source_kind", ""), r.get("recording", ""), r["frame_id"],
-        r.get("frame_index", ""), units,
-        length(r["distance_m"]), sigma, length(lo), length(hi), r.get("quality", ""), "; ".join(r.get("reasons", [])),
+        length(r["distance_m"]), _sigma(sigma, k), length(lo), length(hi), r.get("quality", ""), "; ".join(r.get("reasons", [])),
         r["method"], r["fit"], length(r["basic_distance_m"]),
         *(Decimal(f"{v:.1f}") for v in (*r["p1"], *r["p2"])), *(length(v) for v in (*r["p1_m"], *r["p2_m"])),
         r["n_samples"], r["n_valid"], r["n_support"], int(r["gap_detected"]), "; ".join(r["warnings"]),
-        f"{base_url}api/measurements/{r['id']}/color.png",
     ]  # fmt: skip
+
+
+def _shape_cells(r: dict[str, Any], k: float, units: str) -> tuple[list[Any], list[Any]]:
+    """A shape's cells from ``distance`` to ``warnings`` (its 1σ, interval, verdict, method and kind;
+    no segment values) and from ``value`` on: the value in ``units`` (``units`` + "2" for an area), a
+    box's dimensions with their 1σ, and the clicks (px)."""
+    area = r["unit"] == "m2"
+    f = k * k if area else k
+    lo, hi = (list(r.get("interval") or []) + [None, None])[:2]
+    sigma = r["uncertainty"]
+    middle = [
+        "", _sigma(sigma, f), _rounded(lo, sigma, f), _rounded(hi, sigma, f), r["quality"] or "", "; ".join(r["reasons"]),
+        r["options"].get("method", ""), r["kind"], *[""] * SEGMENT_ONLY,
+    ]  # fmt: skip
+    dims, sigmas = r["dimensions_m"] or [None] * 3, r["dimension_sigmas_m"] or [None] * 3
+    own = [
+        _rounded(r["value"], sigma, f), units + "2" if area else units, *(_rounded(v, s, k) for v, s in zip(dims, sigmas)),
+        *(_sigma(s, k) for s in sigmas), "; ".join(f"{x:.1f} {y:.1f}" for x, y in r["points"]),
+    ]  # fmt: skip
+    return middle, own
+
+
+def _row(r: dict[str, Any], units: str, base_url: str) -> list[Any]:
+    k = UNITS[units]
+    created = time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime(r["created"]))
+    lead = [r["id"], created, r["name"], r["note"], r["source"], r.get("source_kind", ""), r.get("recording", ""), r["frame_id"],
+            r.get("frame_index", ""), units]  # fmt: skip
+    if r["kind"] == SEGMENT:
+        middle, own = _segment_cells(r, k), [""] * (len(CSV_COLUMNS) - SHAPE_CELLS)
+    else:
+        middle, own = _shape_cells(r, k, units)
+    return [*lead, *middle, f"{base_url}api/measurements/{r['id']}/color.png", r["kind"], *own]
 
 
 def csv_chunks(batches: Iterable[Iterable[Mapping[str, Any]]], units: str = "m", base_url: str = "") -> Iterator[str]:
@@ -104,10 +148,13 @@ def json_chunks(batches: Iterable[Iterable[Mapping[str, Any]]]) -> Iterator[byte
     for rows in batches:
         parts = []
         for r in rows:
-            head = json.dumps(record(r), ensure_ascii=False, allow_nan=False, separators=(",", ":")).encode()
-            # numbers and booleans only: dropping the stored separators' spaces leaves the same values
-            arrays = f',"samples_px":{r["samples_json"].replace(", ", ",")},"support":{r["support_json"].replace(", ", ",")}}}'.encode()
-            parts.append(sep + head[:-1] + arrays)
+            rec = record(r)
+            head = json.dumps(rec, ensure_ascii=False, allow_nan=False, separators=(",", ":")).encode()
+            if rec["kind"] == SEGMENT:
+                # numbers and booleans only: dropping the stored separators' spaces leaves the same values
+                arrays = f',"samples_px":{r["samples_json"].replace(", ", ",")},"support":{r["support_json"].replace(", ", ",")}}}'
+                head = head[:-1] + arrays.encode()
+            parts.append(sep + head)
             sep = b","
         yield b"".join(parts)
     yield b"]}"

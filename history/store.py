@@ -338,7 +338,7 @@ class Store:
     def segment(self, mid: int) -> tuple[str, list[float], list[float]]:
         """The frame uid and the clicked points (px) of measurement ``mid`` (a thumbnail's inputs),
         without decoding its record; raises :class:`MeasurementUnknown`. A shape's are its first and
-        last click; :meth:`drawing` has its whole outline."""
+        last click (:meth:`drawing` has its outline)."""
         row = self._one("SELECT frame_uid, p1_x, p1_y, p2_x, p2_y FROM measurements WHERE id=?", (mid,))
         if row is None:
             raise MeasurementUnknown(f"no measurement {mid}; GET /api/measurements lists them")
@@ -347,11 +347,13 @@ class Store:
     def drawing(self, mid: int) -> tuple[str, str, list[list[float]]]:
         """The frame uid, the kind and what to draw (px) of measurement ``mid``: a segment's two
         clicks, a shape's ``draw_px``; raises :class:`MeasurementUnknown`."""
-        uid, p1, p2 = self.segment(mid)
-        row = self._one("SELECT kind, extra FROM measurements WHERE id=?", (mid,))
-        if row is None or row["kind"] == schema.SEGMENT:
-            return uid, schema.SEGMENT, [p1, p2]
-        return uid, str(row["kind"]), json.loads(row["extra"] or "{}").get("shape", {}).get("draw_px") or [p1, p2]
+        row = self._one("SELECT frame_uid, p1_x, p1_y, p2_x, p2_y, kind, extra FROM measurements WHERE id=?", (mid,))
+        if row is None:
+            raise MeasurementUnknown(f"no measurement {mid}; GET /api/measurements lists them")
+        ends = [[row["p1_x"], row["p1_y"]], [row["p2_x"], row["p2_y"]]]
+        if row["kind"] == schema.SEGMENT:
+            return row["frame_uid"], schema.SEGMENT, ends
+        return row["frame_uid"], str(row["kind"]), json.loads(row["extra"] or "{}").get("shape", {}).get("draw_px") or ends
 
     def pin(self, mid: int, pinned: bool = True) -> dict[str, Any]:
         """Pin (or unpin) a measurement: the history cap never deletes the frame of a pinned one."""

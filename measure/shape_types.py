@@ -136,3 +136,16 @@ class BoxMeasurement:
             "n_top_px": int(self.n_top_px),
             "elapsed_ms": float(self.elapsed_ms),
         }
+
+
+def outlines(kind: str, points: list[list[float | None]]) -> list[tuple[list[list[float]], bool]]:
+    """The polylines (points, closed) that draw a measurement of ``kind`` from its drawing points (px;
+    a box's are its ``corners_px`` then its ``base_corners_px``; a height's its top point and its foot;
+    a path's vertices; an area's corners; a segment's two ends): a line, a polyline, a polygon, or a
+    box's top rectangle, base rectangle and four vertical edges. Points not finite (or None) are left out."""
+    finite = [[float(v) for v in p] for p in points if all(v is not None and math.isfinite(v) for v in p)]
+    if kind == "box" and len(finite) == 8:
+        top, base = finite[:4], finite[4:]
+        return [(top, True), (base, True), *(([t, b], False) for t, b in zip(top, base))]
+    return [(finite, kind in ("area", "box"))]
+

@@ -5,8 +5,8 @@ and what the page and the thumbnail draw of the answer, in pixels of the frame.
 ``measure_area`` (raising ``measure.MeasureError`` on bad input); :func:`draw_px` gives the points
 to draw: a path's vertices and an area's corners as clicked, a height's top point and its foot on
 the base plane projected with the frame's pinhole camera (u = fx X / Z + cx, v = fy Y / Z + cy), a
-box's four top corners then its four base corners. :func:`outlines` turns them into the polylines of
-a thumbnail.
+box's four top corners then its four base corners (``measure.shape_types.outlines`` turns them into
+polylines).
 """
 
 from __future__ import annotations
@@ -52,15 +52,3 @@ def draw_px(result: ShapeMeasurement | BoxMeasurement, camera: PinholeCamera) ->
     if result.kind == "height":
         return [_project(camera, p) for p in result.points_m]
     return [_px(p) for p in result.clicks_px]
-
-
-def outlines(kind: str, points: list[list[float | None]]) -> list[tuple[list[list[float]], bool]]:
-    """The polylines (points, closed) that draw a measurement of ``kind`` from its ``draw_px``: a
-    segment's or a height's line, a path's polyline, an area's polygon, a box's top rectangle, base
-    rectangle and four vertical edges. Points that are not finite are left out."""
-    finite = [[float(v) for v in p] for p in points if all(v is not None and math.isfinite(v) for v in p)]
-    if kind == "box" and len(finite) == 8:
-        top, base = finite[:4], finite[4:]
-        return [(top, True), (base, True), *(([t, b], False) for t, b in zip(top, base))]
-    return [(finite, kind in ("area", "box"))]
-

@@ -9,7 +9,8 @@ Topics (all images in the ``camera`` frame, the colour camera the disparity is r
 - ``/camera/confidence``   foxglove.RawImage, ``mono8`` = round(c * 255), when recorded
 - ``/camera/calibration``  foxglove.CameraCalibration (K, P, R = I, no distortion: the images are rectified)
 - ``/measurements``        JSON (jsonschema): the Measurement dicts given, one message each
-- ``/camera/annotations``  foxglove.ImageAnnotations: each measurement's segment and length on the image
+- ``/camera/annotations``  foxglove.ImageAnnotations: each measurement's segment and length on the image,
+                           or a shape's outline (its ``draw_px``) and value (a box's three dimensions)
 
 Metadata record ``depthruler``: baseline_m, doffs, the source and the recording's manifest.
 Message times: the recorded timestamps, shifted so the first frame is at the recording's creation
@@ -30,6 +31,7 @@ import numpy as np
 
 from device.errors import RecordingError
 from device.formats.recording import Recording, jsonable, open_recording
+from measure.shape_types import outlines
 
 TOPIC_COLOR = "/camera/color"
 TOPIC_DEPTH = "/camera/depth"
@@ -101,6 +103,64 @@ def _endpoints(m: Mapping[str, Any]) -> tuple[tuple[float, float], tuple[float, 
     return None
 
 
+def _number(v: Any, unit: str) -> str:
+    return f"{v:.3f} {unit}" if isinstance(v, (int, float)) and math.isfinite(v) else ""
+
+
+def _label(m: Mapping[str, Any]) -> str:
+    """A measurement's text on the image: a segment's distance, a shape's value, each ± its 1σ where
+    known; a box's three dimensions and its verdict."""
+    kind = str(m.get("kind", "segment"))
+    if kind == "box":
+        dims = [_number(v, "").strip() or "?" for v in m.get("dimensions_m") or [None] * 3]
+        return f"{' x '.join(dims)} m" + (f" ({m['quality']})" if m.get("quality") else "")
+    if kind == "segment":
+        value, sigma, unit = m.get("distance_m"), m.get("uncertainty_m"), "m"
+    else:
+        value, sigma, unit = m.get("value"), m.get("uncertainty"), "m²" if m.get("unit") == "m2" else "m"
+    label = _number(value, unit) or f"no {'distance' if kind == 'segment' else kind}"
+    return label + (f" ± {sigma:.3f}" if _number(sigma, unit) else "")
+
+
+def _drawing(m: Mapping[str, Any]) -> tuple[list[tuple[list[list[float]], bool]], str] | None:
+    """The polylines (px, closed or not) and the label of measurement ``m``: a segment's line between
+    its clicks (or first and last samples), a shape's outline from its ``draw_px``; None when ``m``
+    says nothing to draw."""
+    kind = str(m.get("kind", "segment"))
+    if kind == "segment":
+        ends = _endpoints(m)
+        lines = [([list(ends[0]), list(ends[1])], False)] if ends else []
+    else:
+        lines = [line for line in outlines(kind, m.get("draw_px") or []) if len(line[0]) >= 2]
+    return (lines, _label(m)) if lines else None
+
+
+def _annotation(t_ns: int, lines: list[tuple[list[list[float]], bool]], label: str) -> Any:
+    """foxglove.ImageAnnotations: ``lines`` in yellow, ``label`` on a dark box at the first line's middle."""
+    from foxglove_schemas_protobuf.ImageAnnotations_pb2 import ImageAnnotations
+    from foxglove_schemas_protobuf.PointsAnnotation_pb2 import PointsAnnotation
+    from foxglove_schemas_protobuf.Point2_pb2 import Point2
+    from foxglove_schemas_protobuf.TextAnnotation_pb2 import TextAnnotation
+
+    ann = ImageAnnotations()
+    _stamp(ann, t_ns)
+    for points, closed in lines:
+        line = PointsAnnotation(type=PointsAnnotation.LINE_LOOP if closed else PointsAnnotation.LINE_STRIP, thickness=3.0)
+        _stamp(line, t_ns)
+        for x, y in points:
+            line.points.append(Point2(x=x, y=y))
+        line.outline_color.r, line.outline_color.g, line.outline_color.b, line.outline_color.a = 1.0, 0.85, 0.0, 1.0
+        ann.points.append(line)
+    text = TextAnnotation(text=label, font_size=18.0)
+    _stamp(text, t_ns)
+    first = np.asarray(lines[0][0], dtype=float)
+    text.position.x, text.position.y = (float(v) for v in (first.mean(0) if lines[0][1] else (first[0] + first[-1]) / 2))
+    text.text_color.r = text.text_color.g = text.text_color.b = text.text_color.a = 1.0
+    text.background_color.a = 0.6
+    ann.texts.append(text)
+    return ann
+
+
 def export_mcap(
     recording: str | Path | Recording,
     out: str | Path,
@@ -114,11 +174,7 @@ def export_mcap(
     never leaves a half-written file under the requested name.
     """
     from foxglove_schemas_protobuf.CameraCalibration_pb2 import CameraCalibration
-    from foxglove_schemas_protobuf.ImageAnnotations_pb2 import ImageAnnotations
-    from foxglove_schemas_protobuf.Point2_pb2 import Point2
-    from foxglove_schemas_protobuf.PointsAnnotation_pb2 import PointsAnnotation
     from foxglove_schemas_protobuf.RawImage_pb2 import RawImage
-    from foxglove_schemas_protobuf.TextAnnotation_pb2 import TextAnnotation
     from mcap.writer import CompressionType, Writer
     from mcap_protobuf.schema import register_schema
 
@@ -205,29 +261,9 @@ def export_mcap(
                         raise RecordingError(f"measurement {k} holds a value JSON cannot carry ({exc}); give plain numbers, strings and lists") from exc
                     writer.add_message(meas_channel, t_ns, json.dumps(body, allow_nan=False).encode(), t_ns, k)
                     counts[TOPIC_MEASUREMENTS] = counts.get(TOPIC_MEASUREMENTS, 0) + 1
-                    ends = _endpoints(m)
-                    if ends is None:
-                        continue
-                    ann = ImageAnnotations()
-                    _stamp(ann, t_ns)
-                    line = PointsAnnotation(type=PointsAnnotation.LINE_STRIP, thickness=3.0)
-                    _stamp(line, t_ns)
-                    for x, y in ends:
-                        line.points.append(Point2(x=x, y=y))
-                    line.outline_color.r, line.outline_color.g, line.outline_color.b, line.outline_color.a = 1.0, 0.85, 0.0, 1.0
-                    ann.points.append(line)
-                    dist, unc = m.get("distance_m"), m.get("uncertainty_m")
-                    label = f"{dist:.3f} m" if isinstance(dist, (int, float)) and math.isfinite(dist) else "no distance"
-                    if isinstance(unc, (int, float)) and math.isfinite(unc):
-                        label += f" ± {unc:.3f}"
-                    text = TextAnnotation(text=label, font_size=18.0)
-                    _stamp(text, t_ns)
-                    text.position.x = (ends[0][0] + ends[1][0]) / 2
-                    text.position.y = (ends[0][1] + ends[1][1]) / 2
-                    text.text_color.r = text.text_color.g = text.text_color.b = text.text_color.a = 1.0
-                    text.background_color.a = 0.6
-                    ann.texts.append(text)
-                    put(TOPIC_ANNOTATIONS, ann, t_ns)
+                    drawn = _drawing(m)
+                    if drawn is not None:
+                        put(TOPIC_ANNOTATIONS, _annotation(t_ns, *drawn), t_ns)
             writer.finish()
             stream.flush()
             os.fsync(stream.fileno())

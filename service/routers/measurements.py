@@ -9,6 +9,7 @@ from fastapi import APIRouter, Query, Request
 from fastapi.responses import Response, StreamingResponse
 
 from measure import measure_distance, measure_sequence, weak_stretches
+from measure.shape_types import outlines
 
 from history.export import csv_chunks, json_chunks
 
@@ -19,16 +20,15 @@ from service.render import encode_png, frame_json, make_thumb, png_from_jpeg, qu
 from service.schemas import (
     MAX_ID,
     AnnotationIn,
+    AnyMeasurementOut,
     DeletedOut,
     MeasureIn,
-    AnyMeasurementOut,
     MeasurementOut,
     MeasurementsOut,
     ReopenOut,
     json_doc,
     media_doc,
 )
-from service.shapes import outlines
 from service.state import ServiceState
 
 router = APIRouter(prefix="/api", tags=["measurements"])

@@ -127,3 +127,29 @@ def test_export_cli(tmp_path: Path) -> None:
     (tmp_path / "bad.json").write_text("[1, 2]")
     bad = runner.invoke(app, ["export", str(tmp_path / "rec"), "--mcap", str(tmp_path / "x.mcap"), "--measurements", str(tmp_path / "bad.json")])
     assert bad.exit_code == 1 and "bad.json" in bad.output
+
+
+BOX = {  # a box record as GET /api/measurements.json gives it (the fields the annotation reads)
+    "kind": "box", "frame_index": 0, "points": [[40.0, 30.0]], "quality": "good", "value": None, "unit": "m",
+    "dimensions_m": [0.3012, 0.1338, 0.4465], "dimension_sigmas_m": [0.003, 0.002, 0.004],
+    "draw_px": [[30.0, 20.0], [50.0, 20.0], [50.0, 40.0], [30.0, 40.0], [30.0, 25.0], [50.0, 25.0], [50.0, 45.0], [None, None]],
+}  # fmt: skip
+AREA = {"kind": "area", "frame_index": 1, "value": 0.1026, "unit": "m2", "uncertainty": 0.0012,
+        "draw_px": [[10.0, 10.0], [60.0, 10.0], [60.0, 40.0]]}  # fmt: skip
+
+
+def test_shapes_are_annotated_with_their_outline_and_value(tmp_path: Path) -> None:
+    record(tmp_path / "rec", 2)
+    full = {**BOX, "draw_px": BOX["draw_px"][:7] + [[30.0, 45.0]]}
+    counts = export_mcap(tmp_path / "rec", tmp_path / "out.mcap", measurements=[full, BOX, AREA])
+    assert counts[TOPIC_MEASUREMENTS] == 3 and counts[TOPIC_ANNOTATIONS] == 3
+    by_topic, meas, _ = read_mcap(tmp_path / "out.mcap")
+    assert [m["kind"] for m in meas] == ["box", "box", "area"]
+    (_, box), (_, cut), (_, area) = by_topic[TOPIC_ANNOTATIONS]
+    # a box: top and base rectangles (closed loops) and four vertical edges; text at the top's centre
+    loop, strip = box.points[0].LINE_LOOP, box.points[0].LINE_STRIP
+    assert [(len(p.points), p.type) for p in box.points] == [(4, loop), (4, loop)] + [(2, strip)] * 4
+    assert [(q.x, q.y) for q in box.points[0].points] == [tuple(p) for p in BOX["draw_px"][:4]]
+    assert box.texts[0].text == "0.301 x 0.134 x 0.447 m (good)" and (box.texts[0].position.x, box.texts[0].position.y) == (40.0, 30.0)
+    assert [(len(p.points), p.type) for p in area.points] == [(3, loop)] and area.texts[0].text == "0.103 m² ± 0.001"
+    assert [len(p.points) for p in cut.points] == [7]  # a base corner the core could not place: the points it could, as one outline

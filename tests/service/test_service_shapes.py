@@ -4,6 +4,9 @@ a 422 saying what to change and leave no row; shape rows go through the history 
 
 from __future__ import annotations
 
+import csv
+import io
+
 import numpy as np
 import pytest
 
@@ -149,3 +152,27 @@ def test_patch_pin_open_delete_a_shape_row(client, box):
     assert opened["frame"]["uid"] == m["frame_uid"]
     assert client.delete(f"/api/measurements/{mid}").json() == {"deleted": mid}
     assert client.get(f"/api/measurements/{mid}").status_code == 404
+
+
+def test_exports_carry_the_stored_shape(client, box):
+    fid = _push(client, box.frame)
+    m = _shape(client, fid, "box", [box.click_px]).json()
+    (row,) = list(csv.DictReader(io.StringIO(client.get("/api/measurements.csv", params={"units": "mm"}).text)))
+    assert (row["kind"], row["fit"], int(row["id"])) == ("box", "box", m["id"])
+    got = [float(row[k]) for k in ("length", "width", "height")]
+    assert got == pytest.approx([v * 1000 for v in m["dimensions_m"]], abs=0.5)
+    assert client.get("/api/measurements.json").json()["measurements"] == [m]
+
+
+def test_a_full_disk_is_507_and_leaves_no_row(client, panel, monkeypatch):
+    import errno
+
+    from history import frame_file
+
+    def enospc(*_a, **_k):
+        raise OSError(errno.ENOSPC, "No space left on device")
+
+    monkeypatch.setattr(frame_file, "write_durably", enospc)
+    r = _shape(client, _push(client, panel.frame), "area", panel.clicks_px)
+    assert r.status_code == 507 and "full" in r.json()["detail"], r.text
+    assert client.get("/api/measurements").json() == []
