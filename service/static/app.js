@@ -37,6 +37,7 @@ const state = {
   freezing: null,     // the pending freeze (a promise of true/false)
   looping: false,     // the live long-poll loop runs
   view: "color",
+  tool: "distance",   // the measuring tool (tools.js TOOLS): distance, path, area, height, box
   points: [],         // [[x, y], ...] in image pixels
   result: null,       // the measurement on screen
   seq: 0,             // measurement requests issued; only the newest one's answer is shown
@@ -441,8 +442,8 @@ function fitCanvas() {
 }
 
 function clickPx() {
-  // the less precise of the two ends' pointers, in image pixels at the displayed scale (and zoom)
-  const sigma = Math.max(...[0, 1].map((i) => CLICK_SIGMA_PX[state.pointerTypes[i]] || CLICK_SIGMA_PX.mouse));
+  // the least precise of the points' pointers, in image pixels at the displayed scale (and zoom)
+  const sigma = Math.max(CLICK_SIGMA_PX.mouse, ...state.points.map((_, i) => CLICK_SIGMA_PX[state.pointerTypes[i]] || CLICK_SIGMA_PX.mouse));
   return Math.min(OPTIONS.clickMax, Math.round(sigma * screenScale() * 100) / 100);
 }
 
@@ -575,10 +576,26 @@ function draw() {
   ctx.imageSmoothingEnabled = z.k < 2; // zoomed in: whole image pixels, to place a point on one
   if (state.img) ctx.drawImage(state.img, 0, 0);
   const s = screenScale();
-  const res = state.result;
   const pts = state.points.map(([x, y]) => [x + 0.5, y + 0.5]);
-  if (pts.length === 2) drawSegment(ctx, pts, s);
   const moving = state.press && !state.press.read;
+  const active = activeHandle();
+  if (isShapeTool()) {
+    canvas.dataset.weak = "[]";
+    const anchor = drawShape(ctx, pts, s, moving); // tools.js
+    pts.forEach(([x, y], i) => drawHandle(ctx, x, y, s, active === i));
+    drawShapeLabel(ctx, anchor, s);
+  } else drawDistance(pts, s, moving, active);
+  ctx.setTransform(1, 0, 0, 1, 0, 0);
+  canvas.dataset.points = JSON.stringify(state.points);
+  canvas.dataset.active = String(active);
+  drawLoupe();
+}
+
+// The distance tool's drawing: the segment, its weak stretches, the samples, the handles, the value.
+function drawDistance(pts, s, moving, active) {
+  const res = state.result;
+  canvas.dataset.drawn = "[]";
+  if (pts.length === 2) drawSegment(ctx, pts, s);
   const weak = res && pts.length === 2 && !moving && !state.dirty && Array.isArray(res.weak_stretches) ? res.weak_stretches : [];
   if (weak.length) drawWeak(ctx, pts, s, weak);
   canvas.dataset.weak = JSON.stringify(weak);
@@ -594,13 +611,8 @@ function draw() {
       ctx.stroke();
     }
   }
-  const active = activeHandle();
   pts.forEach(([x, y], i) => drawHandle(ctx, x, y, s, active === i));
   if (res && pts.length === 2 && !moving && !state.dirty) drawLabel(ctx, pts, s, fmt(res.distance_m), verdictColor(res.quality));
-  ctx.setTransform(1, 0, 0, 1, 0, 0);
-  canvas.dataset.points = JSON.stringify(state.points);
-  canvas.dataset.active = String(active);
-  drawLoupe();
 }
 
 function verdictColor(q) {
@@ -608,12 +620,16 @@ function verdictColor(q) {
 }
 
 function drawLabel(c, pts, s, label, color, sub) {
-  const mx = (pts[0][0] + pts[1][0]) / 2, my = (pts[0][1] + pts[1][1]) / 2;
+  let mx = (pts[0][0] + pts[1][0]) / 2;
+  const my = (pts[0][1] + pts[1][1]) / 2;
   c.font = `600 ${Math.round(16 * s)}px system-ui, sans-serif`;
   let w = c.measureText(label).width;
   let subFont = `${Math.round(12 * s)}px system-ui, sans-serif`;
   if (sub) { c.font = subFont; w = Math.max(w, c.measureText(sub).width); }
   w += 16 * s;
+  // inside the part of the image in view (a shape near the border keeps its label readable)
+  const [x0, x1] = c === ctx ? [state.zoom.x, state.zoom.x + canvas.width / state.zoom.k] : [0, c.canvas.width];
+  mx = Math.min(Math.max(mx, x0 + w / 2 + 2 * s), x1 - w / 2 - 2 * s);
   const h = (sub ? 42 : 26) * s;
   const top = Math.max(2 * s, my - h - 10 * s);
   c.fillStyle = "rgba(15,18,22,.85)";
@@ -708,7 +724,7 @@ function setReadMode(on) {
   b.classList.toggle("active", on);
   b.setAttribute("aria-pressed", on ? "true" : "false");
   canvas.dataset.mode = on ? "read" : "measure";
-  $("hint").textContent = on ? "Read depth: touch the image to read the depth there; nothing is stored." : "Place two points to measure. Drag a handle to adjust.";
+  $("hint").textContent = on ? "Read depth: touch the image to read the depth there; nothing is stored." : toolSpec().hint;
 }
 
 function startGesture() {
@@ -771,7 +787,7 @@ canvas.addEventListener("pointerdown", (ev) => {
     draw();
     return;
   }
-  const grab = state.points.length === 2 ? handleAt(p, ev.pointerType) : -1;
+  const grab = canGrab() ? handleAt(p, ev.pointerType) : -1; // tools.js: which tool may grab what
   showError("");
   const before = { points: state.points.map((q) => q.slice()), result: state.result };
   if (grab >= 0) {
@@ -780,7 +796,7 @@ canvas.addEventListener("pointerdown", (ev) => {
     state.press = { pointerId: ev.pointerId, index: grab, offset: [q[0] - p[0], q[1] - p[1]], type: ev.pointerType, moved: false, isNew: false, before };
   } else {
     if (state.mode === "live") freeze(); // the frame on screen is frozen now; the point lands on it
-    if (state.points.length >= 2) { state.points = []; state.result = null; showResult(null); }
+    if (startsAgain()) { state.points = []; state.pointerTypes = []; state.result = null; showResult(null); }
     state.points.push(clampToImage(p));
     state.press = { pointerId: ev.pointerId, index: state.points.length - 1, offset: [0, 0], type: ev.pointerType, moved: false, isNew: true, before };
   }
@@ -812,7 +828,7 @@ canvas.addEventListener("pointermove", (ev) => {
   } else if (!press && ev.pointerType === "mouse") {
     const inside = p[0] >= -0.5 && p[1] >= -0.5 && p[0] <= canvas.width - 0.5 && p[1] <= canvas.height - 0.5;
     if (inside) queryDepth(clampToImage(p));
-    canvas.style.cursor = state.space.down ? "grab" : handleAt(p, "mouse") >= 0 && state.points.length === 2 ? "grab" : "crosshair";
+    canvas.style.cursor = state.space.down ? "grab" : canGrab() && handleAt(p, "mouse") >= 0 ? "grab" : "crosshair";
   }
 });
 
@@ -843,11 +859,10 @@ async function endPress(ev) {
   draw();
   if (press.read) return; // reading depth stores nothing
   if (!press.isNew) {
-    if (press.moved) measure(true);
+    if (press.moved) pointMoved(); // tools.js: the tool measures again
     return;
   }
-  if (state.points.length === 2) measure(false);
-  else $("hint").textContent = "Now place the second point (Esc cancels).";
+  pointPlaced(); // tools.js: the tool measures, or says what comes next
 }
 canvas.addEventListener("pointerup", endPress);
 canvas.addEventListener("pointercancel", endPress);
@@ -900,15 +915,15 @@ function nudge(dx, dy) {
 function canvasKey(e) {
   const arrows = { ArrowLeft: [-1, 0], ArrowRight: [1, 0], ArrowUp: [0, -1], ArrowDown: [0, 1] };
   if (e.key in arrows) {
-    if (!state.points.length) { keyboardPlace(); return true; }
+    if (!state.points.length) { isShapeTool() ? keyboardAddPoint() : keyboardPlace(); return true; }
     const step = e.shiftKey ? 10 : 1;
     nudge(arrows[e.key][0] * step, arrows[e.key][1] * step);
     return true;
   }
-  if (e.key === "Tab" && state.points.length === 2) {
-    // two focus stops, one per handle: Tab from the first handle to the second, then on out of the image
+  if (e.key === "Tab" && state.points.length >= 2) {
+    // one focus stop per handle: Tab from the first handle to the next, then on out of the image
     const next = state.active + (e.shiftKey ? -1 : 1);
-    if (next < 0 || next > 1) return false;
+    if (next < 0 || next > state.points.length - 1) return false;
     state.active = next;
     state.nudging = true;
     keepVisible(state.points[next]);
@@ -916,6 +931,7 @@ function canvasKey(e) {
     draw();
     return true;
   }
+  if (e.key === "Enter" && isShapeTool()) { shapeEnter(e.shiftKey); return true; } // tools.js
   if (e.key === "Enter") {
     if (state.points.length < 2) keyboardPlace();
     else if (state.dirty || !state.result) { state.nudging = false; measure(!!state.result); }
@@ -994,11 +1010,11 @@ const ADVICE = [
   [/uncertainty|far|distance|range|resolution|quantiz/i, "Move closer: the depth error grows with the square of the distance."],
 ];
 
-function adviceFor(reasons) {
+function adviceFor(reasons, table = ADVICE, fallback = "Look at the segment in the depth view and measure again.") {
   const out = [];
   for (const r of reasons) {
-    const hit = ADVICE.find(([re]) => re.test(r));
-    const text = hit ? hit[1] : "Look at the segment in the depth view and measure again.";
+    const hit = table.find(([re]) => re.test(r));
+    const text = hit ? hit[1] : fallback;
     if (!out.includes(text)) out.push(text);
   }
   return out;
@@ -1029,13 +1045,18 @@ function sourceLabel(m) {
   return kind || m.source;
 }
 
+// When a history record was made (s since the epoch); shape rows may call it created_at.
+function created(m) {
+  return m.created !== undefined ? m.created : m.created_at;
+}
+
 // A reopened measurement is marked as the saved one, with when and where it was made.
 function showSaved() {
   const el = $("saved");
   const m = state.saved;
   el.classList.toggle("hidden", !m);
   el.dataset.id = m ? String(m.id) : "";
-  if (m) el.textContent = `Saved measurement #${m.id}${m.name ? " “" + m.name + "”" : ""} · ${new Date(m.created * 1000).toLocaleString()} · ${sourceLabel(m)}`;
+  if (m) el.textContent = `Saved measurement #${m.id}${m.name ? " “" + m.name + "”" : ""} · ${new Date(created(m) * 1000).toLocaleString()} · ${sourceLabel(m)}`;
   updateTag();
 }
 
@@ -1043,9 +1064,9 @@ function showResult(res) {
   if (!res || !state.saved || res.id !== state.saved.id) state.saved = null;
   showSaved();
   showError("");
-  const d = $("distance");
-  const verdict = $("verdict");
   $("save-png").disabled = !res;
+  if (showShapeCard(res)) return; // tools.js: a shape's card
+  const d = $("distance");
   if (!res) {
     d.textContent = "—";
     d.dataset.metres = "";
@@ -1054,7 +1075,7 @@ function showResult(res) {
     const iv = $("interval");
     iv.innerHTML = "&nbsp;";
     iv.dataset.low = iv.dataset.high = "";
-    verdict.className = "verdict hidden";
+    $("verdict").className = "verdict hidden";
     $("why").classList.add("hidden");
     $("ends").replaceChildren();
     for (const id of ["r-method", "r-fit", "r-samples", "r-basic", "r-sigma", "r-frames", "r-time"]) $(id).textContent = "—";
@@ -1069,24 +1090,7 @@ function showResult(res) {
   ivEl.textContent = fmtInterval(res) + (iv ? (iv.from === "interval" ? " · 95 % interval" : " · 95 % (±1.96σ)") : "");
   ivEl.dataset.low = iv ? String(iv.lo) : "";
   ivEl.dataset.high = iv ? String(iv.hi) : "";
-  const q = res.quality;
-  const reasons = (res.reasons || []).map((r) => (typeof r === "string" ? r : r.message || r.code || JSON.stringify(r)));
-  if (q) {
-    verdict.className = `verdict v-${q}`;
-    verdict.textContent = q === "good" ? "✓ good" : q === "check" ? "⚠ check" : "✕ unreliable";
-    verdict.title = reasons.join("\n");
-    d.className = `distance d-${q}`;
-  } else {
-    verdict.className = "verdict hidden"; // a service without verdicts: the warnings below still say what they can
-    d.className = "distance";
-  }
-  // not good: why, and what to do; good with notes (an edge click, an extrapolated end): the notes
-  const notGood = q && q !== "good";
-  $("why").classList.toggle("hidden", !(notGood || reasons.length));
-  $("why").classList.toggle("notes", !notGood);
-  const rs = reasons.length || !notGood ? reasons : ["the service gave no reason"];
-  $("reasons").replaceChildren(...rs.map((r) => Object.assign(document.createElement("li"), { textContent: r })));
-  $("advice").replaceChildren(...(notGood ? adviceFor(rs) : []).map((a) => Object.assign(document.createElement("li"), { textContent: a })));
+  showVerdict(res.quality, (res.reasons || []).map((r) => (typeof r === "string" ? r : r.message || r.code || JSON.stringify(r))));
   const ends = [0, 1].map((i) => {
     const p3 = i === 0 ? res.p1_m : res.p2_m;
     const st = endState(res, i);
@@ -1117,6 +1121,28 @@ function showResult(res) {
   $("warnings").replaceChildren(...warnings.map((w) => Object.assign(document.createElement("li"), { textContent: w })));
 }
 
+// The verdict pill, the value's colour, and when not good why and what to do (`table`: reason
+// patterns and advice, `fallback` for a reason none matches); good with notes: the notes.
+function showVerdict(q, reasons, table = ADVICE, fallback = undefined) {
+  const d = $("distance");
+  const verdict = $("verdict");
+  if (q) {
+    verdict.className = `verdict v-${q}`;
+    verdict.textContent = q === "good" ? "✓ good" : q === "check" ? "⚠ check" : "✕ unreliable";
+    verdict.title = reasons.join("\n");
+    d.className = `distance d-${q}`;
+  } else {
+    verdict.className = "verdict hidden"; // a service without verdicts: the warnings below still say what they can
+    d.className = "distance";
+  }
+  const notGood = q && q !== "good";
+  $("why").classList.toggle("hidden", !(notGood || reasons.length));
+  $("why").classList.toggle("notes", !notGood);
+  const rs = reasons.length || !notGood ? reasons : ["the service gave no reason"];
+  $("reasons").replaceChildren(...rs.map((r) => Object.assign(document.createElement("li"), { textContent: r })));
+  $("advice").replaceChildren(...(notGood ? adviceFor(rs, table, fallback) : []).map((a) => Object.assign(document.createElement("li"), { textContent: a })));
+}
+
 function clearPoints() {
   state.points = [];
   state.result = null;
@@ -1127,7 +1153,8 @@ function clearPoints() {
   state.seq++;
   loupe.classList.add("hidden");
   showResult(null);
-  $("hint").textContent = "Place two points to measure. Drag a handle to adjust.";
+  $("hint").textContent = toolSpec().hint;
+  showToolButtons(); // tools.js
   draw();
 }
 
@@ -1142,16 +1169,19 @@ function annotatedCanvas(img) {
   const c = out.getContext("2d");
   c.drawImage(img, 0, 0);
   const s = Math.max(1, out.width / 900);
-  const pts = [res.p1, res.p2].map(([x, y]) => [x + 0.5, y + 0.5]);
-  drawSegment(c, pts, s);
-  if (Array.isArray(res.weak_stretches) && res.weak_stretches.length) drawWeak(c, pts, s, res.weak_stretches);
-  pts.forEach(([x, y]) => drawHandle(c, x, y, s, false));
-  const iv = interval95(res);
-  const sub = [iv ? `95 %: ${fmt(iv.lo, false)} – ${fmt(iv.hi)}` : "uncertainty unknown", res.quality || ""].filter(Boolean).join(" · ");
-  drawLabel(c, pts, s, fmtInterval(res), verdictColor(res.quality), sub);
+  if (isShape(res)) annotateShape(c, res, s); // tools.js
+  else {
+    const pts = [res.p1, res.p2].map(([x, y]) => [x + 0.5, y + 0.5]);
+    drawSegment(c, pts, s);
+    if (Array.isArray(res.weak_stretches) && res.weak_stretches.length) drawWeak(c, pts, s, res.weak_stretches);
+    pts.forEach(([x, y]) => drawHandle(c, x, y, s, false));
+    const iv = interval95(res);
+    const sub = [iv ? `95 %: ${fmt(iv.lo, false)} – ${fmt(iv.hi)}` : "uncertainty unknown", res.quality || ""].filter(Boolean).join(" · ");
+    drawLabel(c, pts, s, fmtInterval(res), verdictColor(res.quality), sub);
+  }
   c.font = `${Math.round(12 * s)}px system-ui, sans-serif`;
   c.textAlign = "left"; c.textBaseline = "bottom";
-  const footer = `depthruler · measurement ${res.id} · ${sourceLabel(res)} · frame id ${res.frame_id} · ${new Date(res.created * 1000).toISOString()}`;
+  const footer = `depthruler · measurement ${res.id}${isShape(res) ? " (" + res.kind + ")" : ""} · ${sourceLabel(res)} · frame id ${res.frame_id} · ${new Date(created(res) * 1000).toISOString()}`;
   c.fillStyle = "rgba(0,0,0,.6)"; c.fillRect(0, out.height - 20 * s, out.width, 20 * s);
   c.fillStyle = "#e6e9ee"; c.fillText(footer, 6 * s, out.height - 4 * s);
   return out;
@@ -1205,19 +1235,22 @@ function renderHistory() {
 function historyItem(m) {
   const li = document.createElement("li");
   li.dataset.id = m.id;
+  li.dataset.kind = kindLabel(m); // tools.js
   const img = Object.assign(document.createElement("img"), { src: withToken(`api/measurements/${m.id}/thumb.png`), alt: "" });
   const text = document.createElement("div");
   text.className = "h-text";
-  const when = new Date(m.created * 1000).toLocaleTimeString();
+  const when = new Date(created(m) * 1000).toLocaleTimeString();
   text.innerHTML = `<div class="h-name"></div><div class="h-dist"></div><div class="h-meta"></div><div class="h-note"></div>`;
   text.querySelector(".h-name").textContent = m.name || "";
-  text.querySelector(".h-dist").textContent = m.distance_m === null ? "—" : fmtInterval(m);
+  text.querySelector(".h-dist").textContent = isShape(m) ? shapeSummary(m) : m.distance_m === null ? "—" : fmtInterval(m);
   if (m.quality) {
     const dot = Object.assign(document.createElement("span"), { className: `qdot v-${m.quality}`, title: m.quality });
     text.querySelector(".h-dist").prepend(dot);
   }
-  text.querySelector(".h-meta").textContent = `${sourceLabel(m)} · ${m.method} · ${when}${m.warnings.length ? " · ⚠ " + m.warnings.length : ""}`;
-  text.querySelector(".h-meta").title = [...(m.reasons || []), ...m.warnings].join("\n");
+  const warnings = m.warnings || [];
+  const method = m.method || (m.options && m.options.method) || "";
+  text.querySelector(".h-meta").textContent = [isShape(m) ? kindLabel(m) : "", sourceLabel(m), method, when].filter(Boolean).join(" · ") + (warnings.length ? " · ⚠ " + warnings.length : "");
+  text.querySelector(".h-meta").title = [...(m.reasons || []), ...warnings].join("\n");
   text.querySelector(".h-note").textContent = m.note || "";
   const edit = Object.assign(document.createElement("button"), { className: "h-btn h-edit", title: "Name and note", textContent: "✎" });
   edit.addEventListener("click", (ev) => { ev.stopPropagation(); editItem(li, m); });
@@ -1257,7 +1290,7 @@ function deleteWithUndo(m) {
   commitPendingDelete();
   const timer = setTimeout(commitPendingDelete, UNDO_MS);
   state.pendingDelete = { record: m, timer };
-  $("undo-text").textContent = `Deleted ${m.name ? "“" + m.name + "”" : fmt(m.distance_m)}.`;
+  $("undo-text").textContent = `Deleted ${m.name ? "“" + m.name + "”" : isShape(m) ? shapeValueText(m) : fmt(m.distance_m)}.`;
   $("undo").classList.remove("hidden");
   if (state.result && state.result.id === m.id) clearPoints();
   renderHistory();
@@ -1300,12 +1333,16 @@ function reopen(id) {
       state.mode = "frozen";
       resetZoom();
       state.saved = measurement;
-      state.points = [measurement.p1, measurement.p2];
+      applyTool(isShape(measurement) ? measurement.kind : "distance"); // tools.js: the tool it was made with
+      state.points = isShape(measurement) ? measurement.points.map((p) => p.slice()) : [measurement.p1, measurement.p2];
+      state.pointerTypes = [];
+      state.dirty = false;
       state.result = measurement;
       state.seq++;
       updateFreezeButton();
       updateTag();
       showResult(measurement);
+      showToolButtons();
       draw();
       return true;
     } catch (e) {
@@ -1485,7 +1522,7 @@ function setMethod(m) {
   state.method = m;
   localStorage.setItem("depthruler-method", m);
   $("method").value = m;
-  if (state.points.length === 2) measure(true);
+  remeasure(); // tools.js: the measurement on screen, with the new method
 }
 
 $("units").addEventListener("change", (e) => setUnits(e.target.value));
@@ -1495,7 +1532,7 @@ $("frames").value = String(state.frames);
 $("frames").addEventListener("change", (e) => {
   state.frames = Number(e.target.value) || 1;
   localStorage.setItem("depthruler-frames", String(state.frames));
-  if (state.points.length === 2) measure(true);
+  if (!isShapeTool() && state.points.length === 2) measure(true); // pooling is the segment's
 });
 $("freeze").addEventListener("click", () => (state.mode === "live" ? freeze() : goLive()));
 $("view-color").addEventListener("click", () => setView("color"));
@@ -1539,7 +1576,9 @@ document.addEventListener("keydown", (e) => {
       if (!state.space.down) Object.assign(state.space, { down: true, used: false });
       canvas.style.cursor = "grab";
       break;
-    default: return;
+    default:
+      if (!toolKey(e)) return; // tools.js: l p a h b, Backspace, Enter
+      break;
   }
   e.preventDefault();
 });
@@ -1575,6 +1614,7 @@ async function loadOptions() {
   }
 }
 const optionsReady = loadOptions();
+initTools(); // tools.js
 fitCanvas();
 pollSource();
 liveLoop();
