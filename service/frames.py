@@ -100,10 +100,11 @@ class FrameRing:
         self._cond = threading.Condition()
 
     def push(self, frame: Frame, *, frozen: bool = False, uid: str | None = None) -> RingFrame:
+        packed = PackedFrame.pack(frame)  # outside the lock: readers of the ring need not wait for the packing
         with self._cond:
             fid = next(self._ids)
             self._next = fid + 1
-            entry = RingFrame(id=fid, packed=PackedFrame.pack(frame), holds=int(frozen), touched=self._clock())
+            entry = RingFrame(id=fid, packed=packed, holds=int(frozen), touched=self._clock())
             if uid:
                 entry.uid = uid
             self._frames[fid] = entry

@@ -24,32 +24,46 @@ DISPARITY_SCALE = np.float32(64.0)  # codes per pixel of disparity (1/64 px step
 NAN_CODE = np.int16(-32768)
 NAN_CODE_U8 = 255
 CONFIDENCE_SCALE = np.float32(255.0)
+_NAN_BITS = np.float32(np.nan).view(np.uint32)
 
 
 def _pack_disparity(d: np.ndarray) -> tuple[np.ndarray, np.float32] | None:
     """Codes of ``d`` (H x W float32 px) and their steps per pixel, or None when they would not give
     ``d`` back exactly: uint8 (``NAN_CODE_U8`` = NaN) when the codes in ``d``'s own step fit in a
-    byte (the simulator's 1/4 px below 64 px), else int16 in 1/64 px steps."""
+    byte (the simulator's 1/4 px below 64 px), else int16 in 1/64 px steps.
+
+    Exactness is read off ``d * 64`` itself: multiplying and dividing a float32 by a power of two is
+    exact, so codes ``c`` give ``d`` back bit for bit when every ``d * 64`` is a whole number in the
+    int16 range and no value is -0.0 (its code 0 comes back as +0.0). That is a few passes over the
+    frame where unpacking and comparing took three times as many (the capture thread pays it per
+    frame)."""
+    if d.dtype != np.float32 or d.size == 0:
+        return None
     with np.errstate(invalid="ignore"):
         scaled = d * DISPARITY_SCALE
-        if not np.all(np.isnan(scaled) | ((scaled > -32768) & (scaled <= 32767))):
+        lo, hi = np.fmin.reduce(scaled, axis=None), np.fmax.reduce(scaled, axis=None)
+        if np.isnan(lo):  # nothing matched
+            return np.full(d.shape, NAN_CODE, np.int16), DISPARITY_SCALE
+        if not (lo > -32768 and hi <= 32767):
             return None
+        whole = np.rint(scaled)
         nan = np.isnan(scaled)
-        codes = np.where(nan, NAN_CODE, np.rint(scaled)).astype(np.int16)
-    valid = codes[~nan]
-    if valid.size and valid.min() >= 0:
-        bits = int(np.bitwise_or.reduce(valid))
-        step = 1 << min(6, (bits & -bits).bit_length() - 1) if bits else 64  # the coarsest power of two dividing every code
-        if int(valid.max()) // step < NAN_CODE_U8:
-            small = np.where(nan, NAN_CODE_U8, codes // step).astype(np.uint8)
-            scale = np.float32(DISPARITY_SCALE / step)
-            if _same(_unpack_disparity(small, scale), d):
-                return small, scale
-    return (codes, DISPARITY_SCALE) if _same(_unpack_disparity(codes, DISPARITY_SCALE), d) else None
-
-
-def _same(a: np.ndarray, b: np.ndarray) -> bool:
-    return bool(np.array_equal(a, b, equal_nan=True) and np.array_equal(np.signbit(a), np.signbit(b)))
+        if np.count_nonzero(whole != scaled) != np.count_nonzero(nan):  # NaN != NaN: only a fraction adds to the left
+            return None
+        if lo <= 0 <= hi and np.any(np.signbit(d) & (d == 0)):
+            return None
+        if np.any(nan & (d.view(np.uint32) != _NAN_BITS)):  # a NaN of other bits than the one unpacking writes
+            return None
+        codes = whole.astype(np.int16)
+    codes[nan] = NAN_CODE
+    if lo >= 0:
+        bits = int(np.bitwise_or.reduce(codes, axis=None)) & 0x7FFF  # NAN_CODE is bit 15 alone: no valid code has it
+        shift = min(6, (bits & -bits).bit_length() - 1) if bits else 6  # the coarsest power of two dividing every code
+        if int(hi) >> shift < NAN_CODE_U8:
+            small = (codes >> shift).astype(np.uint8)
+            small[nan] = NAN_CODE_U8
+            return small, np.float32(DISPARITY_SCALE / (1 << shift))
+    return codes, DISPARITY_SCALE
 
 
 def _unpack_disparity(codes: np.ndarray, scale: np.float32) -> np.ndarray:
@@ -61,7 +75,7 @@ def _unpack_disparity(codes: np.ndarray, scale: np.float32) -> np.ndarray:
 
 def _pack_confidence(c: np.ndarray) -> np.ndarray | None:
     """uint8 codes of ``c`` (H x W float32 in [0, 1]), or None when they would not give ``c`` back exactly."""
-    if not (np.all(c >= 0) and np.all(c <= 1)):
+    if c.dtype != np.float32 or c.size == 0 or not (c.min() >= 0 and c.max() <= 1):
         return None
     codes = np.rint(c * CONFIDENCE_SCALE).astype(np.uint8)
     return codes if np.array_equal(_unpack_confidence(codes), c) else None

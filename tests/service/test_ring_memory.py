@@ -5,6 +5,8 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
 from factories import plane_frame, wall_frame
 from service_client import make_client
 
@@ -116,3 +118,25 @@ def test_health_answers_while_every_worker_thread_is_taken(tmp_path):
 
             c.portal.call(give_back)
             asker.join(20)
+
+
+_SIM_FRAME = _sim_frame()
+_SPECIALS = [np.nan, -0.0, 0.0, 0.25, 1 / 64, 1 / 128, 300.0, 511.984375, 512.0, -2.5, 1e-30, np.inf, -np.inf]
+
+
+@settings(max_examples=300, deadline=None)
+@given(
+    values=st.lists(st.sampled_from(_SPECIALS) | st.floats(-600, 600, width=32) | st.integers(0, 2047).map(lambda k: k / 4),
+                    min_size=1, max_size=48),
+    nan_bits=st.sampled_from([0x7FC00000, 0xFFC00000, 0x7FC00001]),
+)
+def test_any_disparity_comes_back_bit_for_bit(values, nan_bits):
+    # Whatever a source sends (steps, fractions, -0.0, infinities, NaNs of other bits): the ring gives
+    # back the very bits; only the holding (codes or the array itself) differs.
+    frame = _SIM_FRAME
+    d = frame.disparity.copy()
+    d[0, : len(values)] = values
+    d.view(np.uint32)[np.isnan(d)] = nan_bits
+    packed = PackedFrame.pack(type(frame)(frame.image, d, frame.camera, frame.baseline_m))
+    packed._last = None
+    assert np.array_equal(packed.unpack().disparity.view(np.uint32), d.view(np.uint32))
