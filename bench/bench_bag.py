@@ -8,7 +8,7 @@ with unregistered depth (a 640x360 depth camera 5 cm to the left, Z16 in 0.1 mm 
 from the bag's index and deserializes them (rosbags' ``AnyReader.messages`` + ``deserialize``, the
 pixels viewed as an array), and ``BagReader.frame(i)`` makes the measurable frame (decode, undistort,
 register, disparity). CPU time of this process per frame, median over the frames and repeats.
-Targets (issue 29): registered at most 1.5x the reference, unregistered Viewer depth at most 5x.
+Targets: registered at most 1.5x the reference, unregistered Viewer depth at most 5x.
 
     python bench/bench_bag.py [--frames 20] [--repeats 3] [--write]
 """
@@ -183,7 +183,7 @@ def report(rows: dict[str, dict], loads: tuple[float, float], date: str) -> str:
         "`bench/bench_bag.py` (`depthruler bench bag --write`): two bags written from one simulated 1280x720 poster frame; "
         "each frame made by `BagReader.frame(i)` (decode, undistort, register, disparity) against the plain rosbags read "
         "of its two messages (index, read, deserialize, pixels as an array) through the same opened reader, interleaved "
-        "frame by frame; CPU time of this process, median over the frames and repeats. Targets (issue 29): registered "
+        "frame by frame; CPU time of this process, median over the frames and repeats. Targets: registered "
         "<= 1.5x, unregistered Viewer depth <= 5x.\n",
         "| bag | layout | storage | colour / depth | frames | ours CPU median / p90 ms | plain read CPU median ms | ratio | target |",
         "| --- | --- | --- | --- | --- | --- | --- | --- | --- |",

@@ -26,7 +26,7 @@ import numpy as np
 from bench.results_file import machine, replace_section
 
 W, H, FX, BASELINE_M = 1280, 720, 1000.0, 0.08
-# The core before issue 29's speed work: `--baseline` times it side by side with this code.
+# The core before the speed work of December 2026: `--baseline` times it side by side with this code.
 BASELINE = "123ba59"
 
 
@@ -323,7 +323,7 @@ def report(runs: list[dict[str, dict[str, float]]], load: tuple[float, float], d
         "CPU time of this process. The reference is the same pipeline with scikit-learn's `MinCovDet` in",
         "place of `measure.mcd.fast_mcd` (20 calls), interleaved with ours (10 of ours, 1 reference, and",
         "again), so both see the same slow episodes of this shared host; both give the same distance.",
-        f"Target (issue 3): robust median <= {TARGET_MS:g} ms and >= {TARGET_SPEEDUP:g}x.",
+        f"Target: robust median <= {TARGET_MS:g} ms and >= {TARGET_SPEEDUP:g}x.",
         "",
         HEADER,
         *(_row(i + 1, method, r) for i, rows in enumerate(runs) for method, r in rows.items()),

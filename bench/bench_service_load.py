@@ -12,7 +12,7 @@ health every 100 ms. Then, on a server over a history of ``--exports`` measureme
 JSON exports are downloaded while the prober runs; and a server at its defaults is left idle until
 its ring is full, for its resident memory.
 
-The baseline (``--baseline REV``, default the service before issue 29) is extracted with
+The baseline (``--baseline REV``, default the service before its load work) is extracted with
 `git archive` into a temporary folder and served from there, one server at a time, with the same
 source and load. Latency percentiles are of `POST /api/measure` alone; the list and thumbnail
 requests are reported by their p95. Figures go to bench/RESULTS.md "## Service load".
@@ -41,7 +41,7 @@ from bench.results_file import RESULTS, machine, replace_section
 
 ROOT = Path(__file__).resolve().parents[1]
 SECTION = "## Service load"
-BASELINE = "f746d95"  # the service before issue 29 (unbounded measurements, whole exports)
+BASELINE = "f746d95"  # the service before its load work (unbounded measurements, whole exports)
 JSON = {"Content-Type": "application/json"}
 
 
@@ -391,7 +391,7 @@ def record(results: dict[str, dict], args: argparse.Namespace, loads: list[float
         f"{args.late_s:.0f} s later (`late ok / 410`). Latency (ms) is `POST /api/measure` alone (the "
         "answered attempt); the list and thumbnail columns are their p95; the server's CPU time (all its threads) is "
         "divided by the measurements, the steadier figure on a shared host; RSS (MB) at the end of the row. The baseline "
-        "revision runs from `git archive` in the same run, one server at a time. Targets (issue 29): 32 clients, live "
+        "revision runs from `git archive` in the same run, one server at a time. Targets: 32 clients, live "
         "p95 <= 3x its 1-client value, health p99 < 100 ms, no 410.\n\n"
         "| code | per frame | clients | ok | errors | busy | p50 | p95 | p99 | list p95 | thumb p95 | live p95 | health p99 | "
         "live view / source fps | server CPU ms / measurement | RSS MB | late ok / 410 |\n"

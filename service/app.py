@@ -29,7 +29,8 @@ from history.store import Store
 
 from service import errors
 from service.config import ServerConfig
-from service.frames import Capture, FrameRing
+from service.capture import Capture
+from service.frames import FrameRing
 from service.guard import RequestGuard, allowed_hosts_for
 from service.recorder import Recorder
 from service.routers import checks, frames, health, measurements, options, recordings, shapes

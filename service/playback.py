@@ -3,7 +3,7 @@ after a recording stops), and going back to that source.
 
 Only a folder inside the recordings root can be played (the name is checked as a new recording's
 is); an active recording is stopped first, since it would otherwise record its own replay. The
-capture switches sources (:meth:`service.frames.Capture.switch`): frames already in the ring, frozen
+capture switches sources (:meth:`service.capture.Capture.switch`): frames already in the ring, frozen
 ones included, stay measurable.
 """
 

@@ -16,7 +16,7 @@ from typing import Any
 
 from measure import Frame
 
-from service.frames import Capture
+from service.capture import Capture
 from service.schemas import is_plain_name
 
 

@@ -14,7 +14,8 @@ from dataclasses import dataclass, field
 from device import Source
 from history.store import Store
 
-from service.frames import Capture, FrameRing
+from service.capture import Capture
+from service.frames import FrameRing
 from service.recorder import Recorder
 from service.workers import MeasurePool
 

@@ -1,4 +1,4 @@
-"""One description per source kind (issue 21): a spec string and a TOML [source] table are two
+"""One description per source kind: a spec string and a TOML [source] table are two
 spellings of the kind's one config dataclass, registered in device.BACKENDS next to its Source class."""
 
 from __future__ import annotations

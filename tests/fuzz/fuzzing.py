@@ -1,5 +1,5 @@
 """What every fuzz test asserts: a typed error with a message, or an answer; never another
-exception or a warning (issue 22). Strategies shared by several surfaces."""
+exception or a warning. Strategies shared by several surfaces."""
 
 from __future__ import annotations
 

@@ -1,4 +1,4 @@
-"""Fuzzing stereo calibration files (issue 22): JSON with fields replaced, removed or added, and
+"""Fuzzing stereo calibration files: JSON with fields replaced, removed or added, and
 files mutated byte by byte.
 
 Every file either loads or raises CalibrationError naming the file; never another exception or a

@@ -1,4 +1,4 @@
-"""Fuzzing TOML service configs (issue 22): generated documents and byte-mutated shipped files.
+"""Fuzzing TOML service configs: generated documents and byte-mutated shipped files.
 
 Every file either loads or raises ConfigError naming the file; never another exception or a
 warning. A config that loads is one the service can start from: its source spec parses back to

@@ -1,4 +1,4 @@
-"""Fuzzing recordings (issue 22): manifest.json, frames.jsonl lines and image files mutated field by
+"""Fuzzing recordings: manifest.json, frames.jsonl lines and image files mutated field by
 field and byte by byte, read through the public reader API (open_recording, Recording.frame,
 Recording.raw, summarize).
 

@@ -1,4 +1,4 @@
-"""Fuzzing source spec strings (issue 22): ``kind[:target][?key=value&...]``.
+"""Fuzzing source spec strings: ``kind[:target][?key=value&...]``.
 
 Every spec either gives an unopened source or raises a SourceError (or another ValueError-typed
 error) with a message; never another exception or a warning. No device is opened: ``make_source``
