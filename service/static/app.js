@@ -953,28 +953,41 @@ async function measure(adjusting) {
   if (state.points.length !== 2 || !state.frame) return;
   await optionsReady;
   if (state.mode !== "frozen" && !(await freeze())) return;
-  const gen = state.gen;
-  const seq = ++state.seq;
   const previous = adjusting && state.result ? state.result.id : null;
   const body = { frame_id: state.frame.id, p1: state.points[0], p2: state.points[1], options: { method: state.method, click_px: clickPx() } };
+  if (state.frames > 1 && state.method === "robust") body.frames = state.frames; // pooling is the robust method's
+  await submit("api/measure", body, previous, {
+    done: () => { $("hint").textContent = state.press ? "" : "Drag a handle to adjust; a press elsewhere starts again."; },
+    failed: () => { $("hint").textContent = "Place two points to measure."; },
+  });
+}
+
+// POST a measurement (api/measure, or api/shapes from tools.js) of the points on screen and show its
+// answer. An answer that a newer adjustment overtook is deleted unseen; `previous`, the history entry
+// being adjusted, is replaced by the new one (adjusting adds no row per drag). `on.done` and
+// `on.failed` set the hint after an answer or an error; `on.settled` runs after either.
+async function submit(path, body, previous, on) {
+  const gen = state.gen;
+  const seq = ++state.seq;
+  const settled = on.settled || (() => {});
   state.dirty = false;
   if (state.saved) { state.saved = null; showSaved(); }
-  if (state.frames > 1 && state.method === "robust") body.frames = state.frames; // pooling is the robust method's
   $("hint").textContent = "Measuring…";
+  settled();
   let res;
   try {
-    res = await api("api/measure", { method: "POST", body });
+    res = await api(path, { method: "POST", body });
   } catch (e) {
     if (seq !== state.seq) return;
     state.result = null;
     showResult(null);
     showError(e.message);
-    $("hint").textContent = "Place two points to measure.";
+    on.failed();
+    settled();
     draw();
     return;
   }
   if (seq !== state.seq) {
-    // a newer adjustment of the same segment is under way: this answer is out of date
     if (gen === state.gen) api(`api/measurements/${res.id}`, { method: "DELETE" }).catch(() => {});
     refreshHistory();
     return;
@@ -982,10 +995,10 @@ async function measure(adjusting) {
   if (gen === state.gen) {
     state.result = res;
     showResult(res);
-    $("hint").textContent = state.press ? "" : "Drag a handle to adjust; a press elsewhere starts again.";
+    on.done();
   }
-  // adjusting a segment replaces its history entry rather than adding one per drag
-  if (previous !== null) await api(`api/measurements/${previous}`, { method: "DELETE" }).catch(() => {});
+  if (previous !== null && previous !== undefined) await api(`api/measurements/${previous}`, { method: "DELETE" }).catch(() => {});
+  settled();
   await refreshHistory();
   draw();
 }

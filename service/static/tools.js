@@ -160,43 +160,13 @@ async function measureShape(previous) {
   if (!state.frame || !enoughPoints()) return;
   await optionsReady;
   if (state.mode !== "frozen" && !(await freeze())) return;
-  const gen = state.gen;
-  const seq = ++state.seq;
-  const kind = state.tool;
-  const body = { frame_id: state.frame.id, kind, points: state.points.map((p) => p.slice()), on: null,
+  const body = { frame_id: state.frame.id, kind: state.tool, points: state.points.map((p) => p.slice()), on: null,
     options: { method: state.method, click_px: clickPx() } };
-  state.dirty = false;
-  if (state.saved) { state.saved = null; showSaved(); }
-  $("hint").textContent = "Measuring…";
-  showToolButtons();
-  let res;
-  try {
-    res = await api("api/shapes", { method: "POST", body });
-  } catch (e) {
-    if (seq !== state.seq) return;
-    state.result = null;
-    showResult(null);
-    showError(e.message);
-    state.dirty = true;
-    $("hint").textContent = toolSpec().hint;
-    showToolButtons();
-    draw();
-    return;
-  }
-  if (seq !== state.seq) { // the points changed meanwhile: this answer is out of date
-    if (gen === state.gen) api(`api/measurements/${res.id}`, { method: "DELETE" }).catch(() => {});
-    refreshHistory();
-    return;
-  }
-  if (gen === state.gen) {
-    state.result = res;
-    showResult(res);
-    $("hint").textContent = "Drag a point to adjust; a press elsewhere starts a new one.";
-  }
-  if (previous !== null && previous !== undefined) await api(`api/measurements/${previous}`, { method: "DELETE" }).catch(() => {});
-  showToolButtons();
-  await refreshHistory();
-  draw();
+  await submit("api/shapes", body, previous, {
+    done: () => { $("hint").textContent = "Drag a point to adjust; a press elsewhere starts a new one."; },
+    failed: () => { state.dirty = true; $("hint").textContent = toolSpec().hint; },
+    settled: showToolButtons,
+  });
 }
 
 // ---- formatting -----------------------------------------------------------------------------------
