@@ -41,18 +41,18 @@ def _pack_disparity(d: np.ndarray) -> tuple[np.ndarray, np.float32] | None:
         return None
     with np.errstate(invalid="ignore"):
         scaled = d * DISPARITY_SCALE
+        nan = np.isnan(scaled)
+        if np.any(nan & (d.view(np.uint32) != _NAN_BITS)):  # a NaN of other bits than the one unpacking writes
+            return None
         lo, hi = np.fmin.reduce(scaled, axis=None), np.fmax.reduce(scaled, axis=None)
         if np.isnan(lo):  # nothing matched
             return np.full(d.shape, NAN_CODE, np.int16), DISPARITY_SCALE
         if not (lo > -32768 and hi <= 32767):
             return None
         whole = np.rint(scaled)
-        nan = np.isnan(scaled)
         if np.count_nonzero(whole != scaled) != np.count_nonzero(nan):  # NaN != NaN: only a fraction adds to the left
             return None
         if lo <= 0 <= hi and np.any(np.signbit(d) & (d == 0)):
-            return None
-        if np.any(nan & (d.view(np.uint32) != _NAN_BITS)):  # a NaN of other bits than the one unpacking writes
             return None
         codes = whole.astype(np.int16)
     codes[nan] = NAN_CODE

@@ -3,6 +3,8 @@ frozen frame kept for a measurement session however many newer frames arrive."""
 
 from __future__ import annotations
 
+from functools import cache
+
 import numpy as np
 import pytest
 from hypothesis import given, settings
@@ -15,6 +17,7 @@ from service.packed import PackedFrame
 from sim.source import SimConfig, SimSource
 
 
+@cache
 def _sim_frame():
     with SimSource(SimConfig(width=160, height=90, fps=0)) as src:
         return src.read()
@@ -120,7 +123,6 @@ def test_health_answers_while_every_worker_thread_is_taken(tmp_path):
             asker.join(20)
 
 
-_SIM_FRAME = _sim_frame()
 _SPECIALS = [np.nan, -0.0, 0.0, 0.25, 1 / 64, 1 / 128, 300.0, 511.984375, 512.0, -2.5, 1e-30, np.inf, -np.inf]
 
 
@@ -129,14 +131,17 @@ _SPECIALS = [np.nan, -0.0, 0.0, 0.25, 1 / 64, 1 / 128, 300.0, 511.984375, 512.0,
     values=st.lists(st.sampled_from(_SPECIALS) | st.floats(-600, 600, width=32) | st.integers(0, 2047).map(lambda k: k / 4),
                     min_size=1, max_size=48),
     nan_bits=st.sampled_from([0x7FC00000, 0xFFC00000, 0x7FC00001]),
+    all_invalid=st.booleans(),
 )
-def test_any_disparity_comes_back_bit_for_bit(values, nan_bits):
+def test_any_disparity_comes_back_bit_for_bit(values, nan_bits, all_invalid):
     # Whatever a source sends (steps, fractions, -0.0, infinities, NaNs of other bits): the ring gives
     # back the very bits; only the holding (codes or the array itself) differs.
-    frame = _SIM_FRAME
+    frame = _sim_frame()
     d = frame.disparity.copy()
     d[0, : len(values)] = values
     d.view(np.uint32)[np.isnan(d)] = nan_bits
+    if all_invalid:  # nothing matched: every pixel a NaN of those bits
+        d.view(np.uint32)[:] = nan_bits
     packed = PackedFrame.pack(type(frame)(frame.image, d, frame.camera, frame.baseline_m))
     packed._last = None
     assert np.array_equal(packed.unpack().disparity.view(np.uint32), d.view(np.uint32))
