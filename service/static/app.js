@@ -965,15 +965,16 @@ async function measure(adjusting) {
 // POST a measurement (api/measure, or api/shapes from tools.js) of the points on screen and show its
 // answer. An answer that a newer adjustment overtook is deleted unseen; `previous`, the history entry
 // being adjusted, is replaced by the new one (adjusting adds no row per drag). `on.done` and
-// `on.failed` set the hint after an answer or an error; `on.settled` runs after either.
+// `on.failed` set the hint after an answer or an error; `on.changed` runs when the request is sent
+// and again after its answer or error (the shape tools' buttons follow it).
 async function submit(path, body, previous, on) {
   const gen = state.gen;
   const seq = ++state.seq;
-  const settled = on.settled || (() => {});
+  const changed = on.changed || (() => {});
   state.dirty = false;
   if (state.saved) { state.saved = null; showSaved(); }
   $("hint").textContent = "Measuring…";
-  settled();
+  changed();
   let res;
   try {
     res = await api(path, { method: "POST", body });
@@ -983,7 +984,7 @@ async function submit(path, body, previous, on) {
     showResult(null);
     showError(e.message);
     on.failed();
-    settled();
+    changed();
     draw();
     return;
   }
@@ -998,7 +999,7 @@ async function submit(path, body, previous, on) {
     on.done();
   }
   if (previous !== null && previous !== undefined) await api(`api/measurements/${previous}`, { method: "DELETE" }).catch(() => {});
-  settled();
+  changed();
   await refreshHistory();
   draw();
 }

@@ -165,7 +165,7 @@ async function measureShape(previous) {
   await submit("api/shapes", body, previous, {
     done: () => { $("hint").textContent = "Drag a point to adjust; a press elsewhere starts a new one."; },
     failed: () => { state.dirty = true; $("hint").textContent = toolSpec().hint; },
-    settled: showToolButtons,
+    changed: showToolButtons,
   });
 }
 
