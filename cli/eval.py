@@ -135,10 +135,11 @@ def stress_sim_command(
 def _two_splits(out: Path, title: str, note: str, dev, held) -> None:
     from evaluation.stress import figures, write_stress_report
 
-    paths = write_stress_report(out, title, {}, {"dev": dev, "held-out": held}, [note])
-    for split, recs in (("dev", dev), ("held-out", held)):
-        f = figures(recs)
-        print(f"{split}: {f['n']} cases, mean A {f['mean_A']:.2f} (basic {f['basic_mean_A']:.2f}), good {100 * f['good']:.1f} %, "
+    paths = write_stress_report(out, title, {"title": title, "notes": [note]}, {"dev": dev, "held-out": held}, [note])
+    for split, recs, disparity in ((split, recs, d) for split, recs in (("dev", dev), ("held-out", held))
+                                   for d in dict.fromkeys(r.disparity for r in recs)):
+        f = figures([r for r in recs if r.disparity == disparity])
+        print(f"{split} {disparity}: {f['n']} cases, mean A {f['mean_A']:.2f} (basic {f['basic_mean_A']:.2f}), good {100 * f['good']:.1f} %, "
               f"good & A<90 {100 * f['good_and_A_below_90']:.1f} %, 2σ coverage {100 * f['cov_2sigma']:.1f} %")
     print(f"report: {paths['report']}")
 
@@ -167,7 +168,8 @@ def gaps_command(out: Path = typer.Option(..., "--out", help="Output folder for 
     """The doorway and the gap between boxes clicked at their true edges, 1.5-5 m (evaluation/gap_edges.py)."""
     from evaluation.gap_edges import DEV_SEEDS, HELD_OUT_SEEDS, run_gap_edges
 
-    _two_splits(out, "Gaps at their true edges", "Doorway and box gap, true edge clicks, 1.5-5 m (evaluation/gap_edges.py).",
+    _two_splits(out, "Gaps at their true edges", "Doorway and box gap, true edge clicks, 1.5-5 m (evaluation/gap_edges.py); "
+                "sim = the default click sigma (1.5 px), sim-exact-clicks = the clicks stated exact (click_px=0).",
                 run_gap_edges(DEV_SEEDS), run_gap_edges(HELD_OUT_SEEDS))
 
 

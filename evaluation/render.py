@@ -16,13 +16,16 @@ from typing import Any
 
 
 def kind(data: dict[str, Any]) -> str:
-    """Which study wrote ``data``: "sim", "middlebury", "stress-middlebury", "stress-sim", "frames" or "shapes"."""
+    """Which study wrote ``data``: "sim", "middlebury", "stress-middlebury", "stress-sim", "stress" (a
+    stress table study that names its title and notes: wall, rooms, gaps), "frames" or "shapes"."""
     if data.get("kind") == "shapes":
         return "shapes"
     if "methods" in data and "gap" in data:
         return "sim"
     if "conditions" in data:
         return "middlebury"
+    if "splits" in data and "title" in data.get("setup", {}):
+        return "stress"
     if "splits" in data:
         return "stress-middlebury" if "data" in data.get("setup", {}) else "stress-sim"
     if "cells" in data.get("summary", {}):
@@ -50,6 +53,10 @@ def render(folder: Path) -> str:
         from evaluation.stress_middlebury import stress_middlebury_markdown
 
         return stress_middlebury_markdown(data)
+    if which == "stress":
+        from evaluation.stress import stress_markdown
+
+        return stress_markdown(data["setup"]["title"], data["setup"]["notes"], data)
     if which == "stress-sim":
         from evaluation.stress_sim import stress_sim_markdown
 

@@ -12,7 +12,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Iterable, Sequence
-from dataclasses import asdict, dataclass
+from dataclasses import asdict, dataclass, replace
 from pathlib import Path
 from typing import Any
 
@@ -50,16 +50,18 @@ class StressRecord:
     error: str = ""
 
 
-def measure_case(frame: Any, case: StressCase, disparity: str) -> StressRecord:
-    """``robust`` and ``basic`` on one click pair; a MeasureError is a record without an answer."""
+def measure_case(frame: Any, case: StressCase, disparity: str, options: Any = None) -> StressRecord:
+    """``robust`` and ``basic`` on one click pair, with ``options`` (a MeasureOptions; None = the defaults)
+    but for the method; a MeasureError is a record without an answer."""
     from measure import MeasureError, MeasureOptions, measure_distance
 
+    options = options or MeasureOptions()
     try:
-        b = measure_distance(frame, case.p1_px, case.p2_px, MeasureOptions(method="basic")).distance_m
+        b = measure_distance(frame, case.p1_px, case.p2_px, replace(options, method="basic")).distance_m
     except MeasureError:
         b = math.nan
     try:
-        m = measure_distance(frame, case.p1_px, case.p2_px)
+        m = measure_distance(frame, case.p1_px, case.p2_px, options)
     except MeasureError as exc:
         return StressRecord(case, disparity, math.nan, math.nan, math.nan, math.nan, "", (), False, "none", b, str(exc))
     return StressRecord(
@@ -129,6 +131,19 @@ def by_condition(records: Sequence[StressRecord], key=lambda r: (r.disparity, r.
     return out
 
 
+def by_scene(records: Sequence[StressRecord]) -> dict[str, dict[str, Any]]:
+    """``figures`` per disparity / scene (the case's group) over all its conditions."""
+    key = lambda r: (r.disparity, r.case.group)  # noqa: E731
+    return {"/".join(k): figures([r for r in records if key(r) == k]) for k in dict.fromkeys(key(r) for r in records)}
+
+
+def worst_scene(scenes: dict[str, dict[str, Any]], disparity: str, figure: str = "good_and_A_below_90") -> tuple[str, float] | None:
+    """The scene of ``by_scene`` figures with the largest ``figure`` under ``disparity``, and that value."""
+    rows = [(name.split("/", 1)[1], f[figure]) for name, f in scenes.items()
+            if name.startswith(f"{disparity}/") and f.get(figure) is not None]
+    return max(rows, key=lambda row: row[1]) if rows else None
+
+
 COLUMNS: tuple[tuple[str, str], ...] = (
     ("n", "n"),
     ("answered", "answered"),
@@ -193,8 +208,10 @@ def record_json(r: StressRecord) -> dict[str, Any]:
     }
 
 
-def write_stress_report(out_dir: Path, title: str, setup: dict[str, Any], splits: dict[str, Iterable[StressRecord]], notes: Sequence[str]) -> dict[str, Path]:
-    """report.md (a table per split, e.g. dev / held-out), one PNG per split, results.json."""
+def write_stress_report(out_dir: Path, title: str, setup: dict[str, Any], splits: dict[str, Iterable[StressRecord]], notes: Sequence[str],
+                        scenes: bool = False) -> dict[str, Path]:
+    """report.md (a table per split, e.g. dev / held-out, and with ``scenes`` one per scene), one PNG per
+    split, results.json."""
     out_dir.mkdir(parents=True, exist_ok=True)
     paths: dict[str, Path] = {}
     data: dict[str, Any] = {"setup": setup, "splits": {}}
@@ -203,6 +220,8 @@ def write_stress_report(out_dir: Path, title: str, setup: dict[str, Any], splits
         figs = by_condition(recs)
         paths[split] = plot_figures(out_dir / f"stress_{split}.png", figs, f"{title}: {split}")
         data["splits"][split] = {"figures": figs, "records": [record_json(r) for r in recs]}
+        if scenes:
+            data["splits"][split]["scenes"] = by_scene(recs)
     report.write_json(out_dir / "results.json", data)
     (out_dir / "report.md").write_text(stress_markdown(title, notes, data))
     paths["report"] = out_dir / "report.md"
@@ -211,9 +230,15 @@ def write_stress_report(out_dir: Path, title: str, setup: dict[str, Any], splits
 
 def stress_markdown(title: str, notes: Sequence[str], data: dict[str, Any]) -> str:
     """report.md of a stress study from its results.json ``data``: the notes, then per split its
-    table (between snippet markers named after the split) and its plot."""
+    table (between snippet markers named after the split), its plot and, when recorded, its per-scene
+    table (markers ``<split>-scenes``) with the worst scene of each disparity."""
     lines = [f"# {title}", "", *notes, ""]
     for split, d in data["splits"].items():
         lines += [f"## {split} ({len(d['records'])} cases)", "", report.section(split, table(d["figures"])), "",
                   f"![{split}](stress_{split}.png)", ""]
+        if "scenes" in d:
+            worst = [(disp, worst_scene(d["scenes"], disp)) for disp in dict.fromkeys(r["disparity"] for r in d["records"])]
+            said = "; ".join(f"{disp} {w[0]} ({100 * w[1]:.1f} %)" for disp, w in worst if w)
+            lines += [f"### {split}: per scene", "", f"Worst scene by good & A<90: {said}.", "",
+                      report.section(f"{split}-scenes", table(d["scenes"])), ""]
     return "\n".join(lines)

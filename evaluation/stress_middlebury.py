@@ -206,7 +206,7 @@ def write_stress_middlebury(out_dir: Path, records: Sequence[StressRecord], setu
         "dev": [r for r in records if r.case.group in DEV_SCENES],
         "held-out": [r for r in records if r.case.group not in DEV_SCENES],
     }
-    return write_stress_report(out_dir, TITLE, setup, splits, notes(sorted({r.case.group for r in records})))
+    return write_stress_report(out_dir, TITLE, setup, splits, notes(sorted({r.case.group for r in records})), scenes=True)
 
 
 def notes(names: Sequence[str]) -> list[str]:

@@ -18,7 +18,7 @@ def test_every_study_has_a_committed_report():
     import json
 
     kinds = {kind(json.loads((f / "results.json").read_text())) for f in FOLDERS}
-    assert kinds == {"sim", "middlebury", "stress-middlebury", "stress-sim", "frames", "shapes"}
+    assert kinds == {"sim", "middlebury", "stress-middlebury", "stress-sim", "stress", "frames", "shapes"}
 
 
 @pytest.mark.parametrize("folder", FOLDERS, ids=[f.name for f in FOLDERS])

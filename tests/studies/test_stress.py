@@ -6,7 +6,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from evaluation.stress import figures
+from evaluation.stress import by_scene, figures, worst_scene
 from evaluation.stress_middlebury import DEV_SCENES, run_stress_middlebury
 from evaluation.stress_sim import run_stress_sim
 from factories import boxes_frame
@@ -33,6 +33,19 @@ def test_good_answers_are_right_and_common(middlebury_stress, disparity):
     assert f["good"] >= 0.5, f
     assert f["good_and_A_below_90"] <= 0.05, f
     assert f["cov_2sigma_among_good"] >= 0.8, f
+
+
+def test_no_dev_scene_is_confidently_wrong_with_the_projects_sgbm(middlebury_stress):
+    # Every scene at most 5 % "good" answers with A < 90, all together at most 2 %, and 2σ covers at
+    # least 85 % of the good ones (the per-scene table of the stress report).
+    sgbm = [r for r in middlebury_stress if r.disparity == "sgbm"]
+    scenes = by_scene(sgbm)
+    assert {name.split("/", 1)[1] for name in scenes} == set(SCENES)
+    assert all(f["good_and_A_below_90"] <= 0.05 for f in scenes.values()), worst_scene(scenes, "sgbm")
+    f = figures(sgbm)
+    assert f["good_and_A_below_90"] <= 0.02, f
+    assert f["good"] >= 0.5, f
+    assert f["cov_2sigma_among_good"] >= 0.85, f
 
 
 def test_uncertainty_covers_the_truth_on_sgbm(middlebury_stress):
@@ -167,6 +180,8 @@ def test_stress_protocol_command_writes_tables_and_plots(tmp_path, middlebury_di
     figs = data["splits"]["dev"]["figures"]
     assert {"sgbm/exact", "bm/jitter", "gt_out50/nogap", "sgbm/all"} <= set(figs)
     assert (out / "stress_dev.png").read_bytes()[:8] == PNG_SIGNATURE
-    assert "good & A<90" in (out / "report.md").read_text()
+    text = (out / "report.md").read_text()
+    assert "good & A<90" in text and "dev-scenes" in text and "Worst scene by good & A<90: sgbm Piano" in text
+    assert set(data["splits"]["dev"]["scenes"]) == {"sgbm/Piano", "bm/Piano", "gt_out50/Piano"}
     bad = CliRunner().invoke(app, ["middlebury", "--protocol", "nonsense", "--data", str(middlebury_dir), "--out", str(out)])
     assert bad.exit_code != 0 and "edge or stress" in bad.output
