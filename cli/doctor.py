@@ -57,9 +57,11 @@ def _plain(x):  # numpy scalars in figures
 
 
 def summary(report) -> str:
-    """The findings as lines: ``[status] check: measured`` and, under a finding that is not a pass, ``fix: ...``."""
+    """The findings as lines: the report's one-line note first when it has one (no camera attached), a
+    header, then ``[status] check: measured`` and, under a finding that is not a pass, ``fix: ...``."""
     counts = {s: sum(f.status == s for f in report.findings) for s in ("pass", "warn", "fail", "skip")}
-    lines = [f"doctor {report.status.upper()}: {report.source} ({', '.join(f'{n} {s}' for s, n in counts.items())})"]
+    lines = [report.note] if report.note else []
+    lines += [f"doctor {report.status.upper()}: {report.source} ({', '.join(f'{n} {s}' for s, n in counts.items())})"]
     for f in report.findings:
         lines.append(f"[{f.status}] {f.check}: {f.measured}")
         if f.fix and f.status != "pass":
