@@ -8,9 +8,6 @@ import typer
 
 from cli import board as board_options
 
-BOARD_OPTIONS = ("squares", "square_mm", "marker_mm", "dictionary", "board_paper")
-
-
 def doctor(
     ctx: typer.Context,
     source: str | None = typer.Option(None, "--source", help="Source spec to check, e.g. oak, sim, replay:DIR, "
@@ -31,8 +28,7 @@ def doctor(
     from cli.specs import source_spec
 
     board = None
-    given = [n for n in BOARD_OPTIONS if getattr(ctx.get_parameter_source(n), "name", "DEFAULT") != "DEFAULT"]
-    if given:  # otherwise the doctor looks for the source's own board, or the default print
+    if board_options.described(ctx):  # otherwise the doctor looks for the source's own board, or the default print
         board, _ = board_options.board_from_options(ctx, squares, square_mm, marker_mm, dictionary, board_paper)
     if source is None:
         source = attached_source()

@@ -149,3 +149,20 @@ def test_board_options_name_what_is_wrong(args, hint, fragment, tmp_path):
     text = " ".join(res.output.replace("│", " ").split())
     assert res.exit_code == 2 and hint in text and fragment in text, text
     assert "marker side" not in text  # the marker is not blamed for a bad square
+
+
+def test_the_command_on_the_simulators_stereo_board_covers_and_flags_a_baseline_that_does_not():
+    """`depthruler check --source sim:charuco?mode=stereo...` with no board options finds the scene's own board
+    (as the doctor and the page do); its exact corners' truth falls inside the 95 % interval for 80-99 % of
+    pairs through a real matcher, and a baseline 3 % long leaves most pairs outside, with the finding saying so."""
+    spec = "sim:charuco?distance=1.5&mode=stereo&fps=0"
+    res = runner.invoke(app, ["check", "--source", spec, "--frames", "2", "--no-history", "--json"])
+    assert res.exit_code == 0, res.output
+    rec = json.loads(res.stdout.strip().splitlines()[-1])
+    fig = rec["figures"]
+    assert fig["board"]["squares"] == "7x5" and fig["board"]["square_mm"] == pytest.approx(40.0) and fig["pairs"] >= 200
+    assert 0.80 <= fig["interval_coverage"] <= 0.99 and abs(fig["bias_pct"]) < 0.5
+    res = runner.invoke(app, ["check", "--source", spec + "&baseline_error=0.03", "--frames", "2", "--no-history", "--json"])
+    wrong = json.loads(res.stdout.strip().splitlines()[-1])
+    assert wrong["figures"]["interval_coverage"] < 0.6 and wrong["status"] != "ok"
+    assert any("fell inside the reported 95 % interval" in f["measured"] for f in wrong["findings"])
