@@ -166,3 +166,33 @@ def test_the_command_on_the_simulators_stereo_board_covers_and_flags_a_baseline_
     wrong = json.loads(res.stdout.strip().splitlines()[-1])
     assert wrong["figures"]["interval_coverage"] < 0.6 and wrong["status"] != "ok"
     assert any("fell inside the reported 95 % interval" in f["measured"] for f in wrong["findings"])
+
+
+def test_a_board_printed_in_the_legacy_pattern_is_checked_and_named(monkeypatch):
+    """An 8x6 board (an even number of rows) printed in OpenCV's pattern before 4.6: its markers show but
+    today's detector finds no corner. The check retries the legacy pattern by itself, measures the board's
+    lengths, and says to pass --legacy."""
+    import dataclasses
+
+    import sim.charuco as sim_charuco
+
+    def legacy_texture(board):
+        sx, sy, square, marker, dictionary = board
+        printed = BoardSpec(sx, sy, square, marker, dictionary).board()
+        printed.setLegacyPattern(True)
+        per_m = sim_charuco.TEXELS_PER_SQUARE / square
+        w, h, margin = sim_charuco.charuco_sheet_m(board)
+        img = printed.generateImage((round(w * per_m), round(h * per_m)), marginSize=round(margin * per_m), borderBits=1)
+        return img.astype(np.float32) / 255.0, per_m
+
+    monkeypatch.setattr(sim_charuco, "board_texture", legacy_texture)
+    board = BoardSpec(8, 6, 0.03, 0.022, "DICT_5X5_100")
+    with open_source(f"sim:charuco?distance=1&squares=8x6&square_mm=30&marker_mm=22&fps=0&width={W}&height={H}") as src:
+        frame = src.read()
+    _, ids, _, marker_ids = cv2.aruco.CharucoDetector(board.board()).detectBoard(frame.image)
+    assert ids is None and len(marker_ids) >= 20  # markers, but no corner in today's pattern
+    result = run_check([frame], board)
+    rep = report(result)
+    assert result.legacy_found and result.board == dataclasses.replace(board, legacy=True)
+    assert rep["figures"]["pairs"] >= 100 and abs(rep["figures"]["bias_pct"]) < 1.0
+    assert any("--legacy" in f["action"] for f in rep["findings"])
