@@ -35,6 +35,14 @@ def legacy_option():  # noqa: ANN201
                         "is still tried as legacy when its markers show but no corners.")
 
 
+BOARD_OPTIONS = ("squares", "square_mm", "marker_mm", "dictionary", "board_paper")  # the parameters that describe a board
+
+
+def described(ctx: typer.Context) -> bool:
+    """Whether the command line gave any of :data:`BOARD_OPTIONS` (else the source's own board is looked for)."""
+    return any(getattr(ctx.get_parameter_source(n), "name", "DEFAULT") != "DEFAULT" for n in BOARD_OPTIONS)
+
+
 def parse_squares(text: str) -> tuple[int, int]:
     """``COLSxROWS`` (e.g. ``11x8``) as two ints; typer.BadParameter otherwise."""
     try:

@@ -30,7 +30,9 @@ def check(
     history: bool = typer.Option(True, "--history/--no-history", help="Keep this check in the history."),
     timeout_s: float = typer.Option(5.0, "--timeout", min=0.01, help="Seconds to wait for each frame."),
 ) -> None:
-    """How accurate are lengths from this camera, here, today: measure the known lengths of a printed board."""
+    """How accurate are lengths from this camera, here, today: measure the known lengths of a printed board.
+
+    Without board options the simulator's charuco scene is checked against its own board."""
     from check.errors import CheckError
     from check.pairs_csv import write_pairs_csv
     from check.record import check_record, earlier_checks
@@ -42,6 +44,13 @@ def check(
     from cli.specs import source_spec
 
     board, _ = board_options.board_from_options(ctx, squares, square_mm, marker_mm, dictionary, board_paper, legacy)
+    if not board_options.described(ctx):  # the simulator's charuco scene shows its own board, as in the doctor and the page
+        from dataclasses import replace
+
+        from check.doctor.board import source_board
+
+        own = source_board(source_spec(source))
+        board = board if own is None else replace(own, legacy=legacy)
     try:
         got = []
         with open_source(source_spec(source)) as src:

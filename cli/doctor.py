@@ -8,9 +8,6 @@ import typer
 
 from cli import board as board_options
 
-BOARD_OPTIONS = ("squares", "square_mm", "marker_mm", "dictionary", "board_paper")
-
-
 def doctor(
     ctx: typer.Context,
     source: str | None = typer.Option(None, "--source", help="Source spec to check, e.g. oak, sim, replay:DIR, "
@@ -31,8 +28,7 @@ def doctor(
     from cli.specs import source_spec
 
     board = None
-    given = [n for n in BOARD_OPTIONS if getattr(ctx.get_parameter_source(n), "name", "DEFAULT") != "DEFAULT"]
-    if given:  # otherwise the doctor looks for the source's own board, or the default print
+    if board_options.described(ctx):  # otherwise the doctor looks for the source's own board, or the default print
         board, _ = board_options.board_from_options(ctx, squares, square_mm, marker_mm, dictionary, board_paper)
     if source is None:
         source = attached_source()
@@ -57,9 +53,11 @@ def _plain(x):  # numpy scalars in figures
 
 
 def summary(report) -> str:
-    """The findings as lines: ``[status] check: measured`` and, under a finding that is not a pass, ``fix: ...``."""
+    """The findings as lines: the report's one-line note first when it has one (no camera attached), a
+    header, then ``[status] check: measured`` and, under a finding that is not a pass, ``fix: ...``."""
     counts = {s: sum(f.status == s for f in report.findings) for s in ("pass", "warn", "fail", "skip")}
-    lines = [f"doctor {report.status.upper()}: {report.source} ({', '.join(f'{n} {s}' for s, n in counts.items())})"]
+    lines = [report.note] if report.note else []
+    lines += [f"doctor {report.status.upper()}: {report.source} ({', '.join(f'{n} {s}' for s, n in counts.items())})"]
     for f in report.findings:
         lines.append(f"[{f.status}] {f.check}: {f.measured}")
         if f.fix and f.status != "pass":

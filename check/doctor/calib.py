@@ -35,7 +35,8 @@ def calibration_ref(spec: str) -> CalibrationRef | None:
 
 def _origin(kind: str, ref: CalibrationRef | None) -> str:
     if ref is not None:
-        return f"the file {ref.path} (T read in {ref.units} unless the file says units)"
+        unit = f"calib_units={ref.units}" if ref.units else "the file's units, else metres"
+        return f"the file {ref.path} (T in {unit})"
     return {"oak": "the OAK's on-board calibration (DepthAI's cm, converted to m)",
             "replay": "the recording's manifest (as its source gave it)", "sim": "the simulator's rig",
             "bag": "the bag's camera_info and depth units"}.get(kind, f"the {kind} source")

@@ -35,10 +35,12 @@ class Finding:
 
 @dataclass(frozen=True)
 class DoctorReport:
-    """Every finding of one run on ``source`` (a spec), in the order they were checked."""
+    """Every finding of one run on ``source`` (a spec), in the order they were checked; ``note``: one line
+    that says it all when there is nothing to check (no camera attached: what to plug in), else empty."""
 
     source: str
     findings: tuple[Finding, ...]
+    note: str = ""
 
     @property
     def status(self) -> str:
@@ -53,7 +55,8 @@ class DoctorReport:
         raise KeyError(f"no {check!r} finding; there are {', '.join(f.check for f in self.findings)}")
 
     def to_dict(self) -> dict[str, Any]:
-        return {"source": self.source, "status": self.status, "findings": [f.to_dict() for f in self.findings]}
+        out = {"source": self.source, "status": self.status, "findings": [f.to_dict() for f in self.findings]}
+        return {**out, "message": self.note} if self.note else out
 
 
 def worst(statuses: Iterable[str]) -> str:

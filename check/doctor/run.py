@@ -14,6 +14,7 @@ from collections.abc import Callable
 from pathlib import Path
 
 from device import SourceError, SourceSpec, list_devices, make_source
+from device.errors import CalibrationError, SourceNotFound
 from device.calibration.board import BoardSpec
 
 from check.doctor import board as board_checks
@@ -21,6 +22,7 @@ from check.doctor import calib, host, stream
 from check.doctor.findings import DoctorReport, Finding
 
 WINDOW_S = 10.0
+CAMERA_KINDS = ("oak", "v4l2", "usb")  # sources that are a device on this machine
 AFTER_OPEN = ("frames", "timestamps", "registration", "fill", "baseline", "intrinsics", "rectification", "board")
 NO_CAMERA = ("no camera found (no OAK over DepthAI, no /dev/video node, no USB video device): plug in an OAK-D "
              "into a USB3 port, or a UVC stereo camera (then --source v4l2:/dev/videoN?calib=FILE); "
@@ -54,9 +56,9 @@ def run_doctor(spec: str, *, window_s: float = WINDOW_S, board: BoardSpec | None
         src.open()
     except SourceError as exc:  # the message says what to plug in, install or fix
         found += host.usb_findings(kind, sys_root, dev_root)
-        found.append(Finding("open", "fail", f"{spec} does not open: {exc}", _open_fix(kind)))
+        found.append(Finding("open", "fail", f"{spec} does not open: {exc}", _open_fix(kind, exc)))
         found += [Finding(name, "skip", "the source did not open") for name in AFTER_OPEN]
-        return DoctorReport(spec, tuple(found))
+        return DoctorReport(spec, tuple(found), note=_no_camera(kind, exc))
     try:
         opened_s = time.monotonic() - t0
         info = src.info
@@ -86,7 +88,17 @@ def run_doctor(spec: str, *, window_s: float = WINDOW_S, board: BoardSpec | None
     return DoctorReport(spec, tuple(found))
 
 
-def _open_fix(kind: str) -> str:
+def _no_camera(kind: str, exc: SourceError) -> str:
+    """:data:`NO_CAMERA` when a camera source is not found and the machine lists no camera at all, else ""
+    (with another camera attached, the open finding names the one that is missing)."""
+    if not isinstance(exc, SourceNotFound) or kind not in CAMERA_KINDS:
+        return ""
+    return "" if list_devices() else NO_CAMERA
+
+
+def _open_fix(kind: str, exc: SourceError) -> str:
+    if isinstance(exc, CalibrationError):  # the device is there; its calibration is refused, and the message says why
+        return "the calibration is refused, not the device: change what the message names, then run the doctor again"
     return {"oak": "plug the OAK into a USB3 port; if `depthruler devices` shows no-permission, add the udev rule it prints",
             "v4l2": "name the node and its calibration: v4l2:/dev/videoN?layout=side-by-side&calib=FILE",
             "video": "name the file and its calibration: video:pair.mkv?layout=side-by-side&calib=FILE",

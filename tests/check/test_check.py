@@ -345,3 +345,25 @@ def test_scale_advice_fits_the_kind_of_camera():
     for kind in ("oak", "bag", "depthpng"):
         assert "scale the calibration's T" not in words[kind] and "baseline in the calibration" not in words[kind], kind
     assert "depthai calibrate" in words["oak"] and "RealSense Viewer" in words["bag"] and "depth_scale" in words["depthpng"]
+
+
+def test_offset_advice_fits_the_kind_of_camera():
+    """A depth error that grows with distance is a disparity offset to fix in the calibration file of a pair
+    processed here; an OAK, a bag or a depth folder has no such file: the words name their own fix."""
+    frames = []
+    for distance in (1.0, 2.0, 4.0):
+        board = board_for(distance)
+        with open_source(sim_spec(distance, board)) as src:
+            frames.append((dataclasses.replace(src.read(), doffs=0.3), board))
+    last = {}
+    for kind in ("v4l2", "oak", "bag", "depthpng"):
+        records: list[dict] = []
+        for frame, board in frames:
+            f = dataclasses.replace(frame, meta={**frame.meta, "source": kind})
+            records.append(report(run_check([f], board), records))
+        (grows,) = [x for x in records[-1]["findings"] if "grows with distance" in x["measured"]]
+        last[kind] = grows["cause"] + " " + grows["action"]
+    assert re.search(r"disparity offset of about \+0\.[23]\d px", last["v4l2"])
+    for kind, fix in (("oak", "depthai calibrate"), ("bag", "RealSense Viewer"), ("depthpng", "depth_scale")):
+        assert "disparity offset of about" not in last[kind] and "principal points" not in last[kind], kind
+        assert fix in last[kind], kind

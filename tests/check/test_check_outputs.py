@@ -149,3 +149,50 @@ def test_board_options_name_what_is_wrong(args, hint, fragment, tmp_path):
     text = " ".join(res.output.replace("│", " ").split())
     assert res.exit_code == 2 and hint in text and fragment in text, text
     assert "marker side" not in text  # the marker is not blamed for a bad square
+
+
+def test_the_command_on_the_simulators_stereo_board_covers_and_flags_a_baseline_that_does_not():
+    """`depthruler check --source sim:charuco?mode=stereo...` with no board options finds the scene's own board
+    (as the doctor and the page do); its exact corners' truth falls inside the 95 % interval for 80-99 % of
+    pairs through a real matcher, and a baseline 3 % long leaves most pairs outside, with the finding saying so."""
+    spec = "sim:charuco?distance=1.5&mode=stereo&fps=0"
+    res = runner.invoke(app, ["check", "--source", spec, "--frames", "2", "--no-history", "--json"])
+    assert res.exit_code == 0, res.output
+    rec = json.loads(res.stdout.strip().splitlines()[-1])
+    fig = rec["figures"]
+    assert fig["board"]["squares"] == "7x5" and fig["board"]["square_mm"] == pytest.approx(40.0) and fig["pairs"] >= 200
+    assert 0.80 <= fig["interval_coverage"] <= 0.99 and abs(fig["bias_pct"]) < 0.5
+    res = runner.invoke(app, ["check", "--source", spec + "&baseline_error=0.03", "--frames", "2", "--no-history", "--json"])
+    wrong = json.loads(res.stdout.strip().splitlines()[-1])
+    assert wrong["figures"]["interval_coverage"] < 0.6 and wrong["status"] != "ok"
+    assert any("fell inside the reported 95 % interval" in f["measured"] for f in wrong["findings"])
+
+
+def test_a_board_printed_in_the_legacy_pattern_is_checked_and_named(monkeypatch):
+    """An 8x6 board (an even number of rows) printed in OpenCV's pattern before 4.6: its markers show but
+    today's detector finds no corner. The check retries the legacy pattern by itself, measures the board's
+    lengths, and says to pass --legacy."""
+    import dataclasses
+
+    import sim.charuco as sim_charuco
+
+    def legacy_texture(board):
+        sx, sy, square, marker, dictionary = board
+        printed = BoardSpec(sx, sy, square, marker, dictionary).board()
+        printed.setLegacyPattern(True)
+        per_m = sim_charuco.TEXELS_PER_SQUARE / square
+        w, h, margin = sim_charuco.charuco_sheet_m(board)
+        img = printed.generateImage((round(w * per_m), round(h * per_m)), marginSize=round(margin * per_m), borderBits=1)
+        return img.astype(np.float32) / 255.0, per_m
+
+    monkeypatch.setattr(sim_charuco, "board_texture", legacy_texture)
+    board = BoardSpec(8, 6, 0.03, 0.022, "DICT_5X5_100")
+    with open_source(f"sim:charuco?distance=1&squares=8x6&square_mm=30&marker_mm=22&fps=0&width={W}&height={H}") as src:
+        frame = src.read()
+    _, ids, _, marker_ids = cv2.aruco.CharucoDetector(board.board()).detectBoard(frame.image)
+    assert ids is None and len(marker_ids) >= 20  # markers, but no corner in today's pattern
+    result = run_check([frame], board)
+    rep = report(result)
+    assert result.legacy_found and result.board == dataclasses.replace(board, legacy=True)
+    assert rep["figures"]["pairs"] >= 100 and abs(rep["figures"]["bias_pct"]) < 1.0
+    assert any("--legacy" in f["action"] for f in rep["findings"])

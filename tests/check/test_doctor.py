@@ -199,3 +199,48 @@ def test_a_source_that_does_not_open_fails_and_skips_the_rest(tmp_path):
     assert report.get("open").status == "fail" and report.status == "fail"
     assert [f.check for f in report.findings] == CHECKS
     assert {f.status for f in report.findings[CHECKS.index("frames"):]} == {"skip"}
+
+
+def test_a_camera_source_without_a_camera_says_so_first_in_one_line(monkeypatch):
+    """`doctor --source oak` on a machine with no camera: the first line is the no-camera line (what to plug
+    in), the checks follow; with a camera of another kind attached the open finding alone names it."""
+    import check.doctor.run as doctor_run
+    from cli.main import app
+    from device.errors import SourceNotFound
+
+    class Absent:
+        def open(self):
+            raise SourceNotFound("no OAK camera found within 1.0 s; plug an OAK camera into a USB3 port")
+
+    monkeypatch.setattr(doctor_run, "make_source", lambda spec: Absent())
+    monkeypatch.setattr(doctor_run, "list_devices", lambda: [])
+    res = runner.invoke(app, ["doctor", "--source", "oak"])
+    lines = res.stdout.strip().splitlines()  # progress goes to stderr
+    assert res.exit_code == 1 and lines[0] == NO_CAMERA and lines[1].startswith("doctor FAIL: oak")
+    assert any(line.startswith("[fail] open: oak does not open: no OAK camera found") for line in lines)
+    out = json.loads(runner.invoke(app, ["doctor", "--source", "oak", "--json"]).output.strip().splitlines()[-1])
+    assert out["message"] == NO_CAMERA and out["status"] == "fail"
+    webcam = SourceInfo(name="USB webcam", kind="v4l2", serial="", width=640, height=480, fps=30.0, extra={})
+    monkeypatch.setattr(doctor_run, "list_devices", lambda: [webcam])
+    report = run_doctor("oak", window_s=0.1)
+    assert report.note == "" and report.get("open").status == "fail" and "message" not in report.to_dict()
+
+
+def test_a_refused_calibration_is_fixed_in_the_calibration_and_the_unit_is_named(tmp_path):
+    """T in board squares is refused when the file loads: the fix points at the calibration, not at the
+    spec's file name; a file read with calib_units states that unit, one without it the file's or metres."""
+    from factories import rendered_pair
+
+    pair = rendered_pair("poster", 2.0)
+    h, w = pair.left.shape[:2]
+    video = write_video(tmp_path / "pair.mkv", [np.hstack([pair.left, pair.right])] * 2)
+    spec = f"video:{video}?layout=side-by-side&ndisp={pair.ndisp}&calib="
+    squares = _opencv_yaml(tmp_path / "squares.yaml", pair.k, pair.baseline_m / 0.025, (w, h))
+    opened = run_doctor(spec + str(squares), window_s=0.1).get("open")
+    assert opened.status == "fail" and "calib_units=" in opened.measured
+    assert "calibration is refused" in opened.fix and "name the file" not in opened.fix
+    metres = _opencv_yaml(tmp_path / "m.yaml", pair.k, pair.baseline_m, (w, h))
+    for extra, unit in (("", "T in the file's units, else metres"), ("&calib_units=m", "T in calib_units=m")):
+        base = run_doctor(spec + str(metres) + extra, window_s=0.1).get("baseline")
+        assert base.status == "pass" and unit in base.measured and "None" not in base.measured
+        assert base.figures["baseline_m"] == pytest.approx(pair.baseline_m)
