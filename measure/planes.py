@@ -197,7 +197,9 @@ def fit_plane(frame: Frame, xs: np.ndarray, ys: np.ndarray, seed: int = 0, start
     inl = np.ones(len(x), bool)
     for _ in range(6):
         r = d - (coeffs[0] * x + coeffs[1] * y + coeffs[2])
-        s = max(floor, 1.4826 * float(median(np.abs(r[np.abs(r) <= INLIER_SIGMAS * 4 * floor + 1.0]))) if r.size else floor)
+        near = np.abs(r[np.abs(r) <= INLIER_SIGMAS * 4 * floor + 1.0])
+        # No pixel near the start (a start plane a neighbour's top pulled away): the floor scale stands.
+        s = max(floor, 1.4826 * float(median(near))) if near.size else floor
         u = r / (TUKEY_C * s)
         w = np.where(np.abs(u) < 1, (1 - u * u) ** 2, 0.0)
         inl = np.abs(r) <= INLIER_SIGMAS * s
