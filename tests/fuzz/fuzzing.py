@@ -48,6 +48,22 @@ def typed_or_answer(call: Callable[[], T], errors: type[BaseException] | tuple[t
             return None
 
 
+def allowing(category: type[Warning], call: Callable[[], T], names: tuple[str, ...]) -> Callable[[], T]:
+    """``call`` letting through warnings of ``category`` (a reader's own, documented warning) that name
+    one of ``names``; any other warning is still an error, as in :func:`typed_or_answer`."""
+
+    def run() -> T:
+        with warnings.catch_warnings(record=True) as seen:
+            warnings.simplefilter("error")
+            warnings.simplefilter("always", category)
+            answer = call()
+        for w in seen:
+            assert any(n in str(w.message) for n in names), f"the warning names none of {names}: {w.message}"
+        return answer
+
+    return run
+
+
 def finite(value: Any) -> bool:
     try:
         return all(math.isfinite(float(v)) for v in (value if isinstance(value, (tuple, list)) else [value]))

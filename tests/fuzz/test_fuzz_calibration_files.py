@@ -3,7 +3,8 @@ project's JSON, mutated byte by byte from valid files, plus the hostile cases fo
 empty file, a video given as calib=, impossible numbers, matrices whose rows do not match their data,
 deep nesting, long lists, a matrix claiming 10^8 rows).
 
-Every file either loads or raises CalibrationError naming the file; never another exception or a warning,
+Every file either loads or raises CalibrationError naming the file; never another exception or a warning
+(but the CalibrationWarning naming the file with which an R a little off a rotation is repaired),
 and each read ends within a second (a per-call alarm, which also stops a quadratic parse or a huge
 allocation in Python code; OpenCV's own parser is bounded by the size and nesting checks that come first).
 """
@@ -21,10 +22,10 @@ import pytest
 from hypothesis import event, given
 from hypothesis import strategies as st
 
-from device.calibration.files import CalibrationRef, write
-from device.calibration.stereo import StereoCalibration, load_calibration
+from device.calibration.files import UNITS, CalibrationRef, write
+from device.calibration.stereo import DISTORTION_MODELS, CalibrationWarning, StereoCalibration, load_calibration
 from device.errors import CalibrationError
-from fuzzing import byte_edits, typed_or_answer
+from fuzzing import allowing, byte_edits, typed_or_answer
 
 R_LR, _ = cv2.Rodrigues(np.array([0.002, -0.015, 0.004]))
 CALIB = StereoCalibration(
@@ -35,6 +36,13 @@ CALIB = StereoCalibration(
 TOKENS = (b"\xff", b"\x00", b"-", b"9", b"e999", b"[", b"]", b"{", b"}", b".nan", b".inf", b"abc", b":", b",",
           b'"', b"'", b"\n  ", b"!!opencv-matrix", b"rows: 100000000", b"<", b"</", b">", b"&amp;", b"%YAML:1.0\n")
 SECOND = 1.0  # each read must end within this
+# The reader's options as a source spec gives them (calib_units, calib_square_mm, distortion): each takes
+# another path after the parse (a unit conversion, the squares' side, a lens model replaced).
+OPTIONS = st.fixed_dictionaries({}, optional={
+    "units": st.sampled_from(sorted(UNITS)), "square_mm": st.sampled_from([25.0, 1e-9, 1e9]),
+    "distortion_model": st.sampled_from(DISTORTION_MODELS),
+})
+SPEC_OPTIONS = ({}, {"units": "mm", "distortion_model": "equidistant"}, {"units": "squares", "square_mm": 25.0})
 
 
 class TooSlow(Exception):
@@ -56,11 +64,14 @@ def within(seconds: float) -> Iterator[None]:
         signal.signal(signal.SIGALRM, old)
 
 
-def read(ref: str) -> None:
-    """Load ``ref`` through every reader that takes it; only CalibrationError, naming a file, may come out."""
-    readers = [lambda: CalibrationRef(ref).load()]
+def read(ref: str, options: dict | None = None) -> None:
+    """Load ``ref`` (with the spec's ``options``) through every reader that takes it; only CalibrationError,
+    naming a file, may come out."""
+    # an R a little off a rotation is repaired with a CalibrationWarning naming the file, as documented
+    names = tuple(ref.split(","))
+    readers = [allowing(CalibrationWarning, lambda: CalibrationRef(ref, **(options or {})).load(), names)]
     if ref.endswith(".json"):
-        readers.append(lambda: load_calibration(ref))
+        readers.append(allowing(CalibrationWarning, lambda: load_calibration(ref), names))
     for reader in readers:
         with within(SECOND):
             calib = typed_or_answer(reader, CalibrationError)
@@ -98,7 +109,7 @@ def test_mutated_calibration_files_load_or_raise_calibration_error(originals, tm
         p = folder / f"c{k}{suffix}"
         p.write_bytes(data.draw(byte_edits(doc, TOKENS, edits=6, cut=40, repeat=True)) if k == hit else doc)
         paths.append(p)
-    read(",".join(map(str, paths)))
+    read(",".join(map(str, paths)), data.draw(OPTIONS))
 
 
 def opencv_yaml(**fields: str) -> str:
@@ -175,10 +186,11 @@ def test_hostile_calibration_files_raise_calibration_error(tmp_path: Path, case:
         p.write_bytes(doc)
         paths.append(p)
     ref = ",".join(map(str, paths))
-    with within(SECOND):
-        with pytest.raises(CalibrationError) as err:
-            CalibrationRef(ref).load()
-    assert any(str(p) in str(err.value) for p in paths), err.value
+    for options in SPEC_OPTIONS:
+        with within(SECOND):
+            with pytest.raises(CalibrationError) as err:
+                CalibrationRef(ref, **options).load()
+        assert any(str(p) in str(err.value) for p in paths), (options, err.value)
     if suffix == ".json":
         with within(SECOND), pytest.raises(CalibrationError):
             load_calibration(paths[0])

@@ -4,6 +4,7 @@ frame, a source that times out once, and a capped history. Nothing acknowledged 
 from __future__ import annotations
 
 import errno
+import os
 import shutil
 import signal
 import subprocess
@@ -207,6 +208,61 @@ def test_full_tmpfs_measure_507_edits_succeed_health_degraded_across_a_restart(t
             r = http.post("/api/measure", json={**body, "frame_id": f["id"]})
             assert r.status_code == 200, r.text
             assert http.post(f"/api/measurements/{r.json()['id']}/open").status_code == 200
+    finally:
+        proc.send_signal(signal.SIGTERM)
+        proc.wait(30)
+
+
+def _leave(disk: Path, ballast: Path, nbytes: int) -> int:
+    """Shorten ``ballast`` (the file that filled ``disk``) until about ``nbytes`` are free; the free bytes."""
+    from history.space import free_bytes
+
+    os.truncate(ballast, max(0, ballast.stat().st_size - max(0, nbytes - free_bytes(disk))))
+    return free_bytes(disk)
+
+
+@pytest.mark.slow
+def test_tmpfs_with_less_room_than_a_frame_is_degraded_before_a_write_fails(tmp_path, small_disk):
+    """Room for a small fixed probe but not for a frame (the case a 64 KB probe called "ok" while three
+    measurements got 507): health is degraded before the first measurement fails and after each 507;
+    with room for a frame and its commit, health is ok again and the measurement is stored."""
+    from history.space import COMMIT_HEADROOM
+
+    proc, base = start_serve("sim:poster?width=640&height=480&fps=30", small_disk / "h.db", tmp_path / "serve.log", timeout_s=120)
+    try:
+        with httpx.Client(base_url=base, timeout=30, headers=JSON) as http:
+            f = http.get("/api/frames/latest").json()
+            p1, p2 = _points(f, 0)
+            body = {"frame_id": f["id"], "p1": p1, "p2": p2}
+            first = http.post("/api/measure", json=body)
+            assert first.status_code == 200, first.text
+            h = http.get("/api/health").json()
+            need = h["next_frame_bytes"]
+            assert h["status"] == "ok" and 250_000 < need < 450_000, h  # 640x480: JPEG colour + PNG16 disparity
+            assert (small_disk / "h-frames" / ".reserve").exists()  # laid while there was room
+            ballast = _fill(small_disk)
+            free = _leave(small_disk, ballast, need // 2)
+            assert need // 3 < free < need, (free, need)
+            h = http.get("/api/health").json()  # no write has failed yet
+            assert h["status"] == "degraded" and h["free_bytes"] < h["next_frame_bytes"] == need, h
+            codes = []
+            for _ in range(2):
+                f = http.get("/api/frames/latest", params={"after": f["id"], "wait": 5}).json()
+                codes.append(http.post("/api/measure", json={**body, "frame_id": f["id"]}).status_code)
+                h = http.get("/api/health").json()
+                assert h["status"] == "degraded" and h["free_bytes"] < need, h
+            assert codes == [507, 507]
+            assert [m["id"] for m in http.get("/api/measurements").json()] == [first.json()["id"]]
+            free = _leave(small_disk, ballast, need + COMMIT_HEADROOM + (512 << 10))
+            deadline = time.monotonic() + 10  # a failed write is forgotten once a probe of a frame's size writes
+            while http.get("/api/health").json()["status"] != "ok" and time.monotonic() < deadline:
+                time.sleep(0.1)
+            h = http.get("/api/health").json()
+            assert h["status"] == "ok" and h["free_bytes"] >= h["next_frame_bytes"] + COMMIT_HEADROOM, h
+            f = http.get("/api/frames/latest", params={"after": f["id"], "wait": 5}).json()
+            r = http.post("/api/measure", json={**body, "frame_id": f["id"]})
+            assert r.status_code == 200, r.text
+            assert [m["id"] for m in http.get("/api/measurements").json()] == [r.json()["id"], first.json()["id"]]
     finally:
         proc.send_signal(signal.SIGTERM)
         proc.wait(30)
