@@ -133,14 +133,13 @@ def stress_sim_command(
 
 
 def _two_splits(out: Path, title: str, note: str, dev, held) -> None:
-    from evaluation.stress import figures, write_stress_report
+    from evaluation.stress import by_condition, write_stress_report
 
     paths = write_stress_report(out, title, {"title": title, "notes": [note]}, {"dev": dev, "held-out": held}, [note])
-    for split, recs, disparity in ((split, recs, d) for split, recs in (("dev", dev), ("held-out", held))
-                                   for d in dict.fromkeys(r.disparity for r in recs)):
-        f = figures([r for r in recs if r.disparity == disparity])
-        print(f"{split} {disparity}: {f['n']} cases, mean A {f['mean_A']:.2f} (basic {f['basic_mean_A']:.2f}), good {100 * f['good']:.1f} %, "
-              f"good & A<90 {100 * f['good_and_A_below_90']:.1f} %, 2σ coverage {100 * f['cov_2sigma']:.1f} %")
+    for split, recs in (("dev", dev), ("held-out", held)):
+        for name, f in by_condition(recs, key=lambda r: (r.disparity,), totals=False).items():
+            print(f"{split} {name}: {f['n']} cases, mean A {f['mean_A']:.2f} (basic {f['basic_mean_A']:.2f}), good {100 * f['good']:.1f} %, "
+                  f"good & A<90 {100 * f['good_and_A_below_90']:.1f} %, 2σ coverage {100 * f['cov_2sigma']:.1f} %")
     print(f"report: {paths['report']}")
 
 

@@ -121,20 +121,20 @@ def figures(records: Sequence[StressRecord]) -> dict[str, Any]:
     }
 
 
-def by_condition(records: Sequence[StressRecord], key=lambda r: (r.disparity, r.case.condition)) -> dict[str, dict[str, Any]]:
-    """``figures`` per key (default: disparity / condition) and per disparity over all conditions ("all")."""
+def by_condition(records: Sequence[StressRecord], key=lambda r: (r.disparity, r.case.condition), totals: bool = True) -> dict[str, dict[str, Any]]:
+    """``figures`` per key (default: disparity / condition) and, with ``totals``, per disparity over all
+    conditions ("all")."""
     out: dict[str, dict[str, Any]] = {}
     for k in dict.fromkeys(key(r) for r in records):
         out["/".join(k)] = figures([r for r in records if key(r) == k])
-    for d in dict.fromkeys(r.disparity for r in records):
+    for d in dict.fromkeys(r.disparity for r in records) if totals else ():
         out[f"{d}/all"] = figures([r for r in records if r.disparity == d])
     return out
 
 
 def by_scene(records: Sequence[StressRecord]) -> dict[str, dict[str, Any]]:
     """``figures`` per disparity / scene (the case's group) over all its conditions."""
-    key = lambda r: (r.disparity, r.case.group)  # noqa: E731
-    return {"/".join(k): figures([r for r in records if key(r) == k]) for k in dict.fromkeys(key(r) for r in records)}
+    return by_condition(records, key=lambda r: (r.disparity, r.case.group), totals=False)
 
 
 def worst_scene(scenes: dict[str, dict[str, Any]], disparity: str, figure: str = "good_and_A_below_90") -> tuple[str, float] | None:
