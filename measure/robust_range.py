@@ -26,6 +26,15 @@ def median(values: np.ndarray) -> np.ndarray | float:
     return float(out) if a.ndim == 1 else out
 
 
+def tukey_scale(values: np.ndarray) -> float:
+    """The scale ``tukey_location`` weighs ``values`` (any unit, non-empty) with: 1.4826 MAD, or 1.2533
+    times the mean absolute deviation from the median where the MAD is zero (zero: all values equal)."""
+    v = np.asarray(values, dtype=np.float64)
+    dev = np.abs(v - median(v))
+    s = 1.4826 * median(dev)
+    return s if s > 0.0 else 1.2533 * float(dev.mean())
+
+
 def tukey_location(values: np.ndarray, c: float = TUKEY_C, iterations: int = 30) -> tuple[float, float]:
     """Bisquare M-estimate of location of ``values`` (any unit) and its standard error.
 
@@ -38,10 +47,7 @@ def tukey_location(values: np.ndarray, c: float = TUKEY_C, iterations: int = 30)
     if v.size == 0:
         return math.nan, math.nan
     m = median(v)
-    dev = np.abs(v - m)
-    s = 1.4826 * median(dev)
-    if s == 0.0:
-        s = 1.2533 * float(dev.mean())
+    s = tukey_scale(v)
     if s == 0.0:
         return m, 0.0
     for _ in range(iterations):

@@ -86,7 +86,7 @@ def test_auto_source_falls_back_to_simulator(monkeypatch):
     from cli import serve as cli_serve
 
     monkeypatch.setattr(device, "list_devices", lambda: [SourceInfo(kind="v4l2", name="webcam")])
-    assert cli_serve.auto_source() == "sim"
+    assert cli_serve.auto_source() == cli_serve.DEMO_SIM
     monkeypatch.setattr(device, "list_devices", lambda: [SourceInfo(kind="oak", name="OAK-D", extra={"spec": "oak:18443"})])
     assert cli_serve.auto_source() == "oak:18443"
 
@@ -94,7 +94,35 @@ def test_auto_source_falls_back_to_simulator(monkeypatch):
         raise RuntimeError("libusb missing")
 
     monkeypatch.setattr(device, "list_devices", broken)
-    assert cli_serve.auto_source() == "sim"
+    assert cli_serve.auto_source() == cli_serve.DEMO_SIM
+
+
+def _depth_view_figures(spec: str) -> tuple[float, float]:
+    """(share of pixels with depth, share of neighbouring pixel pairs that change: one has depth and the
+    other not, or their disparities differ by more than 0.5 px) of the first frame of ``spec``."""
+    from device import open_source
+
+    with open_source(spec) as src:
+        d = src.read(5.0).disparity
+    changes = []
+    for a, b in ((d[:, :-1], d[:, 1:]), (d[:-1], d[1:])):
+        va, vb = np.isfinite(a), np.isfinite(b)
+        changes.append(((va != vb) | (va & vb & (np.abs(np.where(va & vb, a - b, 0.0)) > 0.5))).mean())
+    return float(np.isfinite(d).mean()), float(np.mean(changes))
+
+
+def test_serve_without_a_camera_shows_surfaces_in_the_depth_view(monkeypatch):
+    """With no camera `serve` shows the simulator; its depth view read as static (the stress profile: a
+    quarter of the pixels without depth, a fifth of neighbouring pairs changing colour)."""
+    import device
+
+    from cli import serve as cli_serve
+
+    monkeypatch.setattr(device, "list_devices", lambda: [])
+    valid, changes = _depth_view_figures(cli_serve.auto_source())
+    assert valid >= 0.9 and changes <= 0.1, (valid, changes)
+    stress_valid, stress_changes = _depth_view_figures("sim")  # what the evaluations use, unchanged
+    assert stress_valid < 0.8 and stress_changes > 0.2, (stress_valid, stress_changes)
 
 
 def test_serve_on_a_busy_port_says_so_before_starting(tmp_path):
