@@ -202,8 +202,8 @@ def measure(
     """Measure between two points (or a box, a height, a path, an area) on one frame of a source, headless; prints the value, uncertainty and verdict."""
     from device import SourceError, open_source
     from device.base import FrameAccess
-    from measure import MAX_FRAMES, MeasureError, MeasureOptions, measure_distance, measure_sequence
-    from cli.shapes import measure_shape, shape_json, shape_kind, shape_text
+    from measure import MAX_FRAMES, MeasureError, MeasureOptions, measure_distance, measure_sequence, measure_shape
+    from cli.shapes import shape_json, shape_kind, shape_text
     from cli.specs import source_spec
 
     kind = shape_kind(box, height, path, area, point or [], on or [], p1 is not None or p2 is not None)
@@ -241,7 +241,7 @@ def measure(
         from service.render import truth_json
 
         try:
-            shape = measure_shape(f, kind, click, clicks, base, options)
+            shape = measure_shape(f, kind, [click] if click else clicks, base or None, options)
         except MeasureError as exc:
             _fail(str(exc), 1)
         if as_json:

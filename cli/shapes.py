@@ -39,18 +39,6 @@ def shape_kind(box: str | None, height: str | None, path: bool, area: bool, poin
     return None if kind == "segment" else kind
 
 
-def measure_shape(frame: Any, kind: str, click: tuple[float, float] | None, clicks: list[tuple[float, float]],
-                  base: list[tuple[float, float]], options: Any) -> Any:
-    """The core's answer for ``kind`` on ``frame`` (raises measure.MeasureError on bad input)."""
-    from measure import measure_area, measure_box, measure_height, measure_path
-
-    if kind == "box":
-        return measure_box(frame, click, options)
-    if kind == "height":
-        return measure_height(frame, click, base or None, options)
-    return (measure_path if kind == "path" else measure_area)(frame, clicks, options)
-
-
 def _m(v: float, unit: str = "m") -> str:
     return f"{v:.4f} {unit}" if math.isfinite(v) else "unknown"
 
