@@ -18,7 +18,9 @@ at once; then again on the samples within 3 robust sigmas of the first fit). The
 3. the bend is large: the two pieces' lines, extended to the far end of the shorter piece, part by
    more than ``BEND_SIGMAS`` · s, one disparity quantum and ``DISAGREE_REL`` of the disparity at the
    crease (the offset at which ``measure.surfaces`` gives an end a surface of its own);
-4. no extrapolation: each end's value lies within its piece's inlying samples' range (and a quantum).
+4. the samples follow it: where the two-piece line and the one line part by more than 3 s, more samples
+   lie within 3 s of the two-piece line than of the one line;
+5. no extrapolation: each end's value lies within its piece's inlying samples' range (and a quantum).
 
 Units: t in px along the segment from p1, disparities in px. Why and the measurement:
 docs/decisions/bent-segments.md.
@@ -127,7 +129,7 @@ def hinge_ends(t: np.ndarray, d: np.ndarray, length: float, quantum: float, nois
     if t0s.size == 0:
         return None
     terms = np.stack([np.ones_like(t), t, t * t, d, t * d], axis=1)
-    _, _, s1 = _robust(t, None, d, floor, terms)
+    _, r1, s1 = _robust(t, None, d, floor, terms)
     if s1[0] <= floor:
         return None  # every s2 is floored there too: the crease cannot lower the scale (condition 1)
     b2, r2, s2 = _robust(t, np.maximum(t[None] - t0s[:, None], 0.0), d, floor, terms)
@@ -144,6 +146,12 @@ def hinge_ends(t: np.ndarray, d: np.ndarray, length: float, quantum: float, nois
     shorter = min(t0, length - t0)
     at_crease = abs(a + b * t0)
     if not abs(c) * shorter > max(BEND_SIGMAS * float(s2[k]), quantum, DISAGREE_REL * at_crease):
+        return None
+    # Where the two models part, the samples must follow the crease: a step to scattered wrong matches past an
+    # object's edge lowers the (MAD) scale by threading a steep piece through a few of them (condition 4).
+    one = np.abs(r1[0] - np.median(r1[0])) <= 3.0 * s2[k]
+    apart = np.abs(r1[0] - r2[k]) > 3.0 * s2[k]
+    if not (inl & apart).sum() > (one & apart).sum():
         return None
     ends = (a, a + b * length + c * (length - t0))
     # No extrapolation: each end's value lies within the range of its piece's inlying samples (and a quantum).
