@@ -203,7 +203,7 @@ def measure(
     from device import SourceError, open_source
     from device.base import FrameAccess
     from measure import MAX_FRAMES, MeasureError, MeasureOptions, measure_distance, measure_sequence, measure_shape
-    from cli.shapes import shape_json, shape_kind, shape_text
+    from cli.shapes import segment_text, shape_json, shape_kind, shape_text
     from cli.specs import source_spec
 
     kind = shape_kind(box, height, path, area, point or [], on or [], p1 is not None or p2 is not None)
@@ -262,18 +262,7 @@ def measure(
             out["truth"] = truth
         typer.echo(json.dumps(out))
         return
-    unc = f" ± {result.uncertainty_m:.4f} m" if math.isfinite(result.uncertainty_m) else " (uncertainty unknown)"
-    typer.echo(f"distance {result.distance_m:.4f} m{unc}")
-    lo, hi = result.interval_m
-    if math.isfinite(lo) and math.isfinite(hi):
-        typer.echo(f"95 % interval {lo:.4f} - {hi:.4f} m")
-    typer.echo(f"quality: {result.quality.upper()}" + (f" ({'; '.join(result.reasons)})" if result.reasons else ""))
-    typer.echo(f"method {result.method}, fit {result.fit}, {result.n_support}/{result.n_valid} samples in support")
-    typer.echo(f"basic estimate {result.basic_distance_m:.4f} m" if math.isfinite(result.basic_distance_m) else "basic estimate: none (no depth within the window at an end point)")
-    if frames > 1:
-        gain = result.single_frame_uncertainty_m / result.uncertainty_m if result.uncertainty_m > 0 else math.nan
-        typer.echo(f"frames: {result.frames_used} of {frames} pooled (frames {frame - result.frames_used + 1}-{frame}); "
-                   f"one sigma {result.single_frame_uncertainty_m:.4f} m on the newest frame alone, {gain:.2f}x narrower pooled")
+    typer.echo("\n".join(segment_text(result, frames, frame)))
     for w in result.warnings:
         typer.echo(f"warning: {w}")
     if truth and truth.get("length_m") is not None:

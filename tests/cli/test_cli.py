@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import math
 from dataclasses import replace
 
 import numpy as np
@@ -275,3 +276,19 @@ def test_serve_and_measure_help_show_the_settings_defaults_and_the_core_s_choice
     text = " ".join(CliRunner().invoke(app, ["measure", "--help"], env={"COLUMNS": "400"}).output.split())
     assert f"One of {', '.join(METHODS)}; left out, robust." in text and f"(at most {MAX_FRAMES})" in text
     assert "{method" not in text and "{max_frames}" not in text
+
+
+def test_segment_text_never_prints_nan_for_a_pooled_answer_without_sigma(recording):
+    """A pooled answer whose sigmas are unknown: the text said "nan m on the newest frame alone, nanx narrower"."""
+    from cli.shapes import segment_text
+    from device import open_source
+    from measure import measure_sequence
+
+    with open_source(f"replay:{recording}") as src:
+        frames = [src.read(), src.read()]
+    pooled = measure_sequence(frames, (40, 30), (280, 200))
+    unknown = replace(pooled, uncertainty_m=math.nan, single_frame_uncertainty_m=math.nan, interval_m=(math.nan, math.nan))
+    text = "\n".join(segment_text(unknown, 2, 1))
+    assert "nan" not in text.lower() and "inf" not in text.lower()
+    assert "(uncertainty unknown)" in text and "one sigma unknown on the newest frame alone" in text
+    assert "narrower" in "\n".join(segment_text(pooled, 2, 1))
