@@ -69,14 +69,15 @@ def _scale(r: np.ndarray, floor: float) -> tuple[np.ndarray, np.ndarray]:
     return np.maximum(1.4826 * (0.5 * (below.min(axis=1) + q_hi)), floor), med
 
 
-def _fit(terms: np.ndarray, H: np.ndarray | None, w: np.ndarray | None) -> np.ndarray:
+def _fit(terms: tuple[np.ndarray, np.ndarray], H: np.ndarray | None, w: np.ndarray | None) -> np.ndarray:
     """Weighted least squares of d on the columns 1, t (and H, the hinge column of each candidate):
     weights ``w`` (K, n; None: all one) -> coefficients (K, 2 or 3), from the normal equations' sums.
-    ``terms`` (n, 8) holds each sample's 1, t, t², d, t d and again 1, t, d: one product with the
+    ``terms`` holds each sample's 1, t, t², d, t d (n, 5) and 1, t, d (n, 3): one product with the
     weights gives the line's five sums (as measure.dline's IRLS), one more with the weighted hinge
     column the hinge's."""
+    terms, hterms = terms
     k = 1 if H is None else H.shape[0]
-    sums = np.broadcast_to(terms[:, :5].sum(axis=0), (k, 5)) if w is None else w @ terms[:, :5]
+    sums = np.broadcast_to(terms.sum(axis=0), (k, 5)) if w is None else w @ terms
     p = 2 if H is None else 3
     A = np.empty((k, p, p))
     y = np.empty((k, p))
@@ -84,7 +85,7 @@ def _fit(terms: np.ndarray, H: np.ndarray | None, w: np.ndarray | None) -> np.nd
     y[:, 0], y[:, 1] = sums[:, 3], sums[:, 4]
     if H is not None:
         wh = H if w is None else w * H
-        hs = wh @ terms[:, 5:]
+        hs = wh @ hterms
         A[:, 0, 2], A[:, 1, 2], A[:, 2, 2] = hs[:, 0], hs[:, 1], np.einsum("kn,kn->k", wh, H)
         y[:, 2] = hs[:, 2]
         A[:, 2, 0], A[:, 2, 1] = A[:, 0, 2], A[:, 1, 2]
@@ -103,7 +104,7 @@ def _residuals(t: np.ndarray, H: np.ndarray | None, d: np.ndarray, beta: np.ndar
     return r
 
 
-def _trimmed_fit(t: np.ndarray, H: np.ndarray | None, d: np.ndarray, floor: float, terms: np.ndarray) -> np.ndarray:
+def _trimmed_fit(t: np.ndarray, H: np.ndarray | None, d: np.ndarray, floor: float, terms: tuple[np.ndarray, np.ndarray]) -> np.ndarray:
     """Least squares, then least squares on the samples within 3 robust sigmas of it: the second
     pass's coefficients. ``terms``: as :func:`_fit`'s."""
     beta = _fit(terms, H, None)
@@ -129,7 +130,8 @@ def hinge_ends(t: np.ndarray, d: np.ndarray, length: float, quantum: float, nois
     t0s = t0s[(left >= MIN_PIECE_SAMPLES) & (n - left >= MIN_PIECE_SAMPLES)]
     if t0s.size == 0:
         return None
-    terms = np.stack([np.ones_like(t), t, t * t, d, t * d, np.ones_like(t), t, d], axis=1)
+    terms = np.stack([np.ones_like(t), t, t * t, d, t * d], axis=1)
+    terms = (terms, terms[:, [0, 1, 3]])
     beta = _trimmed_fit(t, None, d, floor, terms)
     s1 = float(_scale(_residuals(t, None, d, beta), floor)[0][0])
     if s1 <= floor:

@@ -132,7 +132,7 @@ def c_step(mono: np.ndarray, mean: np.ndarray, cov: np.ndarray, lam: np.ndarray,
     # The ridge and the singularity test scale with the trace: a start spanning far outliers has a
     # covariance of up to 1e24 whose rounding alone exceeds an absolute ridge (its determinant
     # could come out zero or negative). At data scale (trace <= 1) it is the absolute 1e-8.
-    ridge = RIDGE * np.maximum(np.trace(cov, axis1=-2, axis2=-1), 1.0)
+    ridge = RIDGE * np.maximum(cov.diagonal(axis1=-2, axis2=-1).sum(axis=-1), 1.0)
     singular = lam <= ridge
     if singular.any():
         cov = cov + (singular * ridge)[..., None, None] * np.eye(p)
@@ -142,11 +142,11 @@ def c_step(mono: np.ndarray, mean: np.ndarray, cov: np.ndarray, lam: np.ndarray,
     lin = -2.0 * np.einsum("...jk,...k->...j", inv, mean)
     const = -0.5 * np.einsum("...j,...j->...", lin, mean)
     coef = np.concatenate([const[..., None], lin, quad], axis=-1)
-    d2 = mm(coef.astype(mono.dtype), np.swapaxes(mono, -1, -2))
+    d2 = mm(coef.astype(mono.dtype, copy=False), np.swapaxes(mono, -1, -2))
     # Expanded in monomials, d² of a point on the start's support can round a hair below zero.
     np.maximum(d2, 0.0, out=d2)
     mask, sums = _h_smallest(d2, h, mono)
-    new_mean, new_cov = moments(sums.astype(np.float64), p)
+    new_mean, new_cov = moments(sums.astype(np.float64, copy=False), p)
     return (mask, new_mean, new_cov) + det_lam(new_cov)
 
 
