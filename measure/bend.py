@@ -8,7 +8,8 @@ robust line has already been kept (``measure.surfaces`` found no surface of its 
     d(t) = a + b t + c max(t - t0, 0)                                             (docs/method.md, "bent segments")
 
 over crease positions t0 at least ``MIN_PIECE_PX`` from both ends (one least-squares fit per candidate, all
-at once; then again on the samples within 3 robust sigmas of the first fit). The crease is kept when
+at once, the one line among them; then again on the samples within 3 robust sigmas of the first fit).
+The crease is kept when
 
 1. it is worth its two extra parameters: n log(s1² / s2²) > ``PENALTY`` · 2 log n (BIC, with the robust
    scales s = 1.4826 MAD of the residuals, floored at the rounding q / sqrt(12)), n counted as
@@ -69,28 +70,23 @@ def _scale(r: np.ndarray, floor: float) -> tuple[np.ndarray, np.ndarray]:
     return np.maximum(1.4826 * (0.5 * (below.min(axis=1) + q_hi)), floor), med
 
 
-def _fit(terms: tuple[np.ndarray, np.ndarray], H: np.ndarray | None, w: np.ndarray | None) -> np.ndarray:
-    """Weighted least squares of d on the columns 1, t (and H, the hinge column of each candidate):
-    weights ``w`` (K, n; None: all one) -> coefficients (K, 2 or 3), from the normal equations' sums.
+def _fit(terms: tuple[np.ndarray, np.ndarray], H: np.ndarray, w: np.ndarray | None) -> np.ndarray:
+    """Weighted least squares of d on the columns 1, t and H (the hinge column of each candidate):
+    weights ``w`` (K, n; None: all one) -> coefficients (K, 3), from the normal equations' sums.
     ``terms`` holds each sample's 1, t, t², d, t d (n, 5) and 1, t, d (n, 3): one product with the
     weights gives the line's five sums (as measure.dline's IRLS), one more with the weighted hinge
     column the hinge's."""
     terms, hterms = terms
-    k = 1 if H is None else H.shape[0]
+    k = H.shape[0]
     sums = np.broadcast_to(terms.sum(axis=0), (k, 5)) if w is None else w @ terms
-    p = 2 if H is None else 3
-    A = np.empty((k, p, p))
-    y = np.empty((k, p))
+    wh = H if w is None else w * H
+    hs = wh @ hterms
+    A = np.empty((k, 3, 3))
     A[:, 0, 0], A[:, 0, 1], A[:, 1, 1] = sums[:, 0], sums[:, 1], sums[:, 2]
-    y[:, 0], y[:, 1] = sums[:, 3], sums[:, 4]
-    if H is not None:
-        wh = H if w is None else w * H
-        hs = wh @ hterms
-        A[:, 0, 2], A[:, 1, 2], A[:, 2, 2] = hs[:, 0], hs[:, 1], np.einsum("kn,kn->k", wh, H)
-        y[:, 2] = hs[:, 2]
-        A[:, 2, 0], A[:, 2, 1] = A[:, 0, 2], A[:, 1, 2]
-    A[:, 1, 0] = A[:, 0, 1]
-    A += 1e-9 * np.eye(p)
+    A[:, 0, 2], A[:, 1, 2], A[:, 2, 2] = hs[:, 0], hs[:, 1], np.einsum("kn,kn->k", wh, H)
+    A[:, 1, 0], A[:, 2, 0], A[:, 2, 1] = A[:, 0, 1], A[:, 0, 2], A[:, 1, 2]
+    A += 1e-9 * np.eye(3)
+    y = np.stack([sums[:, 3], sums[:, 4], hs[:, 2]], axis=1)
     return np.linalg.solve(A, y[..., None])[..., 0]
 
 
@@ -104,7 +100,7 @@ def _residuals(t: np.ndarray, H: np.ndarray | None, d: np.ndarray, beta: np.ndar
     return r
 
 
-def _trimmed_fit(t: np.ndarray, H: np.ndarray | None, d: np.ndarray, floor: float, terms: tuple[np.ndarray, np.ndarray]) -> np.ndarray:
+def _trimmed_fit(t: np.ndarray, H: np.ndarray, d: np.ndarray, floor: float, terms: tuple[np.ndarray, np.ndarray]) -> np.ndarray:
     """Least squares, then least squares on the samples within 3 robust sigmas of it: the second
     pass's coefficients. ``terms``: as :func:`_fit`'s."""
     beta = _fit(terms, H, None)
@@ -132,12 +128,13 @@ def hinge_ends(t: np.ndarray, d: np.ndarray, length: float, quantum: float, nois
         return None
     terms = np.stack([np.ones_like(t), t, t * t, d, t * d], axis=1)
     terms = (terms, terms[:, [0, 1, 3]])
-    beta = _trimmed_fit(t, None, d, floor, terms)
-    s1 = float(_scale(_residuals(t, None, d, beta), floor)[0][0])
+    # Row 0 is the one line: a hinge column of zeros (its coefficient stays 0), fitted with the candidates.
+    H = np.maximum(t[None] - np.concatenate([[np.inf], t0s])[:, None], 0.0)
+    b2 = _trimmed_fit(t, H, d, floor, terms)
+    s1 = float(_scale(_residuals(t, None, d, b2[:1, :2]), floor)[0][0])
     if s1 <= floor:
         return None  # every s2 is floored there too: the crease cannot lower the scale (condition 1)
-    H = np.maximum(t[None] - t0s[:, None], 0.0)
-    b2 = _trimmed_fit(t, H, d, floor, terms)
+    H, b2 = H[1:], b2[1:]
     # Condition 3 without its scale term: when no candidate's pieces part by more than a quantum and
     # DISAGREE_REL of its disparity at the crease, the best one's cannot, whatever the scales (most
     # straight profiles end here, without the second pass's residuals and medians).
