@@ -37,9 +37,19 @@ from measure.robust_range import median
 
 def disparity_quantum(disparities: np.ndarray) -> float:
     """Smallest positive step between distinct disparity values (px), capped at 1 px."""
-    steps = np.diff(np.sort(np.asarray(disparities, dtype=np.float64)))
-    steps = steps[steps > 0]  # the steps between neighbouring distinct values (np.unique's, without its overhead)
+    steps = _steps(disparities)
     return min(1.0, float(steps.min())) if steps.size else 1.0
+
+
+def distinct_levels(disparities: np.ndarray) -> int:
+    """Number of distinct disparity values."""
+    return int(np.size(disparities) > 0) + int(_steps(disparities).size)
+
+
+def _steps(disparities: np.ndarray) -> np.ndarray:
+    """The positive steps between neighbouring distinct values (np.unique's, without its overhead)."""
+    steps = np.diff(np.sort(np.asarray(disparities, dtype=np.float64).ravel()))
+    return steps[steps > 0]
 
 
 def quantization_sigma(distance: float, mean_depth: float, fb: float, quantum: float, levels: int, noise_px: float = 0.0) -> float:
