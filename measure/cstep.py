@@ -13,6 +13,7 @@ import functools
 
 import numpy as np
 
+_F32_MAX = float(np.finfo(np.float32).max)
 RIDGE = 1e-8  # regularises singular starts (relative to the start's scale, at least 1)
 
 
@@ -160,7 +161,10 @@ def _h_smallest(d2: np.ndarray, h: int, mono: np.ndarray) -> tuple[np.ndarray, n
     single-precision value include all those at or below the h-th double one, and are the same set
     where they are h (the summed monomials' leading 1 counts them). Where rounding joined values at the
     h-th, the rows are selected again in double precision."""
-    key = d2.view(np.int32) if d2.dtype == np.float32 else d2.astype(np.float32).view(np.int32)
+    if d2.dtype == np.float32:
+        key = d2.view(np.int32)
+    else:  # rounded to single precision below its largest value (no overflow to infinity): still monotone
+        key = np.minimum(d2, _F32_MAX, out=np.empty(d2.shape, np.float32)).view(np.int32)
     mask = key <= np.partition(key, h - 1, axis=-1)[..., h - 1 : h]
     sums = mm(mask.astype(mono.dtype), mono)
     if d2.dtype == np.float64:
