@@ -50,6 +50,7 @@ from measure.uncertainty import (
     click_sigma,
     correlation_inflation,
     disparity_quantum,
+    distinct_levels,
     endpoint_depth_sigma,
     quantization_sigma,
 )
@@ -126,7 +127,7 @@ def _robust(request: Request, samples: SegmentSamples, terms: dict[str, float] |
     # dD/dd_i = dD/dZ_i * dZ_i/dd_i with dZ/dd = -Z²/(fB); the two fitted disparities are correlated.
     grad = np.array([r1 @ (q1 - q2), r2 @ (q2 - q1)]) / dist * (-(z**2) / fb)
     fit_sigma = inflate * math.sqrt(max(0.0, float(grad @ ends.cov @ grad)))
-    levels = int(np.unique(samples.disparity[line.support]).size)
+    levels = distinct_levels(samples.disparity[line.support])
     quant = quantization_sigma(dist, float(z.mean()), fb, quantum, levels, line.sigma_d)
     click_1px = _click_term(frame, xy1, xy2, d_end, ends.slope, dist, 1.0)
     click = options.click_px * click_1px if options.click_px > 0 else 0.0

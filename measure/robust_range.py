@@ -50,9 +50,16 @@ def tukey_location(values: np.ndarray, c: float = TUKEY_C, iterations: int = 30)
     s = tukey_scale(v)
     if s == 0.0:
         return m, 0.0
+    cs = c * s
+    w = np.empty_like(v)
     for _ in range(iterations):
-        u = (v - m) / (c * s)
-        w = np.where(np.abs(u) < 1.0, (1.0 - u * u) ** 2, 0.0)
+        # (1 - u²)² for |u| < 1, else 0, with u = (v - m) / cs (1 - u² <= 0 exactly where |u| >= 1).
+        np.subtract(v, m, out=w)
+        w /= cs
+        np.multiply(w, w, out=w)
+        np.subtract(1.0, w, out=w)
+        np.maximum(w, 0.0, out=w)
+        w *= w
         m_new = float((w * v).sum() / w.sum())
         if abs(m_new - m) <= 1e-12 * max(1.0, abs(m)):
             m = m_new

@@ -38,11 +38,19 @@ from measure.robust_range import median
 
 def disparity_quantum(disparities: np.ndarray) -> float:
     """Smallest positive step between distinct disparity values (px), capped at 1 px."""
-    u = np.unique(np.asarray(disparities, dtype=np.float64))
-    if u.size < 2:
-        return 1.0
-    step = float(np.diff(u).min())
-    return min(1.0, step)
+    steps = _steps(disparities)
+    return min(1.0, float(steps.min())) if steps.size else 1.0
+
+
+def distinct_levels(disparities: np.ndarray) -> int:
+    """Number of distinct disparity values."""
+    return int(np.size(disparities) > 0) + int(_steps(disparities).size)
+
+
+def _steps(disparities: np.ndarray) -> np.ndarray:
+    """The positive steps between neighbouring distinct values (np.unique's, without its overhead)."""
+    steps = np.diff(np.sort(np.asarray(disparities, dtype=np.float64).ravel()))
+    return steps[steps > 0]
 
 
 def rounding_sigma(quantum: float, levels: int, noise_px: float = 0.0) -> float:
@@ -108,11 +116,11 @@ def window_disparity_se(window_disparities: np.ndarray, quantum: float) -> float
     return max(1.2533 * mad / math.sqrt(d.size), quantum / math.sqrt(12.0))
 
 
-def window_depth_sigma(window_disparities: np.ndarray, depth: float, fb: float, quantum: float) -> float:
-    """Standard error (m) of the depth from a window's median disparity."""
+def depth_sigma(depth: float, fb: float, disparity_se: float) -> float:
+    """Standard error (m) of a depth (m) from its disparity's standard error (px): Z² / (fB) times it."""
     if not math.isfinite(depth):
         return math.nan
-    return depth * depth / fb * window_disparity_se(window_disparities, quantum)
+    return depth * depth / fb * disparity_se
 
 
 def endpoint_depth_sigma(p1: np.ndarray, p2: np.ndarray, sigma_z1: float, sigma_z2: float) -> float:

@@ -263,3 +263,14 @@ def test_seed_does_not_matter_on_well_posed_data(seed, x1, x2, y):
     a = measure_distance(f, (x1, y), (x2, 240 - y), MeasureOptions(seed=0))
     b = measure_distance(f, (x1, y), (x2, 240 - y), MeasureOptions(seed=seed))
     assert abs(a.distance_m - b.distance_m) <= max(0.2 * a.uncertainty_m, 1e-4 * a.distance_m)
+
+
+@given(st.lists(st.sampled_from([-0.0, 0.0, 1.0, 1.25, 1.5, 2.0, 7.0625, 30.0, 30.25]), max_size=40))
+def test_quantum_and_levels_are_those_of_the_distinct_values(values):
+    """The disparity quantum and the count of levels from the sorted values' positive steps are
+    np.unique's (which counts -0.0 and 0.0 as one value)."""
+    from measure.uncertainty import disparity_quantum, distinct_levels
+
+    u = np.unique(np.array(values, dtype=np.float64))
+    assert distinct_levels(np.array(values, dtype=np.float32)) == u.size
+    assert disparity_quantum(np.array(values)) == (min(1.0, float(np.diff(u).min())) if u.size > 1 else 1.0)
