@@ -86,6 +86,7 @@ class BagReader:
         try:
             self.contents = self._index()
             self._identity = self.contents.depth_to_color.is_identity()
+            self._registered = self.contents.registered
         except BaseException:
             self.close()
             raise
@@ -375,8 +376,8 @@ class BagReader:
         if depth_maps is None and dcam == cam and self._identity:
             disparity = pixels_to_disparity(depth, unit, cam.fx, c.baseline_m)  # registered: one pass from the pixels
         else:
-            z = align_depth_to_color(remap(pixels_to_metres(depth, unit), depth_maps, nearest=True), dcam, cam, c.depth_to_color)
-            disparity = pixels_to_disparity(z, 1.0, cam.fx, c.baseline_m)
+            disparity = align_depth_to_color(remap(pixels_to_metres(depth, unit), depth_maps, nearest=True), dcam, cam, c.depth_to_color,
+                                             disparity_k=cam.fx * c.baseline_m)  # fmt: skip
         skew = (sd - sc) / 1e9 if c.stamps_comparable else (depth_t - color_t) / 1e9
         meta = {
             "source": "bag",
@@ -388,7 +389,7 @@ class BagReader:
             "color_message": ci,
             "depth_message": di,
             "skew_s": skew,
-            "registered_in_bag": c.registered,
+            "registered_in_bag": self._registered,
             "extrinsics": c.extrinsics_from,
             "depth_unit_m": None if str(depth_msg.encoding).lower() == "32fc1" else c.depth_unit_m,
             "depth_encoding": str(depth_msg.encoding),
