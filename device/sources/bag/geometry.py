@@ -16,6 +16,7 @@ import numpy as np
 from measure import PinholeCamera
 
 from device.sources.bag.errors import BagError
+from device.sources.bag.messages import pixels_to_metres
 
 MAX_SPLAT_PX = 8  # a depth pixel covers at most this many colour pixels per axis (grazing surfaces)
 
@@ -69,7 +70,7 @@ class Rigid:
 
 
 def align_depth_to_color(depth_m: np.ndarray, depth_cam: PinholeCamera, color_cam: PinholeCamera, depth_to_color: Rigid, *,
-                         disparity_k: float = 0.0) -> np.ndarray:  # fmt: skip
+                         disparity_k: float = 0.0, depth_unit_m: float = 0.0) -> np.ndarray:  # fmt: skip
     """Depth (m, depth camera pixels; 0 or NaN = none) -> depth (float32 m) at the colour camera's pixels, NaN = none.
 
     ``depth_to_color`` maps depth-camera points to colour-camera points (``p_c = R p_d + t``). Each valid
@@ -78,23 +79,27 @@ def align_depth_to_color(depth_m: np.ndarray, depth_cam: PinholeCamera, color_ca
     depth leaves no pinholes), at most ``MAX_SPLAT_PX`` per axis; one holding no centre fills the pixel
     under its centre if no other footprint holds that pixel's centre. Where several fall on one colour
     pixel the nearest wins. The value stored is Z in the colour camera, or the disparity ``disparity_k / Z``
-    (float32, px; ``disparity_k = fx * B``) when ``disparity_k`` > 0. Pinhole model both sides.
+    (float32, px; ``disparity_k = fx * B``) when ``disparity_k`` > 0. Pinhole model both sides. With
+    ``depth_unit_m`` > 0, ``depth_m`` is integer depth units as recorded (uint16), each taken as
+    ``float32(d) * float32(depth_unit_m)`` metres, as ``messages.pixels_to_metres`` makes them.
     """
     z_d = np.asarray(depth_m)
-    z_d = np.ascontiguousarray(z_d, dtype=z_d.dtype if z_d.dtype in (np.float32, np.float64) else np.float64)
+    if depth_unit_m > 0 and z_d.dtype != np.uint16:
+        raise BagError(f"depth in units ({depth_unit_m} m) must be uint16 as recorded (16UC1/mono16), got {z_d.dtype}; give other depth in metres")
+    z_d = np.ascontiguousarray(z_d, dtype=z_d.dtype if z_d.dtype in (np.uint16, np.float32, np.float64) else np.float64)
     if z_d.shape != (depth_cam.height, depth_cam.width):
         raise BagError(f"depth image is {z_d.shape[1]}x{z_d.shape[0]} but its camera_info says {depth_cam.width}x{depth_cam.height}")
     if depth_cam == color_cam and depth_to_color.is_identity():
-        z = np.where(np.isfinite(z_d) & (z_d > 0), z_d, np.nan).astype(np.float32)
+        z = pixels_to_metres(z_d, depth_unit_m) if depth_unit_m > 0 else np.where(np.isfinite(z_d) & (z_d > 0), z_d, np.nan).astype(np.float32)
         return np.divide(np.float32(disparity_k), z) if disparity_k > 0 else z
-    from device.sources.bag.splat import splat_nearest  # numba compiles on first use: `import device` stays fast
+    from device.sources.bag.kernels import splat_nearest  # numba compiles on first use: `import device` stays fast
 
     offsets = np.array([[-0.5], [0.5], [0.0]])  # footprint corners and centre
     xn = (np.arange(depth_cam.width, dtype=np.float64) + offsets - depth_cam.cx) / depth_cam.fx
     yn = (np.arange(depth_cam.height, dtype=np.float64) + offsets - depth_cam.cy) / depth_cam.fy
     c = np.array([color_cam.fx, color_cam.fy, color_cam.cx, color_cam.cy], np.float64)
     return splat_nearest(z_d, xn, yn, depth_to_color.rotation, depth_to_color.translation, c, color_cam.width, color_cam.height,
-                         MAX_SPLAT_PX, float(disparity_k))  # fmt: skip
+                         MAX_SPLAT_PX, float(disparity_k), float(depth_unit_m))  # fmt: skip
 
 
 def pair_by_time(color_ns: np.ndarray, depth_ns: np.ndarray, max_skew_ns: int) -> tuple[np.ndarray, np.ndarray]:

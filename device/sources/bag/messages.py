@@ -57,11 +57,11 @@ def decode_color(msg: Any, topic: str) -> np.ndarray:
         if img is None:
             raise BagError(f"{topic}: a compressed image ({msg.format}) cannot be decoded")
         return img
-    px = _raw_pixels(msg, topic)
     enc = str(msg.encoding).lower()
     conversions = {"rgb8": cv2.COLOR_RGB2BGR, "rgba8": cv2.COLOR_RGBA2BGR, "bgra8": cv2.COLOR_BGRA2BGR,
                    "mono8": cv2.COLOR_GRAY2BGR, "8uc1": cv2.COLOR_GRAY2BGR, "yuv422": cv2.COLOR_YUV2BGR_UYVY,
                    "uyvy": cv2.COLOR_YUV2BGR_UYVY, "yuv422_yuy2": cv2.COLOR_YUV2BGR_YUY2, "yuyv": cv2.COLOR_YUV2BGR_YUY2}
+    px = _raw_pixels(msg, topic, copy=enc not in conversions)  # a conversion makes the one copy
     if enc in conversions:
         try:
             return np.ascontiguousarray(cv2.cvtColor(px, conversions[enc]))
@@ -89,31 +89,25 @@ def decode_depth(msg: Any, topic: str, unit_m: float) -> np.ndarray:
 
 
 def pixels_to_metres(px: np.ndarray, unit_m: float) -> np.ndarray:
-    """:func:`depth_pixels` -> metres (float32), NaN where no depth."""
+    """:func:`depth_pixels` -> metres (float32), NaN where no depth: in place, ``(z * q) / q`` with
+    ``q = (px > 0)`` as 1 or 0 is ``z`` exactly where ``q`` is 1 and ``0 / 0`` (NaN) where it is 0, in
+    whole-array passes (a masked assignment over scattered holes runs several times slower)."""
     z = px.astype(np.float32)
     if px.dtype != np.float32:
         z *= np.float32(unit_m)
-    return _nan_where_no_depth(z, px)
+    q = (px > 0).view(np.uint8)  # NaN compares false
+    with np.errstate(invalid="ignore", divide="ignore"):
+        np.multiply(z, q, out=z)
+        return np.divide(z, q, out=z)
 
 
 def pixels_to_disparity(px: np.ndarray, unit_m: float, fx: float, baseline_m: float) -> np.ndarray:
-    """:func:`depth_pixels` -> disparity ``d = fx * B / Z`` (float32 px), NaN where no depth: a conversion
-    and one float32 division, ``k / Z`` with ``k = fx * B / unit``."""
-    k = np.float32(fx * baseline_m / (1.0 if px.dtype == np.float32 else unit_m))
-    return _nan_where_no_depth(px.astype(np.float32), px, numerator=k)
+    """:func:`depth_pixels` -> disparity ``d = fx * B / Z`` (float32 px), NaN where no depth: one
+    compiled pass, the float32 division ``k / depth`` with ``k = fx * B / unit``."""
+    from device.sources.bag.kernels import disparity_from_pixels  # numba compiles on first use: `import device` stays fast
 
-
-def _nan_where_no_depth(z: np.ndarray, px: np.ndarray, numerator: np.float32 | None = None) -> np.ndarray:
-    """``z`` (float32, made from ``px``), or ``numerator / z``, with NaN where ``px`` is no depth (0, NaN,
-    negative), in place. With ``q = (px > 0)`` as 1 or 0: ``(z * q) / q`` and ``(numerator * q) / (z * q)``
-    are exact where ``q`` is 1 and ``0 / 0`` (NaN) where it is 0, in whole-array passes (a masked
-    assignment or division over scattered holes runs several times slower)."""
-    q = (px > 0).view(np.uint8)  # NaN compares false
-    with np.errstate(invalid="ignore", divide="ignore", over="ignore"):
-        np.multiply(z, q, out=z)
-        if numerator is None:
-            return np.divide(z, q, out=z)
-        return np.divide(np.multiply(q, numerator, dtype=np.float32), z, out=z)
+    k = fx * baseline_m / (1.0 if px.dtype == np.float32 else unit_m)
+    return disparity_from_pixels(np.ascontiguousarray(px, dtype=px.dtype.newbyteorder("=")), k)
 
 
 def camera_from_info(msg: Any, topic: str) -> PinholeCamera:

@@ -13,7 +13,7 @@ from measure import PinholeCamera
 
 
 def _numpy_align(depth_m: np.ndarray, depth_cam: PinholeCamera, color_cam: PinholeCamera, T: Rigid) -> np.ndarray:
-    """The vectorised numpy registration that ``splat.splat_nearest`` replaced (float64 footprints,
+    """The vectorised numpy registration that ``kernels.splat_nearest`` replaced (float64 footprints,
     ``np.minimum.at`` z-buffers per footprint offset): the oracle."""
     z_d = np.asarray(depth_m, dtype=np.float64)
     v, u = np.nonzero(np.isfinite(z_d) & (z_d > 0))
@@ -90,6 +90,16 @@ def test_compiled_splat_equals_the_numpy_registration_bit_for_bit(capture) -> No
         k = ccam.fx * 0.05
         assert np.array_equal(align_depth_to_color(z, dcam, ccam, T, disparity_k=k), pixels_to_disparity(want, 1.0, ccam.fx, 0.05),
                               equal_nan=True)  # fmt: skip
+
+
+def test_depth_units_go_to_the_registration_as_recorded(capture) -> None:
+    """uint16 depth units with their unit give what their metres (``pixels_to_metres``) give, bit for bit."""
+    for unit in (0.001, 0.0001):
+        for z, dcam, ccam, T in list(_cases(capture))[:4]:
+            codes = np.where(np.isfinite(z), np.rint(np.nan_to_num(z) / unit), 0).clip(0, 65535).astype(np.uint16)
+            want = align_depth_to_color(pixels_to_metres(codes, unit), dcam, ccam, T, disparity_k=ccam.fx * 0.05)
+            got = align_depth_to_color(codes, dcam, ccam, T, disparity_k=ccam.fx * 0.05, depth_unit_m=unit)
+            assert np.array_equal(got, want, equal_nan=True) and np.isfinite(got).sum() > 0.2 * got.size
 
 
 def test_the_oracle_can_tell_a_different_registration(capture) -> None:

@@ -1,13 +1,14 @@
-"""The z-buffered footprint splat behind ``geometry.align_depth_to_color``, as one compiled loop (numba).
+"""The bag source's compiled loops (numba), where numpy has no one-pass form: the z-buffered
+footprint splat behind ``geometry.align_depth_to_color`` and depth pixels to disparity.
 
-Per valid depth pixel: back-project its footprint corners (+-0.5 px) and centre at its depth, move them
-by ``p_c = R p_d + t``, project with the colour intrinsics, round to the colour pixels whose centres the
-footprint holds (at most ``max_splat`` per axis) and keep the nearest ``Z`` per colour pixel; a footprint
-holding no centre offers its centre's pixel as a fallback, used where no footprint holds that centre.
-The arithmetic is float64 in the order the vectorised numpy formulation used, so the rounding
-decisions and the values are the same bit for bit (tests/device/test_bag_geometry.py); the buffers are
-float32 (rounding to float32 keeps order, so the nearest is the same). Compiled on first use and cached
-on disk (numba ``cache=True``). Why a compiled loop: docs/decisions/bag-source.md ("Speed").
+Splat, per valid depth pixel: back-project its footprint corners (+-0.5 px) and centre at its depth,
+move them by ``p_c = R p_d + t``, project with the colour intrinsics, round to the colour pixels whose
+centres the footprint holds (at most ``max_splat`` per axis) and keep the nearest ``Z`` per colour
+pixel; a footprint holding no centre offers its centre's pixel as a fallback, used where no footprint
+holds that centre. The arithmetic is float64 in the order the vectorised numpy formulation used, so
+the rounding decisions and the values are the same bit for bit (tests/device/test_bag_kernels.py); the
+buffer is float32 (rounding to float32 keeps order, so the nearest is the same). Compiled on first use
+and cached on disk (numba ``cache=True``). Why compiled loops: docs/decisions/bag-source.md ("Speed").
 """
 
 from __future__ import annotations
@@ -29,9 +30,10 @@ def _to_color(xn: float, yn: float, z: float, R: np.ndarray, t: np.ndarray) -> t
 
 @njit(cache=True, nogil=True, error_model="numpy")
 def splat_nearest(z_d: np.ndarray, xn: np.ndarray, yn: np.ndarray, R: np.ndarray, t: np.ndarray, c: np.ndarray, width: int,
-                  height: int, max_splat: int, k: float) -> np.ndarray:  # fmt: skip
-    """Depth ``z_d`` (H x W, metres; not > 0 or not finite = none) -> the colour camera's ``Z`` (height x
-    width float32, NaN = none), or ``k / Z`` in float32 when ``k`` > 0 (disparity: ``k = fx * B``).
+                  height: int, max_splat: int, k: float, unit: float) -> np.ndarray:  # fmt: skip
+    """Depth ``z_d`` (H x W, metres, or depth units of ``unit`` m when ``unit`` > 0: then each is
+    ``float32(z) * float32(unit)`` first; not > 0 or not finite = none) -> the colour camera's ``Z``
+    (height x width float32, NaN = none), or ``k / Z`` in float32 when ``k`` > 0 (disparity: ``k = fx * B``).
     ``xn`` (3 x W) and ``yn`` (3 x H): the depth camera's normalised ray coordinates ``(u + o - cx) / fx``
     of each column and row at the offsets o = -0.5, +0.5, 0; ``R``, ``t``: depth to colour (metres);
     ``c``: the colour camera's (fx, fy, cx, cy).
@@ -44,9 +46,10 @@ def splat_nearest(z_d: np.ndarray, xn: np.ndarray, yn: np.ndarray, R: np.ndarray
     n = z_d.shape[1]
     span = np.empty((4, n), np.int64)  # first and end column, first and end row of each footprint (clipped)
     key = np.empty(n, np.float32)  # Z, negative for a fallback
+    unit32 = np.float32(unit)
     for v in range(z_d.shape[0]):
         for u in range(n):
-            z = np.float64(z_d[v, u])
+            z = np.float64(np.float32(z_d[v, u]) * unit32) if unit > 0 else np.float64(z_d[v, u])
             X, Y, Z = _to_color(xn[0, u], yn[0, v], z, R, t)
             xa, ya = c[0] * X / Z + c[2], c[1] * Y / Z + c[3]
             X, Y, Z = _to_color(xn[1, u], yn[1, v], z, R, t)
@@ -93,3 +96,16 @@ def _nan_min(a: float, b: float) -> float:
 @njit(cache=True, nogil=True)
 def _nan_max(a: float, b: float) -> float:
     return a if (a >= b) | math.isnan(a) else b
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
+def disparity_from_pixels(px: np.ndarray, k: float) -> np.ndarray:
+    """Depth pixels (uint16 units or float32 metres, any shape) -> ``k / depth`` in float32 (the
+    division of float32 values), NaN where the pixel is no depth (0, NaN, negative): one pass."""
+    k32 = np.float32(k)
+    flat = px.ravel()
+    out = np.empty(flat.size, np.float32)
+    for i in range(flat.size):
+        z = np.float32(flat[i])
+        out[i] = k32 / z if z > 0 else np.float32(np.nan)
+    return out.reshape(px.shape)
