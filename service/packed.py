@@ -137,6 +137,11 @@ class PackedFrame:
         rebuild: Callable[[], np.ndarray] = self.meta[REBUILD_IMAGE]
         return rebuild()
 
+    def keep_image(self) -> None:
+        """Hold the image from now on (a frozen frame: measured, saved and drawn, each asking for it)."""
+        if self.held_image is None:
+            self.held_image = self.image
+
     @property
     def nbytes(self) -> int:
         """Bytes of the arrays held (image, disparity, confidence)."""

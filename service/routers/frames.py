@@ -135,6 +135,7 @@ def depth_scale(entry: FrameDep) -> dict[str, Any]:
 
 @router.post("/{frame_id}/freeze", **json_doc(FrameOut))
 def freeze(state: State, entry: FrameDep) -> dict[str, Any]:
+    entry.packed.keep_image()  # measured, saved and drawn next: made once, not for each of them
     state.store.presave(entry.uid, entry.frame)  # a frozen frame is about to be measured: save it meanwhile
     return frame_json(state.ring.freeze(entry.id, True))
 

@@ -37,6 +37,8 @@ def test_simulated_frame_is_held_in_codes_and_comes_back_bit_for_bit():
     assert back is not frame
     assert back.disparity.dtype == np.float32 and back.confidence.dtype == np.float32
     assert np.array_equal(back.image, frame.image)
+    packed.keep_image()  # a frozen frame holds its image again
+    assert np.array_equal(packed.held_image, frame.image) and packed.nbytes == frame.image.nbytes + frame.disparity.size * 2
     assert np.array_equal(back.disparity.view(np.uint32), frame.disparity.view(np.uint32))  # NaN bits too
     assert np.array_equal(back.confidence.view(np.uint32), frame.confidence.view(np.uint32))
     assert (back.camera, back.baseline_m, back.meta) == (frame.camera, frame.baseline_m, frame.meta)
