@@ -41,8 +41,8 @@ def check_listen(host: str, port: int) -> None:
         _fail(f"cannot listen on {host}:{port} ({exc.strerror or exc}); pass another --host or --port")
 
 
-def auto_source() -> str:
-    """The first attached OAK, else the simulated rig (so ``serve`` always starts)."""
+def first_oak() -> str | None:
+    """The spec of the first attached OAK, or None (also when discovery fails)."""
     try:
         from device import list_devices
 
@@ -51,7 +51,22 @@ def auto_source() -> str:
                 return str(info.extra.get("spec") or "oak")
     except Exception:  # noqa: BLE001 — discovery must never stop the service from starting
         pass
-    return "sim"
+    return None
+
+
+def auto_source() -> str:
+    """The first attached OAK, else the simulated rig (so ``serve`` always starts). Discovery runs in a
+    child process: DepthAI's library and threads, about 190 MB resident, stay out of a server that
+    does not use them."""
+    import subprocess
+
+    try:
+        out = subprocess.run([sys.executable, "-c", "from cli.serve import first_oak; print(first_oak() or '')"],
+                             capture_output=True, text=True, timeout=60)  # fmt: skip
+    except (OSError, subprocess.SubprocessError):
+        return "sim"
+    lines = out.stdout.split() if out.returncode == 0 else []
+    return lines[-1] if lines else "sim"
 
 
 def setting(field: str, whole: bool):  # noqa: ANN201 — a typer parser

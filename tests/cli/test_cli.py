@@ -86,15 +86,26 @@ def test_auto_source_falls_back_to_simulator(monkeypatch):
     from cli import serve as cli_serve
 
     monkeypatch.setattr(device, "list_devices", lambda: [SourceInfo(kind="v4l2", name="webcam")])
-    assert cli_serve.auto_source() == "sim"
+    assert cli_serve.first_oak() is None
     monkeypatch.setattr(device, "list_devices", lambda: [SourceInfo(kind="oak", name="OAK-D", extra={"spec": "oak:18443"})])
-    assert cli_serve.auto_source() == "oak:18443"
+    assert cli_serve.first_oak() == "oak:18443"
 
     def broken():
         raise RuntimeError("libusb missing")
 
     monkeypatch.setattr(device, "list_devices", broken)
-    assert cli_serve.auto_source() == "sim"
+    assert cli_serve.first_oak() is None
+
+
+def test_auto_source_asks_depthai_in_a_child_process():
+    """Without a camera the server gets the simulator, and DepthAI (about 190 MB resident) is never
+    loaded into it: discovery ran in a child."""
+    import subprocess
+    import sys
+
+    code = "import sys; from cli.serve import auto_source; s = auto_source(); print(s, 'depthai' in sys.modules)"
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120)
+    assert out.stdout.split()[-2:] == ["sim", "False"], out.stdout + out.stderr
 
 
 def test_serve_on_a_busy_port_says_so_before_starting(tmp_path):
