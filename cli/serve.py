@@ -47,8 +47,8 @@ def check_listen(host: str, port: int) -> None:
 DEMO_SIM = "sim:poster?distance=4&contention=0.1&hole_fraction=0.05"
 
 
-def auto_source() -> str:
-    """The first attached OAK, else the simulated rig (``DEMO_SIM``, so ``serve`` always starts)."""
+def first_oak() -> str | None:
+    """The spec of the first attached OAK, or None (also when discovery fails)."""
     try:
         from device import list_devices
 
@@ -57,7 +57,22 @@ def auto_source() -> str:
                 return str(info.extra.get("spec") or "oak")
     except Exception:  # noqa: BLE001 — discovery must never stop the service from starting
         pass
-    return DEMO_SIM
+    return None
+
+
+def auto_source() -> str:
+    """The first attached OAK, else the simulated rig (``DEMO_SIM``, so ``serve`` always starts). Discovery runs in a
+    child process: DepthAI's library and threads, about 190 MB resident, stay out of a server that
+    does not use them."""
+    import subprocess
+
+    try:
+        out = subprocess.run([sys.executable, "-c", "from cli.serve import first_oak; print(first_oak() or '')"],
+                             capture_output=True, text=True, timeout=60)  # fmt: skip
+    except (OSError, subprocess.SubprocessError):
+        return DEMO_SIM
+    lines = out.stdout.split() if out.returncode == 0 else []
+    return lines[-1] if lines else DEMO_SIM
 
 
 def setting(field: str, whole: bool):  # noqa: ANN201 — a typer parser
