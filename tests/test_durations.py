@@ -47,7 +47,7 @@ def test_the_fast_loop_command_selects_the_fast_loop():
 @pytest.mark.parametrize("workers", [[], ["-n", "2"]], ids=["in-process", "xdist"])
 def test_cpu_seconds_are_the_tests_own_in_and_out_of_xdist(tmp_path, workers):
     # One test spins until it has used 0.3 s of CPU, one sleeps 0.3 s: however busy the machine, the
-    # first costs at least 0.3 s of CPU and the second almost none.
+    # first costs at least 0.3 s of CPU (less the last digit printed) and the second almost none.
     (tmp_path / "conftest.py").write_text(textwrap.dedent("""\
         from cpu_times import CpuTimes
 
@@ -70,5 +70,5 @@ def test_cpu_seconds_are_the_tests_own_in_and_out_of_xdist(tmp_path, workers):
                          env={"PYTHONPATH": str(ROOT / "tests"), "PATH": "/usr/bin:/bin"}).stdout
     run = parse_log(out)
     assert run.summary == "2 passed", out
-    assert run.cpu["test_work.py::test_spin"] >= 0.3 > run.cpu["test_work.py::test_sleep"], out
+    assert run.cpu["test_work.py::test_spin"] >= 0.29 and run.cpu["test_work.py::test_sleep"] < 0.1, out
     assert run.wall["test_work.py::test_sleep"] >= 0.3 and run.load is not None and run.run_cpu is not None, out
