@@ -194,7 +194,7 @@ class RayExecutor:
     def describe(self) -> str:
         nodes = sum(1 for n in self._ray.nodes() if n.get("Alive"))
         cpus = int(self._ray.cluster_resources().get("CPU", 1))
-        return f"on Ray ({cpus} CPUs on {nodes} node(s), {self.workers} groups at a time)"
+        return f"on Ray ({cpus} CPUs on {nodes} node(s), {self.workers} workers)"
 
     def __enter__(self) -> RayExecutor:
         return self

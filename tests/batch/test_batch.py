@@ -41,7 +41,7 @@ def test_same_results_in_process_pool_and_ray(archive, tmp_path, ray_session):
     # Ray through the command line: --ray auto joins the session's Ray instance (2 CPUs)
     outs["ray"] = tmp_path / "ray.parquet"
     res = invoke(["batch", str(tasks_csv), "--out", str(outs["ray"]), "--ray", "auto"])
-    assert "on Ray (2 CPUs on 1 node(s), 2 groups at a time)" in res and f"{len(tasks)} tasks measured (1 error rows)" in res
+    assert "on Ray (2 CPUs on 1 node(s), 2 workers)" in res and f"{len(tasks)} tasks measured (1 error rows)" in res
     assert ray_session.is_initialized()  # the command did not shut down a Ray it did not start
     ref = stable(outs["inproc"])
     assert [r["task"] for r in ref] == list(range(len(tasks)))

@@ -15,7 +15,8 @@ from batch.executors import InProcessExecutor, PoolExecutor, RayExecutor
 from batch.run import close_readers, run_batch
 from batch.rows import flatten
 from batch.schema import (
-    BOX_DIMENSIONS, BOX_SPLIT, BOX_TYPES, SHAPE_IN_TASK, SHAPE_SHARED, SHAPE_TYPES, measurement_column, result_schema, shape_columns,
+    BOX_DIMENSIONS, BOX_SPLIT, BOX_TYPES, SHAPE_IN_TASK, SHAPE_SHARED, SHAPE_TYPES, extra_types, measurement_column, result_schema,
+    shape_columns,
 )
 from batch.tasks import read_tasks
 from batch_tables import invoke, stable, truth
@@ -110,7 +111,7 @@ def test_a_mixed_table_gives_the_same_rows_on_every_executor(archive, shape_rec,
     assert results["pool"] == rows and results["ray"] == rows and [r["task"] for r in rows] == list(range(len(asks)))
     # one schema, every column in every row, of every kind
     schema = pq.read_schema(tmp_path / "inproc.parquet")
-    assert schema.names == result_schema({"label": list(asks)}).names
+    assert schema.names == result_schema(extra_types({"label": list(asks)})).names
     assert {"value", "unit", "uncertainty", "interval", "length_sigma_m", "height_interval_m"} <= set(schema.names)
     frames = {(str(archive / "rec_poster"), i): open_recording(archive / "rec_poster").frame(i) for i in (0, 1)}
     frames |= {(str(shapes), i): open_recording(shapes).frame(i) for i in (0, 1)}

@@ -146,3 +146,41 @@ def test_an_unwritable_out_is_a_one_line_error_before_the_run(table, tmp_path):
     folder.mkdir()
     message = _one_line_error(depthruler(["batch", str(tasks_csv), "--out", str(folder), "--workers", "1"]))
     assert "is a folder" in message
+
+
+@pytest.mark.slow
+def test_a_ray_data_run_killed_mid_run_and_at_the_commit_resumes_to_every_task_once(table, reference, tmp_path):
+    """On Ray Data the workers write the parts: a driver killed (with its private Ray) once parts are
+    on disk, and a resume killed at the commit point, resume on Ray to the rows of a local run."""
+    import os
+    import subprocess
+    import sys
+    import time
+
+    from batch_tables import ROOT
+
+    tasks_csv, n = table
+    out = tmp_path / "r.parquet"
+    args = ["batch", str(tasks_csv), "--out", str(out), "--ray", "local", "--workers", "2"]
+    env = {**os.environ, "PYTHONPATH": os.pathsep.join([str(ROOT), os.environ.get("PYTHONPATH", "")])}
+    proc = subprocess.Popen([sys.executable, "-m", "cli.main", *args], env=env, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL,
+                            start_new_session=True)  # fmt: skip
+    parts = paths(out)[0]
+    try:
+        deadline = time.monotonic() + 300
+        while not list(parts.glob("part-*.parquet")) and proc.poll() is None and time.monotonic() < deadline:
+            time.sleep(0.05)
+        os.killpg(proc.pid, signal.SIGKILL)
+    finally:
+        proc.wait(timeout=60)
+    assert proc.returncode == -signal.SIGKILL, "the run ended before it could be killed"
+    written = pq.read_table(parts).num_rows
+    assert 0 < written < n and not out.exists()
+    assert depthruler([*args, "--resume"], env={STOP_ENV: "sealed"}).returncode == -signal.SIGKILL
+    assert _left(out)["merged"] > 0 and _left(out)["tmp"] == 1
+    resumed = depthruler([*args, "--resume"])
+    assert resumed.returncode == 0, resumed.stderr
+    assert f"{n} tasks, {n} already done; running 0" in " ".join(resumed.stdout.split())
+    rows = stable(out, DROP)
+    assert [r["task"] for r in rows] == list(range(n)) and rows == reference
+    assert _left(out) == {"parts": -1, "merged": -1, "tmp": 0, "out": 1}
