@@ -19,8 +19,9 @@ the driver holds references, counts and the commit.
 5. ``write_datasink`` with :class:`PartsSink`: each worker writes its blocks of rows as parts beside
    the results file (under a temporary name, fsync'd, renamed; named by their first task, so a
    write Ray retries replaces its own part); a progress actor counts rows for the driver's bar;
-6. the driver commits the parts (:meth:`batch.results.ResultStore.finish`) and checks that every
-   task has its row (a part written where the driver cannot see it is a missing row).
+6. the driver commits the parts (:meth:`batch.results.ResultStore.finish`: the merge, which reads
+   every row, in a Ray task; the renames that commit it here) and checks that every task has its
+   row (a part written where the driver cannot see it is a missing row).
 """
 
 from __future__ import annotations
@@ -42,8 +43,7 @@ from ray.data import ActorPoolStrategy, DataContext, Datasink, Datasource, ReadT
 from ray.data.block import BlockAccessor, BlockMetadata
 
 from batch.errors import BatchError
-from batch.readers import close_readers
-from batch.results import ResultsError, ResultStore, done_tasks, write_part
+from batch.results import ResultsError, ResultStore, done_tasks, merge_file, write_part
 from batch.rows import GroupResult, extras, measure_group, project_version
 from batch.scan import Plan, is_done, scan_table
 from batch.schema import extra_types, parquet_bytes, result_schema, rows_table
@@ -164,6 +164,15 @@ class PartsSink(Datasink):
         return table.num_rows, errors
 
 
+def _remote_merge(tmp: Path, sources: list[Path], metadata: dict[str, str] | None) -> int:
+    """:func:`batch.results.merge_file` in a Ray task (the merge reads every row: not in the driver);
+    its exceptions as raised."""
+    try:
+        return ray.get(ray.remote(merge_file).options(num_cpus=0, max_retries=0).remote(tmp, sources, metadata))
+    except ray.exceptions.RayTaskError as exc:
+        raise _cause(exc) from None
+
+
 def _sorted_ids(done: tuple[np.ndarray, np.ndarray]) -> np.ndarray:
     return np.sort(done[0])
 
@@ -245,10 +254,9 @@ def run_on_ray(
     if plan.todo:
         _measure(dataset, plan, store, executor, defaults, run, schema, on_group)
     wall = time.perf_counter() - t0
-    close_readers()
     total = store.finish(
         {"depthruler.version": project_version(), "depthruler.defaults": json.dumps(defaults),
-         "depthruler.executor": executor.describe() + " with Ray Data"}
+         "depthruler.executor": executor.describe() + " with Ray Data"}, merge=_remote_merge,
     )  # fmt: skip
     if total < plan.rows:
         raise ResultsError(

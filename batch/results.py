@@ -22,6 +22,7 @@ from __future__ import annotations
 import contextlib
 import os
 import shutil
+from collections.abc import Callable
 from pathlib import Path
 
 from batch.faults import reached
@@ -146,6 +147,18 @@ def write_part(path: Path, parquet: bytes, n: int = 1) -> None:
         raise
 
 
+def merge_file(tmp: Path, sources: list[Path], metadata: dict[str, str] | None) -> int:
+    """Merge the rows of ``sources`` into the file ``tmp`` sorted by task (:func:`batch.merge.merge_sorted`),
+    fsync'd; its row count. DuplicateTasks or OSError as raised."""
+    from batch.merge import merge_sorted
+
+    with open(tmp, "wb") as fh:
+        rows = merge_sorted(sources, fh, metadata)
+        fh.flush()
+        os.fsync(fh.fileno())
+    return rows
+
+
 def done_tasks(out: Path):  # noqa: ANN201 — two numpy arrays
     """(task indices, task keys) of every row of results file ``out`` and of its parts, as two numpy
     arrays (a dict of a million tasks would cost ~150 MB)."""
@@ -219,9 +232,11 @@ class ResultStore:
         self._written += 1
         reached("part", self._written)
 
-    def finish(self, metadata: dict[str, str] | None = None) -> int:
-        """Commit everything to ``out`` sorted by task (module docstring) and return its row count."""
-        from batch.merge import DuplicateTasks, merge_sorted
+    def finish(self, metadata: dict[str, str] | None = None, merge: Callable[[Path, list[Path], dict[str, str] | None], int] | None = None) -> int:
+        """Commit everything to ``out`` sorted by task (module docstring) and return its row count.
+        ``merge`` does step 1 (:func:`merge_file` here; on Ray the same function in a Ray task, so
+        the rows never pass through the driver) and raises what it raises."""
+        from batch.merge import DuplicateTasks
 
         _, pq = _pa()
         parts = sorted(self.parts.glob("part-*.parquet"))
@@ -230,10 +245,7 @@ class ResultStore:
             return pq.ParquetFile(self.out).metadata.num_rows
         sources = ([self.out] if self.out.is_file() else []) + parts
         try:
-            with open(self.tmp, "wb") as fh:
-                rows = merge_sorted(sources, fh, metadata)
-                fh.flush()
-                os.fsync(fh.fileno())
+            rows = (merge or merge_file)(self.tmp, sources, metadata)
         except DuplicateTasks as exc:
             self.tmp.unlink(missing_ok=True)
             raise ResultsError(f"the rows of {self.out} and {self.parts} hold a task twice ({exc}); nothing was merged: use --overwrite") from None

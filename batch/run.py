@@ -64,35 +64,42 @@ def default_options(pairs: Iterable[str]) -> dict[str, Any]:
     return out
 
 
-def error_counts(out: Path) -> dict[str, Counter]:
-    """The error rows of results file ``out``: ``{"type": Counter(error_type), "field": Counter(error_field)}``
-    (counted by Arrow: a million error rows make no million Python strings)."""
-    import pyarrow.compute as pc
+def _batches(out: Path, columns: list[str]):  # noqa: ANN202 — record batches
+    """The ``columns`` (those ``out`` has) of results file ``out``, batch by batch (bounded memory)."""
     import pyarrow.parquet as pq
 
-    names = pq.read_schema(out).names
-    t = pq.read_table(out, columns=[c for c in ("error_type", "error_field") if c in names])  # older files lack error_field
+    pf = pq.ParquetFile(out)
+    return pf.iter_batches(batch_size=65536, columns=[c for c in columns if c in pf.schema_arrow.names])
 
-    def counts(column: str) -> Counter:
-        if column not in t.column_names:
-            return Counter()
-        return Counter({v["values"]: v["counts"] for v in pc.value_counts(t.column(column)).to_pylist() if v["values"] is not None})
 
+def error_counts(out: Path) -> dict[str, Counter]:
+    """The error rows of results file ``out``: ``{"type": Counter(error_type), "field": Counter(error_field)}``
+    (counted by Arrow batch by batch: a million error rows make no million Python strings)."""
+    import pyarrow.compute as pc
+
+    types: Counter = Counter()
     fields: Counter = Counter()
-    for text, k in counts("error_field").items():
+    for batch in _batches(out, ["error_type", "error_field"]):  # older files lack error_field
+        for column, counter in (("error_type", types), ("error_field", fields)):
+            if column in batch.schema.names:
+                counter.update({v["values"]: v["counts"] for v in pc.value_counts(batch.column(column)).to_pylist() if v["values"] is not None})
+    by_field: Counter = Counter()
+    for text, k in fields.items():
         for f in text.split(","):
-            fields[f] += k
-    return {"type": counts("error_type"), "field": fields}
+            by_field[f] += k
+    return {"type": types, "field": by_field}
 
 
 def run_counts(out: Path, run: str) -> tuple[int, int]:
     """(rows, error rows) that run ``run`` wrote to results file ``out``."""
     import pyarrow.compute as pc
-    import pyarrow.parquet as pq
 
-    t = pq.read_table(out, columns=["run", "error"])
-    mine = pc.equal(t.column("run"), run)
-    return int(pc.sum(mine).as_py() or 0), int(pc.sum(pc.and_(mine, pc.is_valid(t.column("error")))).as_py() or 0)
+    rows = errors = 0
+    for batch in _batches(out, ["run", "error_type"]):
+        mine = pc.equal(batch.column("run"), run)
+        rows += int(pc.sum(mine).as_py() or 0)
+        errors += int(pc.sum(pc.and_(mine, pc.is_valid(batch.column("error_type")))).as_py() or 0)
+    return rows, errors
 
 
 def run_batch(

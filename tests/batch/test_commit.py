@@ -14,7 +14,7 @@ import pytest
 
 from batch.faults import POINTS, STOP_ENV
 from batch.results import paths
-from batch_tables import depthruler, invoke, stable, write_tasks
+from batch_tables import depthruler, invoke, killed_after_first_part, stable, write_tasks
 
 # Volatile columns of a row, and the run id: a resumed file mixes two runs.
 DROP = {"run"}
@@ -152,28 +152,11 @@ def test_an_unwritable_out_is_a_one_line_error_before_the_run(table, tmp_path):
 def test_a_ray_data_run_killed_mid_run_and_at_the_commit_resumes_to_every_task_once(table, reference, tmp_path):
     """On Ray Data the workers write the parts: a driver killed (with its private Ray) once parts are
     on disk, and a resume killed at the commit point, resume on Ray to the rows of a local run."""
-    import os
-    import subprocess
-    import sys
-    import time
-
-    from batch_tables import ROOT
-
     tasks_csv, n = table
     out = tmp_path / "r.parquet"
     args = ["batch", str(tasks_csv), "--out", str(out), "--ray", "local", "--workers", "2"]
-    env = {**os.environ, "PYTHONPATH": os.pathsep.join([str(ROOT), os.environ.get("PYTHONPATH", "")])}
-    proc = subprocess.Popen([sys.executable, "-m", "cli.main", *args], env=env, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL,
-                            start_new_session=True)  # fmt: skip
     parts = paths(out)[0]
-    try:
-        deadline = time.monotonic() + 300
-        while not list(parts.glob("part-*.parquet")) and proc.poll() is None and time.monotonic() < deadline:
-            time.sleep(0.05)
-        os.killpg(proc.pid, signal.SIGKILL)
-    finally:
-        proc.wait(timeout=60)
-    assert proc.returncode == -signal.SIGKILL, "the run ended before it could be killed"
+    assert killed_after_first_part(args, parts) == -signal.SIGKILL, "the run ended before it could be killed"
     written = pq.read_table(parts).num_rows
     assert 0 < written < n and not out.exists()
     assert depthruler([*args, "--resume"], env={STOP_ENV: "sealed"}).returncode == -signal.SIGKILL
