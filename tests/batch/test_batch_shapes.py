@@ -190,7 +190,7 @@ def _history(db, shapes, box, panel, poster) -> dict[int, dict]:
 
 
 @pytest.mark.slow
-def test_from_history_re_measures_every_kind_to_the_stored_answer(archive, shape_rec, tmp_path):
+def test_from_history_re_measures_every_kind_to_the_stored_answer(archive, shape_rec, tmp_path, ray_session):
     shapes, box, panel = shape_rec
     db = tmp_path / "history.db"
     stored = _history(db, shapes, box, panel, archive / "rec_poster")
@@ -218,6 +218,12 @@ def test_from_history_re_measures_every_kind_to_the_stored_answer(archive, shape
     heights = [r for r in rows if r["kind"] == "height"]
     assert heights[0]["on"] is None and heights[1]["on"] == [[box.click_px[0], 260.0]]
     assert np.isclose(heights[1]["value"], box.height_m, rtol=0.02)
+    # on Ray (Ray Data, the history's tasks sent from here, its saved frames read by the workers): the same rows
+    from batch.history import history_tasks
+
+    with RayExecutor() as ex:
+        run_batch(history_tasks(db), tmp_path / "ray.parquet", ex)
+    assert stable(tmp_path / "ray.parquet") == stable(out)
     close_readers()
 
 
