@@ -1,5 +1,6 @@
 """Where the evaluation and the batch runner do their work: this process, a local process pool or a
-Ray cluster, behind one call, :meth:`Executor.imap`.
+Ray cluster, behind one call, :meth:`Executor.imap` (a batch on Ray runs on Ray Data instead,
+:mod:`batch.raydata`; the executor then only connects and counts the workers).
 
 Each item handed to an executor is a *group* of work that belongs together (one recording's tasks,
 one simulated view's jobs), so a worker opens a recording or renders a view once. ``imap`` yields
@@ -123,7 +124,9 @@ class PoolExecutor:
 
 
 class RayExecutor:
-    """Groups as Ray tasks on a Ray cluster, each reserving ``task_cpus`` CPUs (default 1).
+    """A Ray cluster: the evaluation's groups as Ray tasks (:meth:`imap`), each reserving ``task_cpus``
+    CPUs (default 1); a batch run on it goes through Ray Data instead (:mod:`batch.raydata`), with
+    :attr:`workers` measuring actors of ``task_cpus`` CPUs each.
 
     ``address``: ``"local"`` starts a private Ray instance on this machine, never one already running (``num_cpus`` CPUs, default all);
     ``"auto"`` joins the cluster already running here or named by ``RAY_ADDRESS``; anything else is
@@ -194,7 +197,7 @@ class RayExecutor:
     def describe(self) -> str:
         nodes = sum(1 for n in self._ray.nodes() if n.get("Alive"))
         cpus = int(self._ray.cluster_resources().get("CPU", 1))
-        return f"on Ray ({cpus} CPUs on {nodes} node(s), {self.workers} groups at a time)"
+        return f"on Ray ({cpus} CPUs on {nodes} node(s), {self.workers} workers)"
 
     def __enter__(self) -> RayExecutor:
         return self

@@ -22,6 +22,7 @@ from __future__ import annotations
 import contextlib
 import os
 import shutil
+from collections.abc import Callable
 from pathlib import Path
 
 from batch.faults import reached
@@ -127,6 +128,58 @@ def leftovers(out: Path) -> list[Path]:
     return [p for p in (out, *paths(out)) if p.exists()]
 
 
+def write_part(path: Path, parquet: bytes, n: int = 1) -> None:
+    """Write one part durably: under a ``.tmp`` name, fsync'd, renamed onto ``path``, the folder fsync'd
+    (the ``part-tmp`` stopping point, the ``n``-th, lies before the rename). OSError as raised, the
+    temporary file removed."""
+    tmp = path.with_suffix(".tmp")
+    try:
+        with open(tmp, "wb") as fh:
+            fh.write(parquet)
+            fh.flush()
+            os.fsync(fh.fileno())
+        reached("part-tmp", n)
+        os.replace(tmp, path)
+        _sync_dir(path.parent)
+    except OSError:
+        with contextlib.suppress(OSError):
+            tmp.unlink(missing_ok=True)
+        raise
+
+
+def merge_file(tmp: Path, sources: list[Path], metadata: dict[str, str] | None) -> int:
+    """Merge the rows of ``sources`` into the file ``tmp`` sorted by task (:func:`batch.merge.merge_sorted`),
+    fsync'd; its row count. DuplicateTasks or OSError as raised."""
+    from batch.merge import merge_sorted
+
+    with open(tmp, "wb") as fh:
+        rows = merge_sorted(sources, fh, metadata)
+        fh.flush()
+        os.fsync(fh.fileno())
+    return rows
+
+
+def done_tasks(out: Path):  # noqa: ANN201 — two numpy arrays
+    """(task indices, task keys) of every row of results file ``out`` and of its parts, as two numpy
+    arrays (a dict of a million tasks would cost ~150 MB)."""
+    import numpy as np
+
+    _, pq = _pa()
+    ids, keys = [], []
+    parts = paths(out)[0]
+    sources = sorted(parts.glob("part-*.parquet")) + ([out] if out.is_file() else [])
+    for p in sources:
+        try:
+            t = pq.read_table(p, columns=["task", "task_key"])
+        except Exception as exc:  # noqa: BLE001 — pyarrow raises several types for a damaged file
+            raise ResultsError(f"{p} is not a results file of depthruler batch ({exc}); use --overwrite to start again") from None
+        ids.append(t.column("task").to_numpy())
+        keys.append(np.asarray(t.column("task_key").to_pylist(), dtype=object))
+    if not ids:
+        return np.zeros(0, dtype=np.int64), np.zeros(0, dtype=object)
+    return np.concatenate(ids).astype(np.int64), np.concatenate(keys)
+
+
 class ResultStore:
     """Where one run's rows go. ``resume`` keeps earlier rows; ``overwrite`` discards them."""
 
@@ -156,45 +209,21 @@ class ResultStore:
             probe.unlink()
         except OSError as exc:
             raise ResultsError(f"cannot write results beside {out} ({exc.strerror or exc}); choose a writable --out") from None
-        existing = sorted(self.parts.glob("part-*.parquet"))
-        self._next = 1 + max((int(p.stem.split("-")[1]) for p in existing), default=0)
+        numbered = [p.stem.split("-")[1] for p in self.parts.glob("part-*.parquet")]  # a Ray worker's parts are named by their first task
+        self._next = 1 + max((int(n) for n in numbered if n.isdigit()), default=0)
         self._written = 0
         reached("opened")
 
     def done(self):  # noqa: ANN201 — two numpy arrays
         """(task indices, task keys) of every row already written (parts and, on resume, the file),
-        as two numpy arrays (a dict of a million tasks would cost the driver ~150 MB)."""
-        import numpy as np
-
-        pa, pq = _pa()
-        ids, keys = [], []
-        sources = sorted(self.parts.glob("part-*.parquet")) + ([self.out] if self.out.is_file() else [])
-        for p in sources:
-            try:
-                t = pq.read_table(p, columns=["task", "task_key"])
-            except Exception as exc:  # noqa: BLE001 — pyarrow raises several types for a damaged file
-                raise ResultsError(f"{p} is not a results file of depthruler batch ({exc}); use --overwrite to start again") from None
-            ids.append(t.column("task").to_numpy())
-            keys.append(np.asarray(t.column("task_key").to_pylist(), dtype=object))
-        if not ids:
-            return np.zeros(0, dtype=np.int64), np.zeros(0, dtype=object)
-        return np.concatenate(ids).astype(np.int64), np.concatenate(keys)
+        as two numpy arrays (:func:`done_tasks`)."""
+        return done_tasks(self.out)
 
     def write(self, parquet: bytes) -> None:
         """Store one finished group (a whole Parquet file's bytes) durably as the next part."""
-        path = self.parts / f"part-{self._next:06d}.parquet"
-        tmp = path.with_suffix(".tmp")
         try:
-            with open(tmp, "wb") as fh:
-                fh.write(parquet)
-                fh.flush()
-                os.fsync(fh.fileno())
-            reached("part-tmp", self._written + 1)
-            os.replace(tmp, path)
-            _sync_dir(self.parts)
+            write_part(self.parts / f"part-{self._next:06d}.parquet", parquet, self._written + 1)
         except OSError as exc:
-            with contextlib.suppress(OSError):
-                tmp.unlink(missing_ok=True)
             raise ResultsError(
                 f"cannot write a result part in {self.parts} ({exc.strerror or exc}); the {self._written} group(s) written "
                 "are kept: free space or fix the folder, then run again with --resume"
@@ -203,9 +232,11 @@ class ResultStore:
         self._written += 1
         reached("part", self._written)
 
-    def finish(self, metadata: dict[str, str] | None = None) -> int:
-        """Commit everything to ``out`` sorted by task (module docstring) and return its row count."""
-        from batch.merge import DuplicateTasks, merge_sorted
+    def finish(self, metadata: dict[str, str] | None = None, merge: Callable[[Path, list[Path], dict[str, str] | None], int] | None = None) -> int:
+        """Commit everything to ``out`` sorted by task (module docstring) and return its row count.
+        ``merge`` does step 1 (:func:`merge_file` here; on Ray the same function in a Ray task, so
+        the rows never pass through the driver) and raises what it raises."""
+        from batch.merge import DuplicateTasks
 
         _, pq = _pa()
         parts = sorted(self.parts.glob("part-*.parquet"))
@@ -214,10 +245,7 @@ class ResultStore:
             return pq.ParquetFile(self.out).metadata.num_rows
         sources = ([self.out] if self.out.is_file() else []) + parts
         try:
-            with open(self.tmp, "wb") as fh:
-                rows = merge_sorted(sources, fh, metadata)
-                fh.flush()
-                os.fsync(fh.fileno())
+            rows = (merge or merge_file)(self.tmp, sources, metadata)
         except DuplicateTasks as exc:
             self.tmp.unlink(missing_ok=True)
             raise ResultsError(f"the rows of {self.out} and {self.parts} hold a task twice ({exc}); nothing was merged: use --overwrite") from None

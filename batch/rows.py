@@ -28,7 +28,7 @@ from typing import Any
 from measure import Frame, MeasureError, measure_distance, measure_shape
 
 from batch.readers import FrameReader, reader_for
-from batch.schema import encode_rows, extra_column, measurement_column, result_schema, shape_columns
+from batch.schema import encode_rows, extra_column, extra_types, measurement_column, result_schema, shape_columns
 from batch.tasks import SEGMENT, Task, measure_options
 from batch.tasktable import TaskGroup, TaskTable
 
@@ -114,7 +114,7 @@ class GroupResult:
 def run_group(group: TaskGroup) -> GroupResult:
     """Measure a group (worker side) and encode its rows in the run's schema; never raises for a bad task or source."""
     rows = measure_group(group)
-    schema = group.schema if group.schema is not None else result_schema(extras(group.tasks))
+    schema = group.schema if group.schema is not None else result_schema(extra_types(extras(group.tasks)))
     return GroupResult(len(rows), sum(1 for r in rows if r["error"] is not None), encode_rows(rows, schema))
 
 

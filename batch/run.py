@@ -1,10 +1,12 @@
 """Batch re-measurement, the driver: tasks in, one committed result row per task out.
 
-:func:`run_batch` in steps: open the results store (:mod:`batch.results`; on ``--resume`` it
-recovers what a killed run left and lists the tasks already done); check that those tasks are
-still the same ones; group the others (:func:`batch.tasks.group_tasks`) and run the groups on
-the executor, each group's Parquet rows written as a part the moment it arrives; commit the parts
-and the earlier rows as one file sorted by task; count the error rows by type.
+:func:`run_batch` in steps, in this process or on a local pool: open the results store
+(:mod:`batch.results`; on ``--resume`` it recovers what a killed run left and lists the tasks
+already done); check that those tasks are still the same ones; group the others
+(:func:`batch.tasktable.group_tasks`) and run the groups on the executor, each group's Parquet rows
+written as a part the moment it arrives; commit the parts and the earlier rows as one file sorted
+by task; count the error rows by type. On Ray the same steps run on Ray Data, the table read and
+the parts written by the workers (:mod:`batch.raydata`).
 """
 
 from __future__ import annotations
@@ -23,8 +25,8 @@ from measure import MeasureError, MeasureOptions
 
 from batch.readers import close_readers
 from batch.rows import GroupResult, extras, project_version, run_group
-from batch.schema import result_schema
-from batch.tasks import OPTION_FIELDS, Task, TaskError, parse_option
+from batch.schema import extra_types, result_schema
+from batch.tasks import OPTION_FIELDS, TableFile, Task, TaskError, parse_option, read_tasks
 from batch.tasktable import TaskGroup, TaskTable, group_tasks
 
 __all__ = ["close_readers", "default_options", "error_counts", "run_batch", "run_tasks"]
@@ -62,23 +64,46 @@ def default_options(pairs: Iterable[str]) -> dict[str, Any]:
     return out
 
 
-def error_counts(out: Path) -> dict[str, Counter]:
-    """The error rows of results file ``out``: ``{"type": Counter(error_type), "field": Counter(error_field)}``."""
+def _batches(out: Path, columns: list[str]):  # noqa: ANN202 — record batches
+    """The ``columns`` (those ``out`` has) of results file ``out``, batch by batch (bounded memory)."""
     import pyarrow.parquet as pq
 
-    names = pq.read_schema(out).names
-    t = pq.read_table(out, columns=[c for c in ("error_type", "error_field") if c in names])  # older files lack error_field
+    pf = pq.ParquetFile(out)
+    return pf.iter_batches(batch_size=65536, columns=[c for c in columns if c in pf.schema_arrow.names])
 
-    def values(column: str) -> list[str]:
-        return [v for v in t.column(column).to_pylist() if v is not None] if column in t.column_names else []
 
-    types = Counter(values("error_type"))
-    fields = Counter(f for v in values("error_field") for f in v.split(","))
-    return {"type": types, "field": fields}
+def error_counts(out: Path) -> dict[str, Counter]:
+    """The error rows of results file ``out``: ``{"type": Counter(error_type), "field": Counter(error_field)}``
+    (counted by Arrow batch by batch: a million error rows make no million Python strings)."""
+    import pyarrow.compute as pc
+
+    types: Counter = Counter()
+    fields: Counter = Counter()
+    for batch in _batches(out, ["error_type", "error_field"]):  # older files lack error_field
+        for column, counter in (("error_type", types), ("error_field", fields)):
+            if column in batch.schema.names:
+                counter.update({v["values"]: v["counts"] for v in pc.value_counts(batch.column(column)).to_pylist() if v["values"] is not None})
+    by_field: Counter = Counter()
+    for text, k in fields.items():
+        for f in text.split(","):
+            by_field[f] += k
+    return {"type": types, "field": by_field}
+
+
+def run_counts(out: Path, run: str) -> tuple[int, int]:
+    """(rows, error rows) that run ``run`` wrote to results file ``out``."""
+    import pyarrow.compute as pc
+
+    rows = errors = 0
+    for batch in _batches(out, ["run", "error_type"]):
+        mine = pc.equal(batch.column("run"), run)
+        rows += int(pc.sum(mine).as_py() or 0)
+        errors += int(pc.sum(pc.and_(mine, pc.is_valid(batch.column("error_type")))).as_py() or 0)
+    return rows, errors
 
 
 def run_batch(
-    tasks: TaskTable | Sequence[Task],
+    tasks: TaskTable | Sequence[Task] | TableFile,
     out: Path,
     executor: Any,
     *,
@@ -89,15 +114,27 @@ def run_batch(
     on_group: Callable[[GroupResult], None] | None = None,
 ) -> dict[str, Any]:
     """Measure ``tasks`` on ``executor`` into the Parquet file ``out``; a summary dict (module docstring).
+    A :class:`batch.tasks.TableFile` is read by Ray Data's workers on Ray, here otherwise.
 
     ``on_start(to_do, already_done)`` is called before the first group runs. With ``resume`` the
     tasks already in ``out`` or its parts are skipped (ResultsError if one of them is no longer the
-    same task: the table changed since that run). The summary: ``run`` id, ``measured`` (this
-    run), ``skipped`` (kept from before), ``rows`` (in ``out``), ``groups``, ``wall_s`` (seconds)
-    and ``errors`` (:func:`error_counts` of ``out``)."""
+    same task: the table changed since that run). The summary: ``run`` id, ``measured`` and
+    ``error_rows`` (rows this run wrote, and how many are errors), ``skipped`` (kept from before),
+    ``rows`` (in ``out``), ``groups``, ``wall_s`` (seconds) and ``errors`` (:func:`error_counts` of
+    ``out``)."""
+    from batch.executors import RayExecutor
     from batch.results import ResultsError, ResultStore
 
     defaults = dict(defaults or {})
+    if isinstance(executor, RayExecutor):
+        from batch.raydata import run_on_ray
+
+        source = tasks if isinstance(tasks, (TaskTable, TableFile)) else TaskTable.of(tasks)
+        return run_on_ray(source.location if isinstance(source, TableFile) else source, out, executor, defaults=defaults,
+                          base=source.base if isinstance(source, TableFile) else None, resume=resume, overwrite=overwrite,
+                          on_start=on_start, on_group=on_group)  # fmt: skip
+    if isinstance(tasks, TableFile):
+        tasks = read_tasks(tasks)
     table = tasks if isinstance(tasks, TaskTable) else TaskTable.of(tasks)
     store = ResultStore(out, resume=resume, overwrite=overwrite)
     done_ids, done_keys = store.done()
@@ -112,7 +149,7 @@ def run_batch(
         )
     todo = table.take(~is_done) if is_done.any() else table  # no copy of a million rows on a fresh run
     run = uuid.uuid4().hex[:12]
-    groups = group_tasks(todo, getattr(executor, "workers", 1), defaults, run, schema=result_schema(extras(table)))
+    groups = group_tasks(todo, getattr(executor, "workers", 1), defaults, run, schema=result_schema(extra_types(extras(table))))
     skipped = len(table) - len(todo)
     if on_start:
         on_start(len(todo), skipped)
@@ -126,6 +163,6 @@ def run_batch(
         {"depthruler.version": project_version(), "depthruler.defaults": json.dumps(defaults), "depthruler.executor": executor.describe()}
     )
     return {
-        "run": run, "measured": n, "skipped": skipped, "rows": total, "groups": len(groups), "wall_s": wall,
-        "errors": error_counts(out),
+        "run": run, "measured": n, "error_rows": run_counts(out, run)[1], "skipped": skipped, "rows": total, "groups": len(groups),
+        "wall_s": wall, "errors": error_counts(out),
     }  # fmt: skip

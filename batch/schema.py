@@ -139,9 +139,12 @@ def extra_column(name: str) -> str:
     return f"task_{name}" if name in taken else name
 
 
+EXTRA_CHUNK = 4096  # values of a carried-through column typed at a time (a table of a million rows is never held whole)
+
+
 def _extra_type(values: Iterable[Any]):
-    """The Arrow type of a carried-through column: inferred over all its values, a string column when
-    they do not share one (a column holding 3 and "3" is kept as text, never dropped)."""
+    """The Arrow type of some values of a carried-through column; a string column when they do not
+    share one (a column holding 3 and "3" is kept as text, never dropped)."""
     import pyarrow as pa
 
     vals = [None if isinstance(v, float) and math.isnan(v) else v for v in values]
@@ -149,39 +152,107 @@ def _extra_type(values: Iterable[Any]):
         t = pa.array(vals).type
     except (pa.ArrowInvalid, pa.ArrowTypeError, TypeError, ValueError, OverflowError):
         return pa.string()
-    return pa.string() if pa.types.is_null(t) else t
+    return pa.null() if pa.types.is_null(t) else t
 
 
-def result_schema(extras: Mapping[str, Iterable[Any]] | None = None):
-    """The pyarrow schema of every result row of a run whose tasks carry ``extras`` (column -> values)."""
+def _unify(a, b):  # noqa: ANN001, ANN202 — two pyarrow DataTypes
+    import pyarrow as pa
+
+    if a == b or pa.types.is_null(b):
+        return a
+    if pa.types.is_null(a):
+        return b
+    try:
+        return pa.unify_schemas([pa.schema([("v", a)]), pa.schema([("v", b)])], promote_options="permissive").field("v").type
+    except (pa.ArrowInvalid, pa.ArrowTypeError, NotImplementedError):
+        return pa.string()
+
+
+class ExtraTypes:
+    """The Arrow type of each carried-through column, inferred chunk by chunk: the values are
+    :meth:`add`-ed in table order and typed :data:`EXTRA_CHUNK` at a time, the chunks' types unified
+    (int and float: float; anything else that differs: text). Every executor types a table's columns
+    through this one class, so a run's schema is the same wherever its table was read."""
+
+    def __init__(self) -> None:
+        self._types: dict[str, Any] = {}  # column -> type so far (None before its first chunk), in first-seen order
+        self._pending: dict[str, list[Any]] = {}
+
+    def add(self, name: str, value: Any) -> None:
+        """One value (a task's cell, as :func:`batch.rows.flatten` gives it) of column ``name``; None
+        only makes the column known."""
+        self._types.setdefault(name, None)
+        if value is None:
+            return
+        pending = self._pending.setdefault(name, [])
+        pending.append(value)
+        if len(pending) >= EXTRA_CHUNK:
+            self._flush(name)
+
+    def _flush(self, name: str) -> None:
+        t = _extra_type(self._pending.pop(name, []))
+        self._types[name] = t if self._types[name] is None else _unify(self._types[name], t)
+
+    def types(self) -> dict[str, Any]:
+        """Column -> pyarrow type, in the order the columns were first seen (text for a column of nulls only)."""
+        import pyarrow as pa
+
+        for name in list(self._pending):
+            self._flush(name)
+        return {k: pa.string() if t is None or pa.types.is_null(t) else t for k, t in self._types.items()}
+
+
+def extra_types(extras: Mapping[str, Iterable[Any]]) -> dict[str, Any]:
+    """:meth:`ExtraTypes.types` of columns given whole (column -> values in table order)."""
+    acc = ExtraTypes()
+    for name, values in extras.items():
+        acc._types.setdefault(name, None)
+        for v in values:
+            acc.add(name, v)
+    return acc.types()
+
+
+def result_schema(extra_types: Mapping[str, Any] | None = None):
+    """The pyarrow schema of every result row of a run whose tasks carry columns of ``extra_types``
+    (column -> pyarrow type, :class:`ExtraTypes`)."""
     import pyarrow as pa
 
     fields = [pa.field(k, _arrow(v)) for k, v in TASK_TYPES.items()]
-    for name, values in (extras or {}).items():
-        fields.append(pa.field(extra_column(name), _extra_type(values)))
+    fields += [pa.field(extra_column(name), t) for name, t in (extra_types or {}).items()]
     fields += [pa.field(k, _arrow(v)) for k, v in option_types().items()]
     fields += [pa.field(k, _arrow(v)) for k, v in answer_types().items()]
     fields += [pa.field(k, _arrow(v)) for k, v in RUN_TYPES.items()]
     return pa.schema(fields)
 
 
-def encode_rows(rows: list[dict[str, Any]], schema) -> bytes:
-    """``rows`` as one Parquet file in ``schema``; a value that does not fit its column's type is kept as text."""
-    import io
-
+def rows_table(rows: list[dict[str, Any]], schema):  # noqa: ANN201 — a pyarrow Table
+    """``rows`` as a pyarrow Table in ``schema``; a value that does not fit its column's type is kept as
+    text; a column outside the schema is refused (ValueError), never dropped."""
     import pyarrow as pa
-    import pyarrow.parquet as pq
 
     unknown = {k for r in rows for k in r} - set(schema.names)
     if unknown:  # from_pylist would drop them without a word
         raise ValueError(f"result rows hold columns outside the result schema: {sorted(unknown)}")
     try:
-        table = pa.Table.from_pylist(rows, schema=schema)
+        return pa.Table.from_pylist(rows, schema=schema)
     except (pa.ArrowInvalid, pa.ArrowTypeError, OverflowError):
-        table = pa.Table.from_pylist([_fit(r, schema) for r in rows], schema=schema)
+        return pa.Table.from_pylist([_fit(r, schema) for r in rows], schema=schema)
+
+
+def parquet_bytes(table) -> bytes:  # noqa: ANN001 — a pyarrow Table
+    """``table`` as the bytes of one Parquet file."""
+    import io
+
+    import pyarrow.parquet as pq
+
     buf = io.BytesIO()
     pq.write_table(table, buf)
     return buf.getvalue()
+
+
+def encode_rows(rows: list[dict[str, Any]], schema) -> bytes:
+    """``rows`` as one Parquet file in ``schema`` (:func:`rows_table`)."""
+    return parquet_bytes(rows_table(rows, schema))
 
 
 def _fit(row: dict[str, Any], schema) -> dict[str, Any]:

@@ -279,19 +279,20 @@ def parse_clicks(name: str, value: Any, least: int, most: int | None = None, wha
     return clicks
 
 
-def read_rows(path: Path) -> Iterator[dict[str, Any] | BadLine]:
+def read_rows(path: Path, row_groups: list[int] | None = None) -> Iterator[dict[str, Any] | BadLine]:
     """The rows of a CSV, JSONL or Parquet table as dicts (by file suffix), one at a time (a table of
-    a million rows is never held as dicts); a JSONL line that is no JSON object is a :class:`BadLine`.
-    TaskError when the file cannot be read, also part way through."""
+    a million rows is never held as dicts); a JSONL line that is no JSON object is a :class:`BadLine`;
+    ``row_groups`` reads only those row groups of a Parquet table. TaskError when the file cannot be
+    read, also part way through."""
     if not path.is_file():
         raise TaskError(f"{path} does not exist; give a CSV, JSONL or Parquet table of tasks")
     suffix = path.suffix.lower()
     if suffix not in (".csv", ".jsonl", ".ndjson", ".parquet", ".pq"):
         raise TaskError(f"{path}: unknown table type {suffix!r}; use .csv, .jsonl or .parquet")
-    return _rows(path, suffix)
+    return _rows(path, suffix, row_groups)
 
 
-def _rows(path: Path, suffix: str) -> Iterator[dict[str, Any] | BadLine]:
+def _rows(path: Path, suffix: str, row_groups: list[int] | None = None) -> Iterator[dict[str, Any] | BadLine]:
     try:
         if suffix == ".csv":
             with path.open(newline="", encoding="utf-8-sig") as fh:
@@ -308,7 +309,7 @@ def _rows(path: Path, suffix: str) -> Iterator[dict[str, Any] | BadLine]:
         else:
             import pyarrow.parquet as pq
 
-            for batch in pq.ParquetFile(path).iter_batches(batch_size=4096):
+            for batch in pq.ParquetFile(path).iter_batches(batch_size=4096, row_groups=row_groups):
                 yield from batch.to_pylist()
     except (OSError, UnicodeDecodeError, csv.Error) as exc:
         raise TaskError(f"{path} cannot be read as {suffix[1:]}: {exc}") from exc
@@ -318,11 +319,31 @@ def _rows(path: Path, suffix: str) -> Iterator[dict[str, Any] | BadLine]:
         raise
 
 
-def read_tasks(path: Path | str) -> TaskTable:
+@dataclass(frozen=True)
+class TableFile:
+    """A task table to be read where the work runs (by Ray Data's workers), not in this process: its
+    ``location`` (an absolute local path or a URL) and ``base``, the folder its relative sources are in."""
+
+    location: str
+    base: Path | str
+
+    @staticmethod
+    def at(path: Path | str) -> TableFile:
+        from batch.remote import is_url, parent
+
+        if isinstance(path, str) and is_url(path):
+            return TableFile(path, parent(path))
+        p = Path(path).resolve()
+        return TableFile(str(p), p.parent)
+
+
+def read_tasks(path: Path | str | TableFile) -> TaskTable:
     """The tasks of a table, one per row, as columns (:class:`batch.tasktable.TaskTable`), invalid ones included (see the module docstring); ``path``
     may be a URL (:mod:`batch.remote`), whose relative sources are then read beside it."""
     from batch.remote import fetch_table, is_url, parent
 
+    if isinstance(path, TableFile):
+        path = path.location
     if isinstance(path, str) and is_url(path):
         import tempfile
 
@@ -343,7 +364,14 @@ def _tasks(rows: Iterable[dict[str, Any] | BadLine], base: Path | str, where: Pa
         if isinstance(row, dict) and not columns.issuperset(row):
             columns.update(k for k in row if k is not None)
         tasks.add(parse_row(i, row, base))
-    if not len(tasks.index):
+    check_table(columns, len(tasks.index), where)
+    return tasks.table()
+
+
+def check_table(columns: set[str], rows: int, where: Path | str) -> None:
+    """TaskError when a table of ``rows`` rows with ``columns`` cannot be a task table: no row, or a
+    required column missing."""
+    if not rows:
         raise TaskError(f"{where} holds no task rows")
     missing = [c for c in REQUIRED if c not in columns and (c in REQUIRED[:2] or "points" not in columns)]
     if missing:
@@ -351,7 +379,30 @@ def _tasks(rows: Iterable[dict[str, Any] | BadLine], base: Path | str, where: Pa
             f"{where} lacks the column(s) {', '.join(missing)}; a task table needs {', '.join(REQUIRED)} "
             "(a table of shapes only: source, frame, kind and points)"
         )
-    return tasks.table()
+
+
+def row_extra(row: dict[str, Any]) -> dict[str, Any]:
+    """The cells of ``row`` carried through to the results: every column that is no task column."""
+    return {k: v for k, v in row.items() if k is not None and k not in REQUIRED and k not in SHAPE_COLUMNS and k not in OPTION_FIELDS}
+
+
+def cell_text(value: Any) -> str:
+    """A cell as text ("" when empty)."""
+    return "" if _empty(value) else str(value)
+
+
+def task_place(row: dict[str, Any], base: Path | str) -> tuple[str, int | None]:
+    """Where the task of ``row`` measures, as :func:`parse_row` gives it, without parsing the rest:
+    its source (normalised, or the cell's text when that fails) and its frame (None when unreadable)."""
+    try:
+        source = _normalised(cell_text(row.get("source")), base)
+    except TaskError:
+        source = cell_text(row.get("source"))
+    try:
+        frame: int | None = parse_frame(row.get("frame"))
+    except TaskError:
+        frame = None
+    return source, frame
 
 
 def parse_row(index: int, row: dict[str, Any] | BadLine, base: Path | str) -> Task:
@@ -396,13 +447,11 @@ def parse_row(index: int, row: dict[str, Any] | BadLine, base: Path | str) -> Ta
             bad[name] = f"option {exc}"
             continue
         options[name] = value
-    raw_source = row.get("source")
-    source = check("source", lambda v: _normalised("" if _empty(v) else str(v), base), raw_source)
+    source = check("source", lambda v: _normalised("" if _empty(v) else str(v), base), row.get("source"))
     if None in row:  # csv.DictReader keeps a row's cells beyond the header under the key None
         bad["row"] = f"the row has {len(row[None])} more cell(s) than the header; quote cells that hold commas"
-    extra = {k: v for k, v in row.items() if k is not None and k not in REQUIRED and k not in SHAPE_COLUMNS and k not in OPTION_FIELDS}
     return Task(
-        index, source if source is not None else ("" if _empty(raw_source) else str(raw_source)), frame,
-        (pts[0], pts[1]), (pts[2], pts[3]), options, extra,
+        index, source if source is not None else cell_text(row.get("source")), frame,
+        (pts[0], pts[1]), (pts[2], pts[3]), options, row_extra(row),
         error="; ".join(bad.values()) or None, error_field=",".join(bad) or None, kind=kind, points=points, on=on,
     )  # fmt: skip

@@ -75,21 +75,20 @@ import json, resource, sys, time
 from pathlib import Path
 from batch.executors import RayExecutor
 from batch.run import run_batch
-from batch.tasks import read_tasks
+from batch.tasks import TableFile
 
 def hwm():
     return int(next(l for l in Path("/proc/self/status").read_text().splitlines() if l.startswith("VmHWM")).split()[1]) / 1024
 
-t0 = time.perf_counter()
-tasks = read_tasks(sys.argv[1])
-read = (time.perf_counter() - t0, hwm())
+stages = {}
 ex = RayExecutor("local", num_cpus=2)
 started = hwm()
 t1 = time.perf_counter()
-s = run_batch(tasks, Path(sys.argv[2]), ex, overwrite=True)
+s = run_batch(TableFile.at(sys.argv[1]), Path(sys.argv[2]), ex, overwrite=True,
+              on_start=lambda todo, done: stages.update(start_s=time.perf_counter() - t1, start_mb=hwm()))
 ex.close()
-print(json.dumps({"tasks": len(tasks), "rows": s["rows"], "groups": s["groups"], "read_s": read[0], "read_mb": read[1],
-                  "ray_mb": started, "run_s": time.perf_counter() - t1, "peak_mb": hwm()}))
+print(json.dumps({"tasks": s["rows"], "rows": s["rows"], "groups": s["groups"], "ray_mb": started, "scan_s": stages["start_s"],
+                  "scan_mb": stages["start_mb"], "run_s": time.perf_counter() - t1, "peak_mb": hwm()}))
 """
 
 
@@ -124,32 +123,36 @@ def cpu_s(pid: int) -> float | None:
 def timed_run(tasks, executor, out: Path, pids: set[int]) -> tuple[float, float, set[int]]:
     """One whole batch on ``executor``: (tasks per second, CPU seconds of this process and of the
     workers, the worker pids). ``pids``: the workers seen before, whose CPU is read before the run
-    (a worker first seen in this run counts from its start)."""
+    (a worker first seen in this run counts from its start). On Ray the table's location is given,
+    as the command line does: the workers read it (Ray Data)."""
     import pyarrow.parquet as pq
 
+    from batch.executors import RayExecutor
     from batch.run import run_batch
 
+    table, location = tasks
     before = {p: cpu_s(p) or 0.0 for p in pids | {os.getpid()}}
     t0 = time.perf_counter()
-    s = run_batch(tasks, out, executor, overwrite=True)
+    s = run_batch(location if isinstance(executor, RayExecutor) else table, out, executor, overwrite=True)
     wall = time.perf_counter() - t0
-    assert s["rows"] == len(tasks)
+    assert s["rows"] == len(table)
     workers = {int(w.rsplit(":", 1)[1]) for w in pq.read_table(out, columns=["worker"]).column("worker").to_pylist()}
     cpu = sum((cpu_s(p) or 0.0) - before.get(p, 0.0) for p in workers | {os.getpid()})
-    return len(tasks) / wall, cpu, workers
+    return len(table) / wall, cpu, workers
 
 
 def run(recordings: int, frames: int, clicks: int, repeat: int) -> tuple[dict[str, dict], dict]:
     from batch.run import close_readers
     from batch.executors import InProcessExecutor, PoolExecutor, RayExecutor
-    from batch.tasks import read_tasks
+    from batch.tasks import TableFile, read_tasks
 
     tmp = Path(tempfile.mkdtemp(prefix="bench_batch_"))
     executors: dict = {}
     try:
         t0 = time.perf_counter()
-        tasks = read_tasks(make_archive(tmp, recordings, frames, clicks))
-        info = {"tasks": len(tasks), "archive_s": time.perf_counter() - t0}
+        path = make_archive(tmp, recordings, frames, clicks)
+        tasks = (read_tasks(path), TableFile.at(path))
+        info = {"tasks": len(tasks[0]), "archive_s": time.perf_counter() - t0}
         out = tmp / "results.parquet"
         executors = {"in-process": InProcessExecutor(), "pool 1": PoolExecutor(1), "pool 2": PoolExecutor(2)}
         startup: dict[str, float] = {}
@@ -211,12 +214,13 @@ def main(argv: list[str] | None = None) -> None:
         m = driver_memory(args.memory)
         text = "\n".join([
             MEMORY_SECTION, "",
-            f"`bench/bench_batch.py --memory {args.memory}`: the driver (`read_tasks` + `run_batch` on `RayExecutor('local', num_cpus=2)`, "
-            "a fresh interpreter) over a table of no-op-cheap tasks (every task on a frame its small recording does not hold: an error "
-            "row, no frame read). Peak RSS (VmHWM) of the driver process.", "",
-            "| tasks | groups | rows written | peak MB after reading the table | after starting Ray | at the end (run + merge) | read s | run s |",
+            f"`bench/bench_batch.py --memory {args.memory}`: the driver (`run_batch` of the table's location on "
+            "`RayExecutor('local', num_cpus=2)`: Ray Data, the workers read the table and write the parts; a fresh interpreter) over a "
+            "table of no-op-cheap tasks (every task on a frame its small recording does not hold: an error row, no frame read). Peak "
+            "RSS (VmHWM) of the driver process.", "",
+            "| tasks | partitions | rows written | peak MB after starting Ray | after the scan | at the end (run + merge) | scan s | run s |",
             "| --- | --- | --- | --- | --- | --- | --- | --- |",
-            f"| {m['tasks']} | {m['groups']} | {m['rows']} | {m['read_mb']:.0f} | {m['ray_mb']:.0f} | {m['peak_mb']:.0f} | {m['read_s']:.1f} | {m['run_s']:.1f} |",
+            f"| {m['tasks']} | {m['groups']} | {m['rows']} | {m['ray_mb']:.0f} | {m['scan_mb']:.0f} | {m['peak_mb']:.0f} | {m['scan_s']:.1f} | {m['run_s']:.1f} |",
             "", f"Machine: {machine()}; {started:%Y-%m-%d %H:%M} UTC; load average {os.getloadavg()[0]:.2f} at the end.", "",
         ])  # fmt: skip
         print(text)
@@ -249,9 +253,12 @@ def main(argv: list[str] | None = None) -> None:
         f"simulated rig (1280x720, {args.frames} frames each, made by the recorder) x {args.clicks} robust measurements per frame; "
         "one whole `run_batch` per run (read each frame once, measure, stream Parquet parts, merge), on workers that already ran "
         f"one batch; {args.repeat} runs per configuration, the configurations alternating run by run. Reference: the same batch "
-        "in this process. Ray: one local instance with 2 CPUs; its 1-worker row runs groups that reserve both CPUs. CPU: user + "
-        "system time of this process and the worker processes (/proc; Ray's own raylet and GCS not counted); cores = CPU "
-        "seconds per wall second, i.e. how much of the machine the run actually got.",
+        "in this process. Ray: Ray Data on one local instance with 2 CPUs, given the table's location as the command line does "
+        "(a worker scans and reads it, Ray Data sorts the tasks, one measuring actor per worker, the workers write the parts; "
+        "the actors are made for each run, so every Ray run pays their start); its 1-worker row has one measuring actor "
+        "reserving both CPUs. CPU: user + system time of this process and the measuring worker processes (/proc; Ray's raylet, "
+        "GCS and the read, sort and write tasks' processes not counted); cores = CPU seconds per wall second, i.e. how much "
+        "of the machine the run actually got.",
         "",
         "| executor | tasks/s median | best | range | median / in-process | CPU ms per task | cores used | first batch incl. start-up | note |",
         "| --- | --- | --- | --- | --- | --- | --- | --- | --- |",

@@ -61,28 +61,26 @@ def run_command(
     from batch.executors import make_executor
     from batch.history import history_tasks
     from batch.run import close_readers, default_options, run_batch
-    from batch.tasks import read_tasks
+    from batch.tasks import TableFile, read_tasks
 
     if (tasks_file is None) == (from_history is None):
         raise _fail("give a TASKS table or --from-history DB (one of them)")
     try:
         defaults = default_options(set_)
-        tasks = history_tasks(from_history) if from_history else read_tasks(tasks_file)
+        # on Ray the workers read the table (Ray Data); here only its location is known
+        tasks = history_tasks(from_history) if from_history else (TableFile.at(tasks_file) if ray else read_tasks(tasks_file))
         executor = make_executor(workers, ray)
     except BatchError as exc:  # a bad table, option or executor: the message says what to change
         raise _fail(str(exc)) from None
-    errors = 0
     progress = _progress()  # shown once the results store is open: a bad --out is refused before it
-    bar = progress.add_task("measuring", total=len(tasks))
+    bar = progress.add_task("measuring", total=None)
 
     def started(todo: int, skipped: int) -> None:
         progress.start()
         progress.update(bar, total=todo)
-        progress.console.print(f"{len(tasks)} tasks, {skipped} already done; running {todo} {executor.describe()}", soft_wrap=True)
+        progress.console.print(f"{todo + skipped} tasks, {skipped} already done; running {todo} {executor.describe()}", soft_wrap=True)
 
     def group_done(result) -> None:  # noqa: ANN001 — a batch.rows.GroupResult
-        nonlocal errors
-        errors += result.errors
         progress.advance(bar, result.rows)
 
     try:
@@ -96,7 +94,7 @@ def run_command(
         close_readers()
     rate = summary["measured"] / summary["wall_s"] if summary["wall_s"] > 0 else float("nan")
     typer.echo(
-        f"{summary['measured']} tasks measured ({errors} error rows) in {summary['wall_s']:.1f} s ({rate:.1f} tasks/s), "
+        f"{summary['measured']} tasks measured ({summary['error_rows']} error rows) in {summary['wall_s']:.1f} s ({rate:.1f} tasks/s), "
         f"{summary['skipped']} kept from before; {summary['rows']} rows in {out}"
     )
     typer.echo(error_summary(summary["errors"]))

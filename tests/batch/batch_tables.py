@@ -74,3 +74,21 @@ def depthruler(args: list[str], env: dict[str, str] | None = None, preexec_fn=No
         out.seek(0)
         err.seek(0)
         return subprocess.CompletedProcess(proc.args, proc.returncode, out.read(), err.read())
+
+
+def killed_after_first_part(args: list[str], parts: Path, timeout: float = 300) -> int:
+    """`depthruler ARGS` in a session of its own, killed with SIGKILL (its whole session: a pool's or a
+    private Ray's processes too) once a first part is in ``parts``; its return code."""
+    import time
+
+    env = {**os.environ, "PYTHONPATH": os.pathsep.join([str(ROOT), os.environ.get("PYTHONPATH", "")])}
+    proc = subprocess.Popen([sys.executable, "-m", "cli.main", *args], env=env, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL,
+                            start_new_session=True)  # fmt: skip
+    try:
+        deadline = time.monotonic() + timeout
+        while not list(parts.glob("part-*.parquet")) and proc.poll() is None and time.monotonic() < deadline:
+            time.sleep(0.01)
+        os.killpg(proc.pid, signal.SIGKILL)
+    finally:
+        proc.wait(timeout=60)
+    return proc.returncode

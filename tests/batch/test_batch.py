@@ -8,16 +8,13 @@ import json
 import math
 import os
 import signal
-import subprocess
-import sys
-import time
 
 import numpy as np
 import pyarrow.parquet as pq
 import pytest
 from typer.testing import CliRunner
 
-from batch_tables import ROOT, invoke, stable, truth, write_tasks
+from batch_tables import invoke, killed_after_first_part, stable, truth, write_tasks
 from batch.diff import diff_results
 from batch.executors import InProcessExecutor, PoolExecutor, RayExecutor, make_executor
 from batch.run import close_readers, run_batch
@@ -41,7 +38,7 @@ def test_same_results_in_process_pool_and_ray(archive, tmp_path, ray_session):
     # Ray through the command line: --ray auto joins the session's Ray instance (2 CPUs)
     outs["ray"] = tmp_path / "ray.parquet"
     res = invoke(["batch", str(tasks_csv), "--out", str(outs["ray"]), "--ray", "auto"])
-    assert "on Ray (2 CPUs on 1 node(s), 2 groups at a time)" in res and f"{len(tasks)} tasks measured (1 error rows)" in res
+    assert "on Ray (2 CPUs on 1 node(s), 2 workers)" in res and f"{len(tasks)} tasks measured (1 error rows)" in res
     assert ray_session.is_initialized()  # the command did not shut down a Ray it did not start
     ref = stable(outs["inproc"])
     assert [r["task"] for r in ref] == list(range(len(tasks)))
@@ -95,17 +92,8 @@ def test_resume_after_a_killed_run(archive, tmp_path):
     n = len(read_tasks(tasks_csv))
     out = tmp_path / "r.parquet"
     parts = tmp_path / "r.parquet.parts"
-    env = {**os.environ, "PYTHONPATH": os.pathsep.join([str(ROOT), os.environ.get("PYTHONPATH", "")])}
-    cmd = [sys.executable, "-m", "cli.main", "batch", str(tasks_csv), "--out", str(out), "--workers", "1"]
-    proc = subprocess.Popen(cmd, env=env, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, start_new_session=True)
-    try:
-        deadline = time.monotonic() + 120
-        while not list(parts.glob("part-*.parquet")) and proc.poll() is None and time.monotonic() < deadline:
-            time.sleep(0.01)
-        os.killpg(proc.pid, signal.SIGKILL)
-    finally:
-        proc.wait(timeout=30)
-    assert proc.returncode == -signal.SIGKILL, "the run ended before it could be killed"
+    killed = killed_after_first_part(["batch", str(tasks_csv), "--out", str(out), "--workers", "1"], parts, timeout=120)
+    assert killed == -signal.SIGKILL, "the run ended before it could be killed"
     assert not out.exists()
     before = pq.read_table(parts).to_pylist() if parts.is_dir() else []
     done = {r["task"] for r in before}

@@ -15,7 +15,8 @@ from batch.executors import InProcessExecutor, PoolExecutor, RayExecutor
 from batch.run import close_readers, run_batch
 from batch.rows import flatten
 from batch.schema import (
-    BOX_DIMENSIONS, BOX_SPLIT, BOX_TYPES, SHAPE_IN_TASK, SHAPE_SHARED, SHAPE_TYPES, measurement_column, result_schema, shape_columns,
+    BOX_DIMENSIONS, BOX_SPLIT, BOX_TYPES, SHAPE_IN_TASK, SHAPE_SHARED, SHAPE_TYPES, extra_types, measurement_column, result_schema,
+    shape_columns,
 )
 from batch.tasks import read_tasks
 from batch_tables import invoke, stable, truth
@@ -110,7 +111,7 @@ def test_a_mixed_table_gives_the_same_rows_on_every_executor(archive, shape_rec,
     assert results["pool"] == rows and results["ray"] == rows and [r["task"] for r in rows] == list(range(len(asks)))
     # one schema, every column in every row, of every kind
     schema = pq.read_schema(tmp_path / "inproc.parquet")
-    assert schema.names == result_schema({"label": list(asks)}).names
+    assert schema.names == result_schema(extra_types({"label": list(asks)})).names
     assert {"value", "unit", "uncertainty", "interval", "length_sigma_m", "height_interval_m"} <= set(schema.names)
     frames = {(str(archive / "rec_poster"), i): open_recording(archive / "rec_poster").frame(i) for i in (0, 1)}
     frames |= {(str(shapes), i): open_recording(shapes).frame(i) for i in (0, 1)}
@@ -189,7 +190,7 @@ def _history(db, shapes, box, panel, poster) -> dict[int, dict]:
 
 
 @pytest.mark.slow
-def test_from_history_re_measures_every_kind_to_the_stored_answer(archive, shape_rec, tmp_path):
+def test_from_history_re_measures_every_kind_to_the_stored_answer(archive, shape_rec, tmp_path, ray_session):
     shapes, box, panel = shape_rec
     db = tmp_path / "history.db"
     stored = _history(db, shapes, box, panel, archive / "rec_poster")
@@ -217,6 +218,12 @@ def test_from_history_re_measures_every_kind_to_the_stored_answer(archive, shape
     heights = [r for r in rows if r["kind"] == "height"]
     assert heights[0]["on"] is None and heights[1]["on"] == [[box.click_px[0], 260.0]]
     assert np.isclose(heights[1]["value"], box.height_m, rtol=0.02)
+    # on Ray (Ray Data, the history's tasks sent from here, its saved frames read by the workers): the same rows
+    from batch.history import history_tasks
+
+    with RayExecutor() as ex:
+        run_batch(history_tasks(db), tmp_path / "ray.parquet", ex)
+    assert stable(tmp_path / "ray.parquet") == stable(out)
     close_readers()
 
 

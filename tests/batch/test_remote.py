@@ -8,7 +8,7 @@ import shutil
 import pytest
 from moto import server as moto_server
 
-from batch_tables import invoke, stable, write_tasks
+from batch_tables import depthruler, invoke, stable, write_tasks
 
 
 @pytest.fixture
@@ -34,19 +34,28 @@ def s3(monkeypatch, tmp_path):
     server.stop()
 
 
-def test_tasks_and_recordings_on_s3_give_the_local_rows(archive, s3, tmp_path):
+WHERE = {"source", "task_key", "error"}  # the error message names the recording's path or URL
+
+
+def _archive_on_s3(archive, s3, tmp_path):
+    """The two recordings and a table of 17 tasks (one on a frame not recorded) on disk and in the
+    bucket; the local run's results."""
     local = tmp_path / "local"
     for name in ("rec_poster", "rec_tilted"):
         shutil.copytree(archive / name, local / name)
     table = write_tasks(local / "tasks.csv", local, methods=("robust",), extra_rows=[["rec_poster", 9, 10, 10, 100, 100, "robust", "missing"]])
     s3.put(str(local) + "/", "archive/", recursive=True)
     assert s3.exists("archive/rec_poster/recording.json") or s3.ls("archive/rec_poster")
-    ref, got = tmp_path / "ref.parquet", tmp_path / "s3.parquet"
+    ref = tmp_path / "ref.parquet"
     invoke(["batch", str(table), "--out", str(ref), "--workers", "1"])
+    return ref
+
+
+def test_tasks_and_recordings_on_s3_give_the_local_rows(archive, s3, tmp_path):
+    ref, got = _archive_on_s3(archive, s3, tmp_path), tmp_path / "s3.parquet"
     res = invoke(["batch", "s3://archive/tasks.csv", "--out", str(got), "--workers", "2"])
     assert "17 tasks measured (1 error rows)" in res
-    where = {"source", "task_key", "error"}  # the error message names the recording's path or URL
-    want, have = stable(ref, drop=where), stable(got, drop=where)
+    want, have = stable(ref, drop=WHERE), stable(got, drop=WHERE)
     assert len(have) == 17 and have == want
     assert "frame 9 is not in" in stable(got)[16]["error"]
     assert {r["source"] for r in stable(got)} == {"replay:s3://archive/rec_poster", "replay:s3://archive/rec_tilted"}
@@ -57,6 +66,18 @@ def test_tasks_and_recordings_on_s3_give_the_local_rows(archive, s3, tmp_path):
     res = invoke(["batch", "s3://archive/tasks.csv", "--out", str(tmp_path / "again.parquet"), "--workers", "1"])
     errors = [r for r in stable(tmp_path / "again.parquet") if r["error"]]
     assert len(errors) == 1 + 8 and all("rec_tilted" in r["error"] or "frame 9" in r["error"] for r in errors)
+
+
+@pytest.mark.slow
+def test_on_ray_data_the_workers_read_table_and_recordings_from_s3(archive, s3, tmp_path):
+    """--ray local: a worker scans the table at its URL, Ray Data's read tasks parse it and the
+    measuring workers fetch the recordings; the rows equal the local run's."""
+    ref, got = _archive_on_s3(archive, s3, tmp_path), tmp_path / "s3.parquet"
+    proc = depthruler(["batch", "s3://archive/tasks.csv", "--out", str(got), "--ray", "local", "--workers", "2"])
+    assert proc.returncode == 0, proc.stdout + proc.stderr
+    assert "17 tasks measured (1 error rows)" in " ".join(proc.stdout.split())
+    assert stable(got, drop=WHERE) == stable(ref, drop=WHERE)
+    assert {r["source"] for r in stable(got)} == {"replay:s3://archive/rec_poster", "replay:s3://archive/rec_tilted"}
 
 
 def test_a_missing_table_url_is_a_one_line_error(s3, tmp_path):

@@ -97,6 +97,35 @@ def test_every_bad_row_is_an_error_row_naming_its_field(archive, tmp_path):
     assert {k: int(v) for k, v in fields.items()} == {"frame": 7, "p1_x": 2, "p1_y": 1, "p2_x": 1, "p2_y": 1, "source": 2, "method": 1}
 
 
+@pytest.mark.slow
+def test_on_ray_data_the_workers_parse_bad_rows_as_this_process_does(archive, tmp_path, ray_session):
+    """On Ray the workers read and parse the table (Ray Data): a CSV of every kind of bad cell, a
+    JSONL table with lines that are no objects and a Parquet table of several row groups (read by
+    several tasks, row numbers continued across them) give the rows of a run in this process."""
+    import pyarrow as pa
+
+    from batch.executors import RayExecutor
+    from batch.tasks import TableFile
+
+    rec = archive / "rec_poster"
+    t = truth(rec, 0)
+    tables = [tmp_path / "mixed.csv", tmp_path / "lines.jsonl", tmp_path / "groups.parquet"]
+    _table(tables[0], str(rec), (t["p1_px"], t["p2_px"]), _bad_rows(str(rec), t["p1_px"], t["p2_px"]))
+    with tables[0].open(newline="") as fh:
+        rows = list(csv.DictReader(fh))
+    tables[1].write_text("".join(json.dumps(r) + "\n" if k % 5 else "[1, 2]\n" for k, r in enumerate(rows)))
+    pq.write_table(pa.Table.from_pylist(rows), tables[2], row_group_size=4)
+    assert pq.ParquetFile(tables[2]).metadata.num_row_groups == 6
+    with RayExecutor() as ray_ex:
+        for table in tables:
+            with InProcessExecutor() as ex:
+                run_batch(read_tasks(table), tmp_path / f"{table.stem}-here.parquet", ex)
+            summary = run_batch(TableFile.at(table), tmp_path / f"{table.stem}-ray.parquet", ray_ex)
+            assert summary["rows"] == len(rows) and summary["error_rows"] > 0, table.name
+            assert stable(tmp_path / f"{table.stem}-ray.parquet") == stable(tmp_path / f"{table.stem}-here.parquet"), table.name
+    close_readers()
+
+
 def test_jsonl_and_parquet_tables_with_bad_rows(archive, tmp_path):
     rec = str(archive / "rec_poster")
     t = truth(archive / "rec_poster", 0)
