@@ -91,8 +91,12 @@ def create_app(source: str | Callable[[], Source], settings: ServerConfig | None
         _warm_up_measurement()
         # The objects of the imports and the app live as long as the process: keep them out of the
         # collector's full passes, which otherwise stop every thread (docs/decisions/service-speed.md).
-        gc.collect()
-        gc.freeze()
+        # Frozen already (by the program that runs this app, or by an app serving in this process):
+        # left as it is, so neither a full pass is paid again nor the other's objects unfrozen at the end.
+        freezes = gc.get_freeze_count() == 0
+        if freezes:
+            gc.collect()
+            gc.freeze()
         capture.start()
         try:
             yield
@@ -102,7 +106,8 @@ def create_app(source: str | Callable[[], Source], settings: ServerConfig | None
             capture.stop()
             measures.close()
             store.close()
-            gc.unfreeze()  # a process that builds apps one after another (the tests) can free them again
+            if freezes:
+                gc.unfreeze()  # a process that builds apps one after another can free them again
 
     app = FastAPI(title="depthruler", summary="Click two points, get a robust 3D length.", lifespan=lifespan)
     app.state.service = state

@@ -2,14 +2,18 @@
 ``docs/test-times.md`` (docs/testing.md explains the folders and the fast loop it measures).
 
     python -m pytest --durations=0 -p no:cacheprovider > /tmp/full.txt
-    python tests/durations.py --run today=/tmp/full.txt [--run before=/tmp/old.txt] --out docs/test-times.md
+    python tests/durations.py --run today=/tmp/full.txt [--run before=/tmp/old.txt] --fast [--out docs/test-times.md]
 
 A test's time is the sum of its setup, call and teardown (a module- or session-scoped fixture is paid
-in the setup of the first test that asks for it, as pytest reports it). For each run the note gives
-the total, the share of the slowest 22 tests, the share of ``-m "not slow"`` and of the fast loop
-(both selections collected here, on the current tree, matched by file basename and test id, so a run
-logged before a file moved between folders still counts) and pytest's own session time; collection is
-timed here with ``pytest --collect-only``. Figures are this machine's on the date written.
+in the setup of the first test that asks for it, as pytest reports it); its CPU seconds are those
+``tests/cpu_times.py`` prints with ``--durations`` (the host is shared: CPU seconds move far less with
+its load than wall seconds, and each run's load average is given). For each run the note gives the
+totals, the share of the slowest 22 tests, the share of ``-m "not slow"`` and of the fast loop (both
+selections collected here, on the current tree, matched by file basename and test id, so a run logged
+before a file moved between folders still counts) and pytest's own session time; collection is timed
+here with ``pytest --collect-only``. ``--fast`` runs the fast loop's command once here and writes its
+wall and CPU seconds and the load beside it (``--fast-log LOG`` reads a log of that command instead).
+Figures are this machine's on the date written.
 """
 
 from __future__ import annotations
@@ -21,33 +25,56 @@ import platform
 import re
 import subprocess
 import sys
+import tempfile
 from collections import Counter
+from dataclasses import dataclass
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
 DURATION = re.compile(r"^(\d+\.\d+)s (setup|call|teardown)\s+(\S.*)$")
+CPU = re.compile(r"^(\d+\.\d+)s cpu (\S.*)$")  # tests/cpu_times.py's line per test
+# ... and its closing line: the CPU of the whole run (with xdist's workers, once they have ended) and the load
+RUN_LINE = re.compile(r"^run: .*, (\d+\.\d+)s cpu in this process and its ended children, load (\d+\.\d+)-(\d+\.\d+) ")
 # the summary line, framed by "=" or, with -q (addopts), bare
 SESSION = re.compile(r"^(?:=+ )?(.*) in (\d+\.\d+)s( \([\d:]+\))?(?: =+)?$")
 COLLECTED = re.compile(r"(\d+)(?:/\d+)? tests? collected(?: \(\d+ deselected\))? in (\d+\.\d+)s")
-# The fast loop of docs/testing.md (keep the two the same).
+# The fast loop of docs/testing.md: its selection, and the command that runs it on two workers (a
+# worker takes a whole file, so a module's shared fixture is made once).
 FAST_LOOP = ["-m", "not slow and not integration and not study and not browser"]
+FAST_LOOP_COMMAND = ["-n", "2", "--dist", "loadfile", *FAST_LOOP]
 SLOWEST = 22
 
 
-def parse_log(text: str) -> tuple[Counter, str, float | None]:
-    """Per test node id its seconds (setup + call + teardown), the final summary ("663 passed, ...")
-    and pytest's session seconds, from a ``--durations=0`` log."""
-    per_test: Counter = Counter()
-    summary, session = "", None
+@dataclass(frozen=True)
+class Run:
+    """One ``--durations=0`` log: per node id its wall seconds (setup + call + teardown) and CPU seconds,
+    the final summary ("663 passed, ..."), pytest's session seconds, the whole run's CPU seconds
+    (collection included) and the load average's range."""
+
+    wall: Counter
+    cpu: Counter
+    summary: str
+    session: float | None
+    run_cpu: float | None
+    load: tuple[float, float] | None
+
+
+def parse_log(text: str) -> Run:
+    """The figures of a ``pytest --durations=0`` log (CPU and load only where tests/cpu_times.py ran)."""
+    wall: Counter = Counter()
+    cpu: Counter = Counter()
+    summary, session, run_cpu, load = "", None, None, None
     for line in text.splitlines():
-        m = DURATION.match(line.strip())
-        if m:
-            per_test[m.group(3).strip()] += float(m.group(1))
-            continue
-        m = SESSION.match(line.strip())
-        if m and ("passed" in m.group(1) or "failed" in m.group(1)):
+        line = line.strip()
+        if m := DURATION.match(line):
+            wall[m.group(3).strip()] += float(m.group(1))
+        elif m := CPU.match(line):
+            cpu[m.group(2).strip()] += float(m.group(1))
+        elif m := RUN_LINE.match(line):
+            run_cpu, load = float(m.group(1)), (float(m.group(2)), float(m.group(3)))
+        elif (m := SESSION.match(line)) and ("passed" in m.group(1) or "failed" in m.group(1)):
             summary, session = m.group(1), float(m.group(2))
-    return per_test, summary, session
+    return Run(wall, cpu, summary, session, run_cpu, load)
 
 
 def collect(*args: str) -> tuple[set[str], float]:
@@ -76,7 +103,40 @@ def share(per_test: Counter, ids: set[str]) -> float:
     return sum(s for node, s in per_test.items() if key(node) in keys) / total if total else 0.0
 
 
-def report(runs: dict[str, str]) -> str:
+def top_share(per_test: Counter) -> float:
+    total = sum(per_test.values())
+    return sum(s for _, s in per_test.most_common(SLOWEST)) / total if total else 0.0
+
+
+def run_fast_loop(log: Path) -> str:
+    """Run the fast loop's command once here, its output into ``log``; returns the log's text."""
+    cmd = [sys.executable, "-m", "pytest", *FAST_LOOP_COMMAND, "--durations=0", "-p", "no:cacheprovider"]
+    with log.open("w") as out:
+        subprocess.run(cmd, cwd=ROOT, stdout=out, stderr=subprocess.STDOUT, check=False)
+    return log.read_text(errors="replace")
+
+
+def fast_loop_lines(text: str) -> list[str]:
+    """The note's paragraph on a log of the fast loop's command."""
+    run = parse_log(text)
+    load = f"{run.load[0]:.1f}-{run.load[1]:.1f}" if run.load else "not logged"
+    command = " ".join(f'"{a}"' if " " in a else a for a in FAST_LOOP_COMMAND)
+    return [
+        "## The fast loop",
+        "",
+        f"`.venv/bin/python -m pytest {command}`: {run.summary or 'no summary line'} in "
+        f"{run.session if run.session is not None else 'n/a'} s wall on {os.cpu_count()} CPUs, "
+        f"{sum(run.cpu.values()):.1f} s of CPU in its tests, {run.run_cpu if run.run_cpu is not None else 'n/a'} s in the "
+        f"whole run (collection and the workers' start included); the host's 1-minute load average was {load} "
+        "while it ran (other programs share the machine).",
+        "",
+        "| seconds | cpu | slowest in the fast loop |",
+        "| --- | --- | --- |",
+        *(f"| {s:.1f} | {run.cpu.get(node, 0.0):.1f} | `{node}` |" for node, s in run.wall.most_common(10)),
+    ]
+
+
+def report(runs: dict[str, str], fast_text: str | None = None) -> str:
     not_slow, _ = collect("-m", "not slow")
     fast, _ = collect(*FAST_LOOP)
     _, collect_s = collect()
@@ -88,21 +148,28 @@ def report(runs: dict[str, str]) -> str:
         "out and which command is the fast loop: [Testing](testing.md).",
         "",
         f"Collecting the whole suite on today's tree: {collect_s:.1f} s. Shares are of the summed test time "
-        f"(setup + call + teardown); the selections are collected on today's tree ({len(not_slow)} tests "
-        f"`-m \"not slow\"`, {len(fast)} in the fast loop).",
+        f"(setup + call + teardown), in wall seconds and in CPU seconds; the selections are collected on "
+        f"today's tree ({len(not_slow)} tests `-m \"not slow\"`, {len(fast)} in the fast loop).",
         "",
-        "| run | result | session (s) | summed tests (s) | slowest 22 | `-m \"not slow\"` | fast loop |",
-        "| --- | --- | --- | --- | --- | --- | --- |",
+        "| run | result | session (s) | load | summed tests (s) | CPU (s) | slowest 22 | slowest 22, CPU | "
+        "`-m \"not slow\"` | fast loop |",
+        "| --- | --- | --- | --- | --- | --- | --- | --- | --- | --- |",
     ]
     slowest_tables = []
     for label, path in runs.items():
-        per_test, summary, session = parse_log(Path(path).read_text(errors="replace"))
-        total = sum(per_test.values())
-        top = per_test.most_common(SLOWEST)
-        lines.append(f"| {label} | {summary or f'{len(per_test)} tests timed'} | {session if session is not None else 'n/a'} | {total:.1f} | "
-                     f"{sum(s for _, s in top) / total:.1%} | {share(per_test, not_slow):.1%} | {share(per_test, fast):.1%} |")
-        slowest_tables += ["", f"## Slowest {SLOWEST}: {label}", "", "| seconds | test |", "| --- | --- |"]
-        slowest_tables += [f"| {s:.1f} | `{node}` |" for node, s in top]
+        run = parse_log(Path(path).read_text(errors="replace"))
+        total = sum(run.wall.values())
+        load = f"{run.load[0]:.1f}-{run.load[1]:.1f}" if run.load else "n/a"
+        cpu = f"{sum(run.cpu.values()):.1f}" if run.cpu else "n/a"
+        cpu_top = f"{top_share(run.cpu):.1%}" if run.cpu else "n/a"
+        lines.append(f"| {label} | {run.summary or f'{len(run.wall)} tests timed'} | {run.session if run.session is not None else 'n/a'} | "
+                     f"{load} | {total:.1f} | {cpu} | {top_share(run.wall):.1%} | {cpu_top} | {share(run.wall, not_slow):.1%} | "
+                     f"{share(run.wall, fast):.1%} |")
+        slowest_tables += ["", f"## Slowest {SLOWEST}: {label}", "", "| seconds | cpu | test |", "| --- | --- | --- |"]
+        slowest_tables += [f"| {s:.1f} | {run.cpu[node]:.1f} | `{node}` |" if run.cpu else f"| {s:.1f} | n/a | `{node}` |"
+                           for node, s in run.wall.most_common(SLOWEST)]
+    if fast_text is not None:
+        slowest_tables = ["", *fast_loop_lines(fast_text), *slowest_tables]
     return "\n".join(lines + slowest_tables) + "\n"
 
 
@@ -110,10 +177,18 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--run", action="append", required=True, metavar="LABEL=LOG",
                         help="a label and the log of a `pytest -q --durations=0` run; repeat to compare runs")
+    parser.add_argument("--fast", action="store_true", help="run the fast loop's command once here and give its times")
+    parser.add_argument("--fast-log", type=Path, metavar="LOG", help="a log of the fast loop's command with --durations=0, instead of --fast")
     parser.add_argument("--out", type=Path, default=ROOT / "docs" / "test-times.md")
     args = parser.parse_args()
     runs = dict(r.split("=", 1) for r in args.run)
-    args.out.write_text(report(runs))
+    fast_text = None
+    if args.fast_log is not None:
+        fast_text = args.fast_log.read_text(errors="replace")
+    elif args.fast:
+        with tempfile.TemporaryDirectory() as tmp:
+            fast_text = run_fast_loop(Path(tmp) / "fast.txt")
+    args.out.write_text(report(runs, fast_text))
     print(args.out)
 
 

@@ -37,10 +37,15 @@ def shape_rec(tmp_path_factory):
 
 @pytest.fixture(scope="session")
 def ray_session():
-    """One local Ray instance with 2 CPUs for the whole session (starting Ray costs seconds)."""
+    """One local Ray instance with 2 CPUs for the whole session (starting Ray costs seconds), keeping
+    its idle worker processes as ``--ray local`` does (Ray's default kills one idle for 1 s, and the
+    next task waits for a new process and its imports)."""
     import ray
 
+    from batch.executors import IDLE_WORKER_MS
+
     if not ray.is_initialized():
-        ray.init(address="local", num_cpus=2, include_dashboard=False, log_to_driver=False)  # never a Ray another program runs here
+        ray.init(address="local", num_cpus=2, include_dashboard=False, log_to_driver=False,  # never a Ray another program runs here
+                 _system_config={"idle_worker_killing_time_threshold_ms": IDLE_WORKER_MS})
     yield ray
     ray.shutdown()

@@ -374,14 +374,16 @@ class _CountingItems:
             yield i
 
 
-def test_executors_keep_a_bounded_window_of_groups_in_flight(ray_session):
+@pytest.mark.parametrize("executor", ["pool", pytest.param("ray", marks=pytest.mark.slow)])  # Ray's start is the full suite's
+def test_executors_keep_a_bounded_window_of_groups_in_flight(executor, request):
     from batch.executors import PoolExecutor, RayExecutor, window
 
-    for make in (lambda: PoolExecutor(2), lambda: RayExecutor()):
-        items = _CountingItems(40)
-        with make() as ex:
-            stream = ex.imap(json.dumps, items)
-            next(stream)
-            assert items.taken <= window(ex.workers) + 1 < 40
-            rest = sorted(i for i, _ in stream)
-        assert items.taken == 40 and len(rest) == 39
+    if executor == "ray":
+        request.getfixturevalue("ray_session")
+    items = _CountingItems(40)
+    with (PoolExecutor(2) if executor == "pool" else RayExecutor()) as ex:
+        stream = ex.imap(json.dumps, items)
+        next(stream)
+        assert items.taken <= window(ex.workers) + 1 < 40
+        rest = sorted(i for i, _ in stream)
+    assert items.taken == 40 and len(rest) == 39

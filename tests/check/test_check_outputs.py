@@ -151,6 +151,7 @@ def test_board_options_name_what_is_wrong(args, hint, fragment, tmp_path):
     assert "marker side" not in text  # the marker is not blamed for a bad square
 
 
+@pytest.mark.slow  # the interval's coverage over 200+ pairs through a real matcher, on 4 stereo frames: a study
 def test_the_command_on_the_simulators_stereo_board_covers_and_flags_a_baseline_that_does_not():
     """`depthruler check --source sim:charuco?mode=stereo...` with no board options finds the scene's own board
     (as the doctor and the page do); its exact corners' truth falls inside the 95 % interval for 80-99 % of

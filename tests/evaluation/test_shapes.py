@@ -54,6 +54,7 @@ def test_plan_draws_each_profile_from_the_same_seeds():
     assert jobs[0] == ShapeJob("box", 10, "stress", 640, 360)
 
 
+@pytest.mark.slow  # a study of 11 rendered shapes per seed: the full suite's, not the fast loop's
 @pytest.mark.parametrize("base", [0, 50])
 def test_reduced_study_holds_the_honesty_and_area_targets(base, tmp_path):
     records = run(plan(8, 3, base, ("stress",), 640, 360), workers=1)

@@ -4,6 +4,7 @@ thumbnails off the measuring path, frames presaved when frozen; and newer Measur
 from __future__ import annotations
 
 import csv
+import gc
 import io
 import time
 
@@ -32,6 +33,32 @@ def test_history_list_is_slim_and_paginated(tmp_path):
         assert [m["id"] for m in nxt] == ids[::-1][3:6]
         last = c.get("/api/measurements", params={"limit": 3, "before": nxt[-1]["id"]}).json()
         assert [m["id"] for m in last] == ids[:1]
+
+
+def test_the_collector_is_frozen_while_serving_once_per_process(tmp_path, monkeypatch):
+    """The app freezes the collector's view while it serves and unfreezes it when it stops; an app
+    started while the view is frozen already (another app serving, or the program that runs it: this
+    suite's conftest after collection) leaves it as it is, so it pays no full pass and does not unfreeze
+    the other's objects when it stops."""
+    (tmp_path / "a").mkdir()
+    (tmp_path / "b").mkdir()
+    full_passes: list[tuple] = []
+    collect = gc.collect
+    monkeypatch.setattr(gc, "collect", lambda *a: full_passes.append(a) or collect(*a))
+    frozen_by_the_suite = gc.get_freeze_count() > 0
+    gc.unfreeze()
+    try:
+        with make_client(tmp_path / "a") as first:
+            latest(first)
+            assert len(full_passes) == 1 and gc.get_freeze_count() > 0
+            with make_client(tmp_path / "b") as second:
+                latest(second)
+            assert len(full_passes) == 1  # the second app paid no full pass ...
+            assert gc.get_freeze_count() > 0  # ... and its end left the first's objects frozen
+        assert gc.get_freeze_count() == 0
+    finally:
+        if frozen_by_the_suite:
+            gc.freeze()
 
 
 def test_live_view_jpeg_and_exact_png(tmp_path):

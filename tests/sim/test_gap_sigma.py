@@ -30,6 +30,7 @@ def answers():
     return out
 
 
+@pytest.mark.slow  # a coverage study over 16 rendered scenes: the full suite's, not the fast loop's
 def test_two_sigma_covers_gaps_as_claimed(answers):
     ratio = np.array([abs(e.distance_m - g) / e.uncertainty_m for _, _, g, _, e in answers])
     assert np.mean(ratio <= 2.0) >= 0.85, ratio
@@ -38,6 +39,7 @@ def test_two_sigma_covers_gaps_as_claimed(answers):
     assert all(abs(m.distance_m - g) <= 2 * m.uncertainty_m for _, _, g, m, _ in answers if m.gap_detected)
 
 
+@pytest.mark.slow  # a coverage study over 16 rendered scenes: the full suite's, not the fast loop's
 def test_sigma_falls_as_the_camera_comes_closer(answers):
     # Medians over distance bands, with the clicks' error a person's (1.5 px): both the click term and
     # the end surfaces' depth errors shrink with the depth.
@@ -48,6 +50,7 @@ def test_sigma_falls_as_the_camera_comes_closer(answers):
         assert sig(1.5, 2.0) < sig(3.0, 3.0) < sig(5.0, 5.0), scene
 
 
+@pytest.mark.slow  # a coverage study over 16 rendered scenes: the full suite's, not the fast loop's
 def test_near_gaps_are_good_and_right(answers):
     near = [(g, m) for _, d, g, m, _ in answers if d <= 3.0]
     good = [(g, m) for g, m in near if m.quality == "good"]

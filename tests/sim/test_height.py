@@ -26,6 +26,7 @@ def heights():
     return out
 
 
+@pytest.mark.slow  # a study over 12 rendered boxes (median error, 2-sigma coverage): the full suite's, not the fast loop's
 def test_height_above_the_plane_found_under_the_point(heights):
     err = np.array([100 * (m.value - c.height_m) / c.height_m for c, m in heights])
     assert np.median(np.abs(err)) <= 1.0, err
@@ -39,6 +40,7 @@ def test_height_above_the_plane_found_under_the_point(heights):
         assert np.linalg.norm(top - foot) == pytest.approx(m.value, rel=1e-6)
 
 
+@pytest.mark.slow  # a study over 12 rendered boxes (median error, 2-sigma coverage): the full suite's, not the fast loop's
 def test_height_sigma_covers_the_truth(heights):
     z = np.array([abs(m.value - c.height_m) / m.uncertainty for c, m in heights])
     assert np.mean(z <= 2.0) >= 0.75, z

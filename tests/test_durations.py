@@ -1,0 +1,74 @@
+"""The test-time tooling (docs/testing.md, "Where the time goes"): tests/cpu_times.py gives each test the
+CPU seconds it cost, with and without pytest-xdist, and tests/durations.py reads them back with the
+wall seconds, the run's CPU and its load."""
+
+from __future__ import annotations
+
+import subprocess
+import sys
+import textwrap
+
+import pytest
+
+from durations import FAST_LOOP, FAST_LOOP_COMMAND, ROOT, parse_log, top_share
+
+LOG = """\
+........ [100%]
+========================== cpu seconds per test (all) ==========================
+2.50s cpu tests/a/test_a.py::test_burn
+0.01s cpu tests/a/test_a.py::test_sleep[x y]
+run: 4.0s wall, 2.5s cpu in tests, 3.1s cpu in this process and its ended children, load 1.5-7.2 (1-minute average, 2 samples, start 1.5, end 7.2)
+============================== slowest durations ===============================
+2.40s call     tests/a/test_a.py::test_burn
+0.30s setup    tests/a/test_a.py::test_burn
+1.00s call     tests/a/test_a.py::test_sleep[x y]
+2 passed in 4.02s
+"""
+
+
+def test_the_log_gives_wall_cpu_load_and_summary():
+    run = parse_log(LOG)
+    assert run.wall == {"tests/a/test_a.py::test_burn": pytest.approx(2.7), "tests/a/test_a.py::test_sleep[x y]": 1.0}
+    assert run.cpu == {"tests/a/test_a.py::test_burn": 2.5, "tests/a/test_a.py::test_sleep[x y]": 0.01}
+    assert (run.summary, run.session, run.run_cpu, run.load) == ("2 passed", 4.02, 3.1, (1.5, 7.2))
+    assert top_share(run.wall) == 1.0
+
+
+def test_a_log_without_the_plugin_still_reads():
+    run = parse_log("1.00s call     tests/t.py::test_x\n1 passed in 1.10s\n")
+    assert (dict(run.wall), dict(run.cpu), run.run_cpu, run.load) == ({"tests/t.py::test_x": 1.0}, {}, None, None)
+
+
+def test_the_fast_loop_command_selects_the_fast_loop():
+    assert FAST_LOOP_COMMAND[-len(FAST_LOOP):] == FAST_LOOP and "-n" in FAST_LOOP_COMMAND
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("workers", [[], ["-n", "2"]], ids=["in-process", "xdist"])
+def test_cpu_seconds_are_the_tests_own_in_and_out_of_xdist(tmp_path, workers):
+    # One test spins until it has used 0.3 s of CPU, one sleeps 0.3 s: however busy the machine, the
+    # first costs at least 0.3 s of CPU (less the last digit printed) and the second almost none.
+    (tmp_path / "conftest.py").write_text(textwrap.dedent("""\
+        from cpu_times import CpuTimes
+
+        def pytest_configure(config):
+            config.pluginmanager.register(CpuTimes(), "cpu_times")
+        """))
+    (tmp_path / "test_work.py").write_text(textwrap.dedent("""\
+        import time
+
+        def test_spin():
+            start = time.process_time()
+            while time.process_time() - start < 0.3:
+                pass
+
+        def test_sleep():
+            time.sleep(0.3)
+        """))
+    out = subprocess.run([sys.executable, "-m", "pytest", "-q", "-p", "no:cacheprovider", "--durations=0", *workers, str(tmp_path)],
+                         cwd=tmp_path, capture_output=True, text=True, check=False,
+                         env={"PYTHONPATH": str(ROOT / "tests"), "PATH": "/usr/bin:/bin"}).stdout
+    run = parse_log(out)
+    assert run.summary == "2 passed", out
+    assert run.cpu["test_work.py::test_spin"] >= 0.29 and run.cpu["test_work.py::test_sleep"] < 0.1, out
+    assert run.wall["test_work.py::test_sleep"] >= 0.3 and run.load is not None and run.run_cpu is not None, out
