@@ -34,6 +34,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from measure.kernels import row_scales
 from measure.surfaces import DISAGREE_REL, LOCAL_ROUGHNESS, EndModels
 from measure.uncertainty import correlation_inflation
 
@@ -53,23 +54,6 @@ class Hinge:
     d_end: tuple[float, float]
     slope: tuple[float, float]  # d(d)/dt at p1 and at p2
     scale: float  # robust residual scale (px)
-
-
-def _scale(r: np.ndarray, floor: float) -> tuple[np.ndarray, np.ndarray]:
-    """Each row's robust scale 1.4826 MAD (floored) and its median, ``r`` (K, n), from one sort a row.
-
-    On a sorted row the distances |r - median| fall, then rise, so their j-th smallest is the smallest,
-    over windows of j + 1 neighbours, of the larger distance at the window's two ends: the MAD needs no
-    second selection (the same numbers as a partition of |r - median|)."""
-    n = r.shape[1]
-    lo, hi = (n - 1) // 2, n // 2
-    s = np.sort(r, axis=1)
-    med = 0.5 * (s[:, lo] + s[:, hi])
-    below = med[:, None] - s[:, : n - lo]  # med - s[i], the window's left end
-    above = s[:, lo:] - med[:, None]  # s[i + lo] - med, its right end
-    q_hi = np.maximum(below[:, : n - hi], above[:, hi - lo :]).min(axis=1)
-    np.maximum(below, above, out=below)
-    return np.maximum(1.4826 * (0.5 * (below.min(axis=1) + q_hi)), floor), med
 
 
 def _fit(terms: tuple[np.ndarray, np.ndarray], H: np.ndarray, w: np.ndarray | None) -> np.ndarray:
@@ -102,15 +86,13 @@ def _residuals(t: np.ndarray, H: np.ndarray | None, d: np.ndarray, beta: np.ndar
     return r
 
 
-def _trimmed_fit(t: np.ndarray, H: np.ndarray, d: np.ndarray, floor: float, terms: tuple[np.ndarray, np.ndarray]) -> np.ndarray:
+def _trimmed_fit(t: np.ndarray, t0: np.ndarray, H: np.ndarray, d: np.ndarray, floor: float,
+                 terms: tuple[np.ndarray, np.ndarray]) -> np.ndarray:  # fmt: skip
     """Least squares, then least squares on the samples within 3 robust sigmas of it: the second
-    pass's coefficients. ``terms``: as :func:`_fit`'s."""
+    pass's coefficients. ``t0``: each row's crease (inf: the one line), ``H`` its hinge column;
+    ``terms``: as :func:`_fit`'s."""
     beta = _fit(terms, H, None)
-    r = _residuals(t, H, d, beta)
-    s, med = _scale(r, floor)
-    r -= med[:, None]
-    np.abs(r, out=r)
-    return _fit(terms, H, (r <= 3.0 * s[:, None]).astype(np.float64))
+    return _fit(terms, H, row_scales(t, d, t0, beta, floor, True)[2])
 
 
 def hinge_ends(t: np.ndarray, d: np.ndarray, length: float, quantum: float, noise: float) -> Hinge | None:
@@ -131,10 +113,11 @@ def hinge_ends(t: np.ndarray, d: np.ndarray, length: float, quantum: float, nois
     terms = np.stack([np.ones_like(t), t, t * t, d, t * d], axis=1)
     terms = (terms, terms[:, [0, 1, 3]])
     # Row 0 is the one line: a hinge column of zeros (its coefficient stays 0), fitted with the candidates.
-    H = np.maximum(t[None] - np.concatenate([[np.inf], t0s])[:, None], 0.0)
-    b2 = _trimmed_fit(t, H, d, floor, terms)
+    creases = np.concatenate([[np.inf], t0s])
+    H = np.maximum(t[None] - creases[:, None], 0.0)
+    b2 = _trimmed_fit(t, creases, H, d, floor, terms)
     r1 = _residuals(t, None, d, b2[:1, :2])[0]
-    s1_row, med1 = _scale(r1[None], floor)
+    s1_row, med1, _ = row_scales(t, d, creases[:1], b2[:1], floor, False)
     s1 = float(s1_row[0])
     if s1 <= floor:
         return None  # every s2 is floored there too: the crease cannot lower the scale (condition 1)
@@ -145,13 +128,13 @@ def hinge_ends(t: np.ndarray, d: np.ndarray, length: float, quantum: float, nois
     part = np.abs(b2[:, 2]) * np.minimum(t0s, length - t0s)
     if not (part > np.maximum(quantum, DISAGREE_REL * np.abs(b2[:, 0] + b2[:, 1] * t0s))).any():
         return None
-    r2 = _residuals(t, H, d, b2)
-    s2, med2 = _scale(r2, floor)
+    s2, med2, _ = row_scales(t, d, t0s, b2, floor, False)
     k = int(np.argmin(s2))
-    n_eff = n / correlation_inflation(r2[k]) ** 2
+    r2k = _residuals(t, H[k : k + 1], d, b2[k : k + 1])[0]
+    n_eff = n / correlation_inflation(r2k) ** 2
     if not n_eff * math.log(s1 * s1 / (s2[k] * s2[k])) > PENALTY * 2.0 * math.log(max(n_eff, 2.0)):
         return None
-    inl = np.abs(r2[k] - med2[k]) <= 3.0 * s2[k]
+    inl = np.abs(r2k - med2[k]) <= 3.0 * s2[k]
     if float(np.mean(inl)) < MIN_INLIERS or s2[k] > LOCAL_ROUGHNESS * max(noise, floor):
         return None
     a, b, c = (float(v) for v in b2[k])
@@ -163,7 +146,7 @@ def hinge_ends(t: np.ndarray, d: np.ndarray, length: float, quantum: float, nois
     # Where the two models part, the samples must follow the crease: a step to scattered wrong matches past an
     # object's edge lowers the (MAD) scale by threading a steep piece through a few of them (condition 4).
     one = np.abs(r1 - med1[0]) <= 3.0 * s2[k]
-    apart = np.abs(r1 - r2[k]) > 3.0 * s2[k]
+    apart = np.abs(r1 - r2k) > 3.0 * s2[k]
     if not (inl & apart).sum() > (one & apart).sum():
         return None
     ends = (a, a + b * length + c * (length - t0))

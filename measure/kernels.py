@@ -1,0 +1,244 @@
+"""The measurement core's compiled loops (numba): the per-start arithmetic and the h-smallest selection
+of FAST-MCD's C-step, and the row medians and MADs of the crease search.
+
+Each kernel does, element by element, the float64 (or float32) operations of the numpy formulation it
+replaced, in the same order, so its numbers are the same bit for bit (tests/measure/test_kernels.py holds
+them to that oracle); the matrix products stay with BLAS and the 3x3 solves with LAPACK, whose rounding a
+loop would not reproduce. Order statistics come from a selection (quickselect) instead of a sort: they
+are values of the input, so the same whatever the algorithm. Compiled on first use and cached on disk
+(numba ``cache=True``); why compiled loops and what they saved: docs/decisions/core-speed.md.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from numba import njit
+
+RIDGE = 1e-8  # regularises singular starts (relative to the start's scale, at least 1)
+_SMALL = 16  # below this many values a selection sorts by insertion
+_LONG, _SAMPLE, _MARGIN = 256, 64, 8  # rows from _LONG values on are narrowed by a sample first (_pair)
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
+def _select(a: np.ndarray, lo: int, hi: int, k: int) -> float:
+    """The k-th smallest of ``a[lo:hi + 1]`` (reordered in place: smaller values end up before k, larger
+    after it); quickselect with a median-of-three pivot, insertion sort for short ranges."""
+    while hi - lo >= _SMALL:
+        mid = (lo + hi) >> 1
+        x, y, z = a[lo], a[mid], a[hi]
+        if x > y:
+            x, y = y, x
+        if y > z:
+            y = z
+        if x > y:
+            y = x
+        i, j = lo, hi
+        while i <= j:
+            while a[i] < y:
+                i += 1
+            while a[j] > y:
+                j -= 1
+            if i <= j:
+                a[i], a[j] = a[j], a[i]
+                i += 1
+                j -= 1
+        if k <= j:
+            hi = j
+        elif k >= i:
+            lo = i
+        else:
+            return a[k]
+    for i in range(lo + 1, hi + 1):
+        v = a[i]
+        j = i - 1
+        while j >= lo and a[j] > v:
+            a[j + 1] = a[j]
+            j -= 1
+        a[j + 1] = v
+    return a[k]
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
+def _pair(a: np.ndarray, lo: int, hi: int, window: np.ndarray) -> tuple[float, float]:
+    """The ``lo``-th and ``hi``-th smallest (``hi`` = ``lo`` or ``lo`` + 1) of ``a`` (reordered).
+
+    Long rows first narrow the search (Floyd and Rivest's idea): ``_SAMPLE`` values at even strides,
+    sorted, bracket rank ``lo`` by the sample values ``_MARGIN`` ranks either side of its expected
+    place; one pass counts the values below the bracket and copies those within it into ``window``,
+    and when ``lo`` and ``hi`` fall among them the selection runs on that quarter of the row. Otherwise
+    (or on short rows) it runs on the whole row."""
+    n = a.size
+    if n >= _LONG:
+        sample = np.empty(_SAMPLE, a.dtype)
+        for i in range(_SAMPLE):
+            sample[i] = a[((2 * i + 1) * n) // (2 * _SAMPLE)]
+        sample.sort()
+        at = (lo * _SAMPLE) // n
+        low = sample[at - _MARGIN] if at >= _MARGIN else -np.inf
+        high = sample[at + _MARGIN] if at + _MARGIN < _SAMPLE else np.inf
+        below, count = 0, 0
+        for i in range(n):
+            v = a[i]
+            if v < low:
+                below += 1
+            elif v <= high:
+                window[count] = v
+                count += 1
+        if below <= lo and hi < below + count:
+            return _ends(window[:count], lo - below, hi - below)
+    return _ends(a, lo, hi)
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
+def _ends(a: np.ndarray, lo: int, hi: int) -> tuple[float, float]:
+    n = a.size
+    first = _select(a, 0, n - 1, lo)
+    if hi == lo:
+        return first, first
+    second = a[hi]
+    for i in range(hi + 1, n):
+        if a[i] < second:
+            second = a[i]
+    return first, second
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
+def _dot(a: np.ndarray, b: np.ndarray) -> float:
+    """sum a_j b_j for 1-3 terms, added in the order of numpy's einsum (for three: the first and the
+    last, then the middle one)."""
+    if a.size == 1:
+        return a[0] * b[0]
+    if a.size == 2:
+        return a[0] * b[0] + a[1] * b[1]
+    return (a[0] * b[0] + a[2] * b[2]) + a[1] * b[1]
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
+def start_coefficients(mean: np.ndarray, cov: np.ndarray, lam: np.ndarray) -> np.ndarray:
+    """Per start (``mean`` (G, S, p), ``cov`` (G, S, p, p), ``lam`` its lambda_min estimate (G, S)): the
+    coefficients (G, S, m) of its squared Mahalanobis distance in the monomials (1, z_j, z_j z_k for
+    j <= k). Steps: a ridge of ``RIDGE`` times the trace (at least 1) on every start's diagonal when any
+    start is singular (lambda_min at or below its ridge), the closed-form determinant and adjugate, the
+    inverse, then the constant, linear and quadratic terms."""
+    g_n, s_n, p = mean.shape
+    m = 1 + p + p * (p + 1) // 2
+    ridge = np.empty((g_n, s_n))
+    singular = False
+    for g in range(g_n):
+        for s in range(s_n):
+            tr = cov[g, s, 0, 0]
+            for j in range(1, p):
+                tr += cov[g, s, j, j]
+            ridge[g, s] = RIDGE * max(tr, 1.0)
+            singular |= lam[g, s] <= ridge[g, s]
+    coef = np.empty((g_n, s_n, m))
+    c = np.empty((p, p))
+    inv = np.empty((p, p))
+    for g in range(g_n):
+        for s in range(s_n):
+            add = ridge[g, s] if lam[g, s] <= ridge[g, s] else 0.0
+            for j in range(p):
+                for k in range(p):
+                    c[j, k] = cov[g, s, j, k] + (add * (1.0 if j == k else 0.0)) if singular else cov[g, s, j, k]
+            if p == 1:
+                det = c[0, 0]
+                inv[0, 0] = 1.0 / det
+            elif p == 2:
+                a, b, d = c[0, 0], c[0, 1], c[1, 1]
+                det = a * d - b * b
+                inv[0, 0], inv[1, 1] = d / det, a / det
+                inv[0, 1] = inv[1, 0] = -b / det
+            else:
+                a, b, cc = c[0, 0], c[0, 1], c[0, 2]
+                e, f, i = c[1, 1], c[1, 2], c[2, 2]
+                a00, a01, a02 = e * i - f * f, cc * f - b * i, b * f - cc * e
+                a11, a12, a22 = a * i - cc * cc, b * cc - a * f, a * e - b * b
+                det = a * a00 + b * a01 + cc * a02
+                inv[0, 0], inv[1, 1], inv[2, 2] = a00 / det, a11 / det, a22 / det
+                inv[0, 1] = inv[1, 0] = a01 / det
+                inv[0, 2] = inv[2, 0] = a02 / det
+                inv[1, 2] = inv[2, 1] = a12 / det
+            for j in range(p):
+                coef[g, s, 1 + j] = -2.0 * _dot(inv[j], mean[g, s])
+            coef[g, s, 0] = -0.5 * _dot(coef[g, s, 1 : 1 + p], mean[g, s])
+            q = 1 + p
+            for j in range(p):
+                for k in range(j, p):
+                    coef[g, s, q] = (1.0 if j == k else 2.0) * inv[j, k]
+                    q += 1
+    return coef
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
+def moments_det_lam(sums: np.ndarray, p: int) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """Mean (G, S, p), biased covariance (G, S, p, p), determinant and lambda_min estimate det / trace(adj)
+    (each G, S) from summed monomials (G, S, m; the count first). det / trace(adj) lies within a factor p
+    of the smallest eigenvalue: a cheap singularity test (0 where the covariance is zero)."""
+    g_n, s_n, _ = sums.shape
+    mean = np.empty((g_n, s_n, p))
+    cov = np.empty((g_n, s_n, p, p))
+    det = np.empty((g_n, s_n))
+    lam = np.empty((g_n, s_n))
+    for g in range(g_n):
+        for s in range(s_n):
+            w = sums[g, s, 0]
+            for j in range(p):
+                mean[g, s, j] = sums[g, s, 1 + j] / w
+            q = 1 + p
+            for j in range(p):
+                for k in range(j, p):
+                    cov[g, s, j, k] = cov[g, s, k, j] = sums[g, s, q] / w - mean[g, s, j] * mean[g, s, k]
+                    q += 1
+            c = cov[g, s]
+            if p == 1:
+                dt, tr = c[0, 0], np.inf
+                lam[g, s] = dt
+            elif p == 2:
+                a, b, d = c[0, 0], c[0, 1], c[1, 1]
+                dt, tr = a * d - b * b, d + a
+            else:
+                a, b, cc = c[0, 0], c[0, 1], c[0, 2]
+                e, f, i = c[1, 1], c[1, 2], c[2, 2]
+                m00 = e * i - f * f
+                dt = a * m00 + b * (cc * f - b * i) + cc * (b * f - cc * e)
+                tr = m00 + (a * i - cc * cc) + (a * e - b * b)
+            det[g, s] = dt
+            if p > 1:
+                lam[g, s] = dt / (tr if tr > 0 else np.inf)
+    return mean, cov, det, lam
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
+def row_scales(t: np.ndarray, d: np.ndarray, t0: np.ndarray, beta: np.ndarray, floor: float,
+               trim: bool) -> tuple[np.ndarray, np.ndarray, np.ndarray]:  # fmt: skip
+    """Per candidate k of the crease search: the residuals r = d - b0 - b1 t - b2 max(t - t0_k, 0) of its
+    coefficients ``beta[k]`` (an infinite ``t0`` is the one line), their median and robust scale
+    max(1.4826 MAD, ``floor``). Returns the scales, the medians and, with ``trim``, each candidate's 0/1
+    weights of the samples within 3 scales of its median (K, n), else an empty (0, n) array."""
+    k_n, n = beta.shape[0], t.size
+    lo, hi = (n - 1) // 2, n // 2
+    scale = np.empty(k_n)
+    med = np.empty(k_n)
+    w = np.empty((k_n if trim else 0, n))
+    r = np.empty(n)
+    work = np.empty(n)
+    window = np.empty(n)
+    for k in range(k_n):
+        b0, b1, b2, c = beta[k, 0], beta[k, 1], beta[k, 2], t0[k]
+        for i in range(n):
+            x = d[i] - b0
+            x -= b1 * t[i]
+            x -= b2 * max(t[i] - c, 0.0)
+            r[i] = x
+            work[i] = x
+        a, b = _pair(work, lo, hi, window)
+        m = 0.5 * (a + b)
+        for i in range(n):
+            work[i] = abs(r[i] - m)
+        a, b = _pair(work, lo, hi, window)
+        s = max(1.4826 * (0.5 * (a + b)), floor)
+        scale[k], med[k] = s, m
+        if trim:
+            for i in range(n):
+                w[k, i] = 1.0 if abs(r[i] - m) <= 3.0 * s else 0.0
+    return scale, med, w
