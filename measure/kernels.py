@@ -16,7 +16,7 @@ from numba import njit
 
 RIDGE = 1e-8  # regularises singular starts (relative to the start's scale, at least 1)
 _SMALL = 16  # below this many values a selection sorts by insertion
-_LONG, _SAMPLE, _MARGIN = 256, 64, 8  # rows from _LONG values on are narrowed by a sample first (_pair)
+_LONG, _SAMPLE, _MARGIN = 384, 64, 8  # rows from _LONG values on are narrowed by a sample first (_pair)
 
 
 @njit(cache=True, nogil=True, error_model="numpy")
@@ -69,13 +69,15 @@ def _pair(a: np.ndarray, lo: int, hi: int, window: np.ndarray) -> tuple[float, f
     (or on short rows) it runs on the whole row."""
     n = a.size
     if n >= _LONG:
-        sample = np.empty(_SAMPLE, a.dtype)
+        sample = window[n - _SAMPLE :]  # the window's tail, read before the pass below fills the window
         for i in range(_SAMPLE):
             sample[i] = a[((2 * i + 1) * n) // (2 * _SAMPLE)]
-        sample.sort()
         at = (lo * _SAMPLE) // n
-        low = sample[at - _MARGIN] if at >= _MARGIN else -np.inf
-        high = sample[at + _MARGIN] if at + _MARGIN < _SAMPLE else np.inf
+        low, high = -np.inf, np.inf
+        if at >= _MARGIN:
+            low = _select(sample, 0, _SAMPLE - 1, at - _MARGIN)
+        if at + _MARGIN < _SAMPLE:
+            high = _select(sample, max(at - _MARGIN + 1, 0), _SAMPLE - 1, at + _MARGIN)
         below, count = 0, 0
         for i in range(n):
             v = a[i]
