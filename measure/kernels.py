@@ -211,36 +211,107 @@ def moments_det_lam(sums: np.ndarray, p: int) -> tuple[np.ndarray, np.ndarray, n
 
 
 @njit(cache=True, nogil=True, error_model="numpy")
-def row_scales(t: np.ndarray, d: np.ndarray, t0: np.ndarray, beta: np.ndarray, floor: float,
-               trim: bool) -> tuple[np.ndarray, np.ndarray, np.ndarray]:  # fmt: skip
-    """Per candidate k of the crease search: the residuals r = d - b0 - b1 t - b2 max(t - t0_k, 0) of its
-    coefficients ``beta[k]`` (an infinite ``t0`` is the one line), their median and robust scale
-    max(1.4826 MAD, ``floor``). Returns the scales, the medians and, with ``trim``, each candidate's 0/1
-    weights of the samples within 3 scales of its median (K, n), else an empty (0, n) array."""
-    k_n, n = beta.shape[0], t.size
+def _scale_of(r: np.ndarray, floor: float, work: np.ndarray, window: np.ndarray) -> tuple[float, float]:
+    """The median of ``r`` and its robust scale max(1.4826 MAD, ``floor``) (``work``, ``window``: buffers
+    of ``r``'s size)."""
+    n = r.size
     lo, hi = (n - 1) // 2, n // 2
+    work[:] = r
+    a, b = _pair(work, lo, hi, window)
+    m = 0.5 * (a + b)
+    for i in range(n):
+        work[i] = abs(r[i] - m)
+    a, b = _pair(work, lo, hi, window)
+    return max(1.4826 * (0.5 * (a + b)), floor), m
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
+def _residuals(t: np.ndarray, d: np.ndarray, t0: float, b0: float, b1: float, b2: float, r: np.ndarray) -> None:
+    for i in range(t.size):
+        x = d[i] - b0
+        x -= b1 * t[i]
+        x -= b2 * max(t[i] - t0, 0.0)
+        r[i] = x
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
+def row_scales(t: np.ndarray, d: np.ndarray, t0: np.ndarray, beta: np.ndarray, floor: float) -> tuple[np.ndarray, np.ndarray]:
+    """Per candidate k of the crease search: the residuals r = d - b0 - b1 t - b2 max(t - t0_k, 0) of its
+    coefficients ``beta[k]`` (an infinite ``t0`` is the one line), their robust scale max(1.4826 MAD,
+    ``floor``) and their median."""
+    k_n, n = beta.shape[0], t.size
     scale = np.empty(k_n)
     med = np.empty(k_n)
-    w = np.empty((k_n if trim else 0, n))
-    r = np.empty(n)
-    work = np.empty(n)
-    window = np.empty(n)
+    r, work, window = np.empty(n), np.empty(n), np.empty(n)
     for k in range(k_n):
-        b0, b1, b2, c = beta[k, 0], beta[k, 1], beta[k, 2], t0[k]
+        _residuals(t, d, t0[k], beta[k, 0], beta[k, 1], beta[k, 2], r)
+        scale[k], med[k] = _scale_of(r, floor, work, window)
+    return scale, med
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
+def _solve3(a: np.ndarray, y: np.ndarray) -> tuple[float, float, float]:
+    """x of a x = y for a 3x3 ``a`` (overwritten, as ``y``): Gaussian elimination with partial pivoting."""
+    for c in range(3):
+        p = c
+        for r in range(c + 1, 3):
+            if abs(a[r, c]) > abs(a[p, c]):
+                p = r
+        if p != c:
+            for j in range(3):
+                a[c, j], a[p, j] = a[p, j], a[c, j]
+            y[c], y[p] = y[p], y[c]
+        for r in range(c + 1, 3):
+            f = a[r, c] / a[c, c]
+            for j in range(c + 1, 3):
+                a[r, j] -= f * a[c, j]
+            y[r] -= f * y[c]
+    x2 = y[2] / a[2, 2]
+    x1 = (y[1] - a[1, 2] * x2) / a[1, 1]
+    x0 = (y[0] - a[0, 1] * x1 - a[0, 2] * x2) / a[0, 0]
+    return x0, x1, x2
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
+def _hinge_fit(t: np.ndarray, d: np.ndarray, t0: float, w: np.ndarray, a: np.ndarray, y: np.ndarray) -> tuple[float, float, float]:
+    """Weighted least squares (0/1 weights ``w``) of d on 1, t and max(t - t0, 0), from the normal
+    equations (a ridge of 1e-9 on the diagonal, as an infinite ``t0``'s zero column needs)."""
+    a[:] = 0.0
+    y[:] = 0.0
+    for i in range(t.size):
+        if w[i]:
+            ti, di, h = t[i], d[i], max(t[i] - t0, 0.0)
+            a[0, 0] += 1.0
+            a[0, 1] += ti
+            a[1, 1] += ti * ti
+            a[0, 2] += h
+            a[1, 2] += ti * h
+            a[2, 2] += h * h
+            y[0] += di
+            y[1] += ti * di
+            y[2] += h * di
+    a[1, 0], a[2, 0], a[2, 1] = a[0, 1], a[0, 2], a[1, 2]
+    for j in range(3):
+        a[j, j] += 1e-9
+    return _solve3(a, y)
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
+def trimmed_crease_fits(t: np.ndarray, d: np.ndarray, t0: np.ndarray, floor: float) -> np.ndarray:
+    """Per crease ``t0[k]`` (infinite: the one line): the least-squares continuous two-piece line
+    d = b0 + b1 t + b2 max(t - t0, 0) on all samples, then again on the samples within 3 robust scales
+    (max(1.4826 MAD, ``floor``)) of its residuals' median; returns the second fits' (b0, b1, b2), (K, 3)."""
+    n = t.size
+    beta = np.empty((t0.size, 3))
+    a, y = np.empty((3, 3)), np.empty(3)
+    r, work, window = np.empty(n), np.empty(n), np.empty(n)
+    w = np.ones(n, np.bool_)
+    every = np.ones(n, np.bool_)
+    for k in range(t0.size):
+        b0, b1, b2 = _hinge_fit(t, d, t0[k], every, a, y)
+        _residuals(t, d, t0[k], b0, b1, b2, r)
+        s, m = _scale_of(r, floor, work, window)
         for i in range(n):
-            x = d[i] - b0
-            x -= b1 * t[i]
-            x -= b2 * max(t[i] - c, 0.0)
-            r[i] = x
-            work[i] = x
-        a, b = _pair(work, lo, hi, window)
-        m = 0.5 * (a + b)
-        for i in range(n):
-            work[i] = abs(r[i] - m)
-        a, b = _pair(work, lo, hi, window)
-        s = max(1.4826 * (0.5 * (a + b)), floor)
-        scale[k], med[k] = s, m
-        if trim:
-            for i in range(n):
-                w[k, i] = 1.0 if abs(r[i] - m) <= 3.0 * s else 0.0
-    return scale, med, w
+            w[i] = abs(r[i] - m) <= 3.0 * s
+        beta[k, 0], beta[k, 1], beta[k, 2] = _hinge_fit(t, d, t0[k], w, a, y)
+    return beta
