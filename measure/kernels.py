@@ -59,36 +59,52 @@ def _select(a: np.ndarray, lo: int, hi: int, k: int) -> float:
 
 
 @njit(cache=True, nogil=True, error_model="numpy")
-def _pair(a: np.ndarray, lo: int, hi: int, window: np.ndarray) -> tuple[float, float]:
+def _pair(a: np.ndarray, lo: int, hi: int, window: np.ndarray, low: float = -np.inf, high: float = np.inf) -> tuple[float, float]:
     """The ``lo``-th and ``hi``-th smallest (``hi`` = ``lo`` or ``lo`` + 1) of ``a`` (reordered).
 
-    Long rows first narrow the search (Floyd and Rivest's idea): ``_SAMPLE`` values at even strides,
-    sorted, bracket rank ``lo`` by the sample values ``_MARGIN`` ranks either side of its expected
-    place; one pass counts the values below the bracket and copies those within it into ``window``,
-    and when ``lo`` and ``hi`` fall among them the selection runs on that quarter of the row. Otherwise
-    (or on short rows) it runs on the whole row."""
+    Long rows first narrow the search (Floyd and Rivest's idea): one pass counts the values below a
+    bracket and copies those within it into ``window``, and when ``lo`` and ``hi`` fall among them the
+    selection runs on those alone. The bracket is ``low``, ``high`` when given (a neighbouring row's
+    answer), then ``_SAMPLE`` values at even strides, whose order statistics ``_MARGIN`` ranks either
+    side of rank ``lo``'s expected place bound it. Otherwise (or on short rows) the selection runs on the
+    whole row."""
     n = a.size
-    if n >= _LONG:
-        sample = window[n - _SAMPLE :]  # the window's tail, read before the pass below fills the window
-        for i in range(_SAMPLE):
-            sample[i] = a[((2 * i + 1) * n) // (2 * _SAMPLE)]
-        at = (lo * _SAMPLE) // n
-        low, high = -np.inf, np.inf
-        if at >= _MARGIN:
-            low = _select(sample, 0, _SAMPLE - 1, at - _MARGIN)
-        if at + _MARGIN < _SAMPLE:
-            high = _select(sample, max(at - _MARGIN + 1, 0), _SAMPLE - 1, at + _MARGIN)
-        below, count = 0, 0
-        for i in range(n):
-            v = a[i]
-            if v < low:
-                below += 1
-            elif v <= high:
-                window[count] = v
-                count += 1
-        if below <= lo and hi < below + count:
-            return _ends(window[:count], lo - below, hi - below)
+    if n < _LONG:
+        return _ends(a, lo, hi)
+    if low > -np.inf or high < np.inf:
+        ok, first, second = _bracketed(a, lo, hi, window, low, high)
+        if ok:
+            return first, second
+    sample = window[n - _SAMPLE :]  # the window's tail, read before the pass below fills the window
+    for i in range(_SAMPLE):
+        sample[i] = a[((2 * i + 1) * n) // (2 * _SAMPLE)]
+    at = (lo * _SAMPLE) // n
+    low, high = -np.inf, np.inf
+    if at >= _MARGIN:
+        low = _select(sample, 0, _SAMPLE - 1, at - _MARGIN)
+    if at + _MARGIN < _SAMPLE:
+        high = _select(sample, max(at - _MARGIN + 1, 0), _SAMPLE - 1, at + _MARGIN)
+    ok, first, second = _bracketed(a, lo, hi, window, low, high)
+    if ok:
+        return first, second
     return _ends(a, lo, hi)
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
+def _bracketed(a: np.ndarray, lo: int, hi: int, window: np.ndarray, low: float, high: float) -> tuple[bool, float, float]:
+    """(True, the lo-th and hi-th smallest of ``a``) when both lie in [``low``, ``high``], else False."""
+    below, count = 0, 0
+    for i in range(a.size):
+        v = a[i]
+        if v < low:
+            below += 1
+        elif v <= high:
+            window[count] = v
+            count += 1
+    if below <= lo and hi < below + count:
+        first, second = _ends(window[:count], lo - below, hi - below)
+        return True, first, second
+    return False, 0.0, 0.0
 
 
 @njit(cache=True, nogil=True, error_model="numpy")
@@ -211,27 +227,37 @@ def moments_det_lam(sums: np.ndarray, p: int) -> tuple[np.ndarray, np.ndarray, n
 
 
 @njit(cache=True, nogil=True, error_model="numpy")
-def _scale_of(r: np.ndarray, floor: float, work: np.ndarray, window: np.ndarray) -> tuple[float, float]:
-    """The median of ``r`` and its robust scale max(1.4826 MAD, ``floor``) (``work``, ``window``: buffers
-    of ``r``'s size)."""
+def _scale_of(r: np.ndarray, floor: float, work: np.ndarray, window: np.ndarray, near: float = np.nan,
+              mad_near: float = np.nan) -> tuple[float, float, float]:  # fmt: skip
+    """The robust scale max(1.4826 MAD, ``floor``) of ``r``, its median and its MAD; ``work`` holds a copy
+    of ``r`` (reordered here), ``window`` is a buffer of its size. ``near``, ``mad_near``: a neighbouring
+    row's median and MAD (NaN: none), to bracket the selections."""
     n = r.size
     lo, hi = (n - 1) // 2, n // 2
-    work[:] = r
-    a, b = _pair(work, lo, hi, window)
+    if near == near and mad_near > 0:
+        a, b = _pair(work, lo, hi, window, near - 0.25 * mad_near, near + 0.25 * mad_near)
+    else:
+        a, b = _pair(work, lo, hi, window)
     m = 0.5 * (a + b)
     for i in range(n):
         work[i] = abs(r[i] - m)
-    a, b = _pair(work, lo, hi, window)
-    return max(1.4826 * (0.5 * (a + b)), floor), m
+    if mad_near > 0:
+        a, b = _pair(work, lo, hi, window, 0.9 * mad_near, 1.1 * mad_near)
+    else:
+        a, b = _pair(work, lo, hi, window)
+    mad = 0.5 * (a + b)
+    return max(1.4826 * mad, floor), m, mad
 
 
 @njit(cache=True, nogil=True, error_model="numpy")
-def _residuals(t: np.ndarray, d: np.ndarray, t0: float, b0: float, b1: float, b2: float, r: np.ndarray) -> None:
+def _residuals(t: np.ndarray, d: np.ndarray, t0: float, b0: float, b1: float, b2: float, r: np.ndarray, work: np.ndarray) -> None:
+    """r = d - b0 - b1 t - b2 max(t - t0, 0), into ``r`` and ``work``."""
     for i in range(t.size):
         x = d[i] - b0
         x -= b1 * t[i]
         x -= b2 * max(t[i] - t0, 0.0)
         r[i] = x
+        work[i] = x
 
 
 @njit(cache=True, nogil=True, error_model="numpy")
@@ -243,9 +269,10 @@ def row_scales(t: np.ndarray, d: np.ndarray, t0: np.ndarray, beta: np.ndarray, f
     scale = np.empty(k_n)
     med = np.empty(k_n)
     r, work, window = np.empty(n), np.empty(n), np.empty(n)
+    mad = np.nan
     for k in range(k_n):
-        _residuals(t, d, t0[k], beta[k, 0], beta[k, 1], beta[k, 2], r)
-        scale[k], med[k] = _scale_of(r, floor, work, window)
+        _residuals(t, d, t0[k], beta[k, 0], beta[k, 1], beta[k, 2], r, work)
+        scale[k], med[k], mad = _scale_of(r, floor, work, window, med[k - 1] if k > 0 else np.nan, mad if k > 0 else np.nan)
     return scale, med
 
 
@@ -273,13 +300,15 @@ def _solve3(a: np.ndarray, y: np.ndarray) -> tuple[float, float, float]:
 
 
 @njit(cache=True, nogil=True, error_model="numpy")
-def _hinge_fit(t: np.ndarray, d: np.ndarray, t0: float, w: np.ndarray, a: np.ndarray, y: np.ndarray) -> tuple[float, float, float]:
-    """Weighted least squares (0/1 weights ``w``) of d on 1, t and max(t - t0, 0), from the normal
-    equations (a ridge of 1e-9 on the diagonal, as an infinite ``t0``'s zero column needs)."""
+def _hinge_fit(t: np.ndarray, d: np.ndarray, t0: float, r: np.ndarray, m: float, limit: float, a: np.ndarray,
+               y: np.ndarray) -> tuple[float, float, float]:  # fmt: skip
+    """Least squares of d on 1, t and max(t - t0, 0) over the samples with |r - m| <= ``limit`` (all of
+    them for an infinite limit), from the normal equations (a ridge of 1e-9 on the diagonal, as an
+    infinite ``t0``'s zero column needs)."""
     a[:] = 0.0
     y[:] = 0.0
     for i in range(t.size):
-        if w[i]:
+        if abs(r[i] - m) <= limit:
             ti, di, h = t[i], d[i], max(t[i] - t0, 0.0)
             a[0, 0] += 1.0
             a[0, 1] += ti
@@ -304,14 +333,12 @@ def trimmed_crease_fits(t: np.ndarray, d: np.ndarray, t0: np.ndarray, floor: flo
     n = t.size
     beta = np.empty((t0.size, 3))
     a, y = np.empty((3, 3)), np.empty(3)
-    r, work, window = np.empty(n), np.empty(n), np.empty(n)
-    w = np.ones(n, np.bool_)
-    every = np.ones(n, np.bool_)
+    r, work, window = np.zeros(n), np.empty(n), np.empty(n)
+    m, mad = np.nan, np.nan
     for k in range(t0.size):
-        b0, b1, b2 = _hinge_fit(t, d, t0[k], every, a, y)
-        _residuals(t, d, t0[k], b0, b1, b2, r)
-        s, m = _scale_of(r, floor, work, window)
-        for i in range(n):
-            w[i] = abs(r[i] - m) <= 3.0 * s
-        beta[k, 0], beta[k, 1], beta[k, 2] = _hinge_fit(t, d, t0[k], w, a, y)
+        b0, b1, b2 = _hinge_fit(t, d, t0[k], r, 0.0, np.inf, a, y)
+        _residuals(t, d, t0[k], b0, b1, b2, r, work)
+        # neighbouring creases have nearly the same residuals: the last row's median and MAD bracket this one's
+        s, m, mad = _scale_of(r, floor, work, window, m, mad)
+        beta[k, 0], beta[k, 1], beta[k, 2] = _hinge_fit(t, d, t0[k], r, m, 3.0 * s, a, y)
     return beta
