@@ -34,7 +34,6 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from measure.kernels import row_scales, trimmed_crease_fits
 from measure.surfaces import DISAGREE_REL, LOCAL_ROUGHNESS, EndModels
 from measure.uncertainty import correlation_inflation
 
@@ -81,6 +80,7 @@ def hinge_ends(t: np.ndarray, d: np.ndarray, length: float, quantum: float, nois
     t0s = t0s[(left >= MIN_PIECE_SAMPLES) & (n - left >= MIN_PIECE_SAMPLES)]
     if t0s.size == 0:
         return None
+    from measure.kernels import row_scales, trimmed_crease_fits  # numba loads on first use: `import measure` stays fast
     # Row 0 is the one line: a crease beyond the far end (a hinge column of zeros), fitted with the candidates.
     creases = np.concatenate([[np.inf], t0s])
     b2 = trimmed_crease_fits(t, d, creases, floor)

@@ -14,7 +14,6 @@ import functools
 
 import numpy as np
 
-from measure.kernels import moments_det_lam, start_coefficients
 
 _F32_MAX = float(np.finfo(np.float32).max)
 
@@ -75,12 +74,10 @@ def c_step(mono: np.ndarray, mean: np.ndarray, cov: np.ndarray, lam: np.ndarray,
 
     ``mean`` is G x S x p, ``cov`` G x S x p x p, ``lam`` their lambda_min estimates (G x S). Returns
     the new subset masks (G x S x n), means, covariances, determinants and lambda_min estimates (each
-    G x S ...). The per-start arithmetic and the selection are compiled (``measure.kernels``); the two
-    matrix products stay with BLAS.
+    G x S ...). The per-start arithmetic and the moments are compiled (``measure.kernels``); the two
+    matrix products stay with BLAS and the selection with numpy's partition (SIMD, faster than a loop).
     """
-    # The ridge and the singularity test scale with the trace: a start spanning far outliers has a
-    # covariance of up to 1e24 whose rounding alone exceeds an absolute ridge (its determinant
-    # could come out zero or negative). At data scale (trace <= 1) it is the absolute 1e-8.
+    from measure.kernels import moments_det_lam, start_coefficients  # numba loads on first use: `import measure` stays fast
     coef = start_coefficients(mean, cov, lam)
     d2 = mm(coef.astype(mono.dtype, copy=False), np.swapaxes(mono, -1, -2))
     # Expanded in monomials, d² of a point on the start's support can round a hair below zero.

@@ -1,12 +1,16 @@
-"""The measurement core's compiled loops (numba): the per-start arithmetic and the h-smallest selection
-of FAST-MCD's C-step, and the row medians and MADs of the crease search.
+"""The measurement core's compiled loops (numba): the per-start arithmetic of FAST-MCD's C-step
+(``start_coefficients``, ``moments_det_lam``) and the crease search's fits, medians and MADs
+(``trimmed_crease_fits``, ``row_scales``).
 
-Each kernel does, element by element, the float64 (or float32) operations of the numpy formulation it
-replaced, in the same order, so its numbers are the same bit for bit (tests/measure/test_kernels.py holds
-them to that oracle); the matrix products stay with BLAS and the 3x3 solves with LAPACK, whose rounding a
-loop would not reproduce. Order statistics come from a selection (quickselect) instead of a sort: they
-are values of the input, so the same whatever the algorithm. Compiled on first use and cached on disk
-(numba ``cache=True``); why compiled loops and what they saved: docs/decisions/core-speed.md.
+The C-step kernels do, element by element, the float64 operations of the numpy formulation they replaced,
+in the same order (numpy's einsum adds three terms as first + last, then the middle one), so their
+numbers are the same bit for bit; the matrix products around them stay with BLAS. Medians and MADs come
+from a selection (quickselect, long rows first narrowed to a bracket) instead of a sort: order statistics
+are values of the input, the same whatever the algorithm. The crease fits sum their normal equations in
+the loop and solve them by Gaussian elimination instead of BLAS and LAPACK, whose rounding a loop does
+not reproduce: within 1e-9 px of it. tests/measure/test_kernels.py holds each kernel to its numpy
+oracle. Compiled on first use and cached on disk (numba ``cache=True``); measured reasons and the
+first-call cost: docs/decisions/core-speed.md.
 """
 
 from __future__ import annotations
@@ -140,6 +144,9 @@ def start_coefficients(mean: np.ndarray, cov: np.ndarray, lam: np.ndarray) -> np
     inverse, then the constant, linear and quadratic terms."""
     g_n, s_n, p = mean.shape
     m = 1 + p + p * (p + 1) // 2
+    # The ridge and the singularity test scale with the trace: a start spanning far outliers has a
+    # covariance of up to 1e24 whose rounding alone exceeds an absolute ridge (its determinant
+    # could come out zero or negative). At data scale (trace <= 1) it is the absolute 1e-8.
     ridge = np.empty((g_n, s_n))
     singular = False
     for g in range(g_n):

@@ -44,7 +44,6 @@ from dataclasses import dataclass
 import numpy as np
 
 from measure.cstep import c_step, det_adj, monomials
-from measure.kernels import moments_det_lam
 from measure.robust_range import median
 from measure.types import MeasureError
 
@@ -228,6 +227,7 @@ def fast_mcd(
             return _exact_fit_result(x, s, sub, h)
         return _finish(x, z, center, s, np.ones(n, bool), h)
 
+    from measure.kernels import moments_det_lam  # numba loads on first use: `import measure` stays fast
     rng = np.random.default_rng(seed)
     mono = monomials(z)
 
