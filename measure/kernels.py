@@ -309,9 +309,8 @@ def _solve3(a: np.ndarray, y: np.ndarray) -> tuple[float, float, float]:
 @njit(cache=True, nogil=True, error_model="numpy")
 def _hinge_fit(t: np.ndarray, d: np.ndarray, t0: float, r: np.ndarray, m: float, limit: float, a: np.ndarray,
                y: np.ndarray) -> tuple[float, float, float]:  # fmt: skip
-    """Least squares of d on 1, t and max(t - t0, 0) over the samples with |r - m| <= ``limit`` (all of
-    them for an infinite limit), from the normal equations (a ridge of 1e-9 on the diagonal, as an
-    infinite ``t0``'s zero column needs)."""
+    """Least squares of d on 1, t and max(t - t0, 0) over the samples with |r - m| <= ``limit``, from the
+    normal equations (a ridge of 1e-9 on the diagonal, as an infinite ``t0``'s zero column needs)."""
     a[:] = 0.0
     y[:] = 0.0
     for i in range(t.size):
@@ -333,17 +332,50 @@ def _hinge_fit(t: np.ndarray, d: np.ndarray, t0: float, r: np.ndarray, m: float,
 
 
 @njit(cache=True, nogil=True, error_model="numpy")
+def _line_fit_from_tail(tail: np.ndarray, j: int, t0: float, a: np.ndarray, y: np.ndarray) -> tuple[float, float, float]:
+    """The least-squares fit of :func:`_hinge_fit` on all samples, from the sums of 1, t, t², d and t d
+    over the samples sorted by t from position ``j`` on (``tail``, row j; row 0: all of them), the first
+    past ``t0``: max(t - t0, 0) is t - t0 there and 0 before, so its sums are those sums' combinations."""
+    n1, st, stt, sd, std = tail[0]
+    m1, mt, mtt, md, mtd = tail[j]
+    a[0, 0], a[0, 1], a[1, 1] = n1, st, stt
+    y[0], y[1] = sd, std
+    if m1 > 0:
+        a[0, 2] = mt - t0 * m1
+        a[1, 2] = mtt - t0 * mt
+        a[2, 2] = mtt - 2.0 * t0 * mt + t0 * t0 * m1
+        y[2] = mtd - t0 * md
+    else:  # no sample past the crease (the one line's infinite t0): a zero column
+        a[0, 2] = a[1, 2] = a[2, 2] = y[2] = 0.0
+    a[1, 0], a[2, 0], a[2, 1] = a[0, 1], a[0, 2], a[1, 2]
+    for i in range(3):
+        a[i, i] += 1e-9
+    return _solve3(a, y)
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
 def trimmed_crease_fits(t: np.ndarray, d: np.ndarray, t0: np.ndarray, floor: float) -> np.ndarray:
     """Per crease ``t0[k]`` (infinite: the one line): the least-squares continuous two-piece line
     d = b0 + b1 t + b2 max(t - t0, 0) on all samples, then again on the samples within 3 robust scales
-    (max(1.4826 MAD, ``floor``)) of its residuals' median; returns the second fits' (b0, b1, b2), (K, 3)."""
+    (max(1.4826 MAD, ``floor``)) of its residuals' median; returns the second fits' (b0, b1, b2), (K, 3).
+    The first fits come from running sums over the samples sorted by t (one pass for all creases)."""
     n = t.size
+    order = np.argsort(t)
+    ts = t[order]
+    tail = np.zeros((n + 1, 5))
+    for i in range(n - 1, -1, -1):
+        ti, di = ts[i], d[order[i]]
+        tail[i, 0] = tail[i + 1, 0] + 1.0
+        tail[i, 1] = tail[i + 1, 1] + ti
+        tail[i, 2] = tail[i + 1, 2] + ti * ti
+        tail[i, 3] = tail[i + 1, 3] + di
+        tail[i, 4] = tail[i + 1, 4] + ti * di
     beta = np.empty((t0.size, 3))
     a, y = np.empty((3, 3)), np.empty(3)
     r, work, window = np.zeros(n), np.empty(n), np.empty(n)
     m, mad = np.nan, np.nan
     for k in range(t0.size):
-        b0, b1, b2 = _hinge_fit(t, d, t0[k], r, 0.0, np.inf, a, y)
+        b0, b1, b2 = _line_fit_from_tail(tail, np.searchsorted(ts, t0[k], side="right"), t0[k], a, y)
         _residuals(t, d, t0[k], b0, b1, b2, r, work)
         # neighbouring creases have nearly the same residuals: the last row's median and MAD bracket this one's
         s, m, mad = _scale_of(r, floor, work, window, m, mad)
