@@ -55,43 +55,6 @@ class Hinge:
     scale: float  # robust residual scale (px)
 
 
-def _scale(r: np.ndarray, floor: float) -> tuple[np.ndarray, np.ndarray]:
-    """Each row's robust scale 1.4826 MAD (floored) and its median, ``r`` (K, n), from one sort a row.
-
-    On a sorted row the distances |r - median| fall, then rise, so their j-th smallest is the smallest,
-    over windows of j + 1 neighbours, of the larger distance at the window's two ends: the MAD needs no
-    second selection (the same numbers as a partition of |r - median|)."""
-    n = r.shape[1]
-    lo, hi = (n - 1) // 2, n // 2
-    s = np.sort(r, axis=1)
-    med = 0.5 * (s[:, lo] + s[:, hi])
-    below = med[:, None] - s[:, : n - lo]  # med - s[i], the window's left end
-    above = s[:, lo:] - med[:, None]  # s[i + lo] - med, its right end
-    q_hi = np.maximum(below[:, : n - hi], above[:, hi - lo :]).min(axis=1)
-    np.maximum(below, above, out=below)
-    return np.maximum(1.4826 * (0.5 * (below.min(axis=1) + q_hi)), floor), med
-
-
-def _fit(terms: tuple[np.ndarray, np.ndarray], H: np.ndarray, w: np.ndarray | None) -> np.ndarray:
-    """Weighted least squares of d on the columns 1, t and H (the hinge column of each candidate):
-    weights ``w`` (K, n; None: all one) -> coefficients (K, 3), from the normal equations' sums.
-    ``terms`` holds each sample's 1, t, t², d, t d (n, 5) and 1, t, d (n, 3): one product with the
-    weights gives the line's five sums (as measure.dline's IRLS), one more with the weighted hinge
-    column the hinge's."""
-    terms, hterms = terms
-    k = H.shape[0]
-    sums = np.broadcast_to(terms.sum(axis=0), (k, 5)) if w is None else w @ terms
-    wh = H if w is None else w * H
-    hs = wh @ hterms
-    A = np.empty((k, 3, 3))
-    A[:, 0, 0], A[:, 0, 1], A[:, 1, 1] = sums[:, 0], sums[:, 1], sums[:, 2]
-    A[:, 0, 2], A[:, 1, 2], A[:, 2, 2] = hs[:, 0], hs[:, 1], np.einsum("kn,kn->k", wh, H)
-    A[:, 1, 0], A[:, 2, 0], A[:, 2, 1] = A[:, 0, 1], A[:, 0, 2], A[:, 1, 2]
-    A += 1e-9 * np.eye(3)
-    y = np.stack([sums[:, 3], sums[:, 4], hs[:, 2]], axis=1)
-    return np.linalg.solve(A, y[..., None])[..., 0]
-
-
 def _residuals(t: np.ndarray, H: np.ndarray | None, d: np.ndarray, beta: np.ndarray) -> np.ndarray:
     r = d[None] - beta[:, :1]
     tmp = np.multiply(beta[:, 1:2], t[None])
@@ -100,17 +63,6 @@ def _residuals(t: np.ndarray, H: np.ndarray | None, d: np.ndarray, beta: np.ndar
         np.multiply(beta[:, 2:3], H, out=tmp)
         r -= tmp
     return r
-
-
-def _trimmed_fit(t: np.ndarray, H: np.ndarray, d: np.ndarray, floor: float, terms: tuple[np.ndarray, np.ndarray]) -> np.ndarray:
-    """Least squares, then least squares on the samples within 3 robust sigmas of it: the second
-    pass's coefficients. ``terms``: as :func:`_fit`'s."""
-    beta = _fit(terms, H, None)
-    r = _residuals(t, H, d, beta)
-    s, med = _scale(r, floor)
-    r -= med[:, None]
-    np.abs(r, out=r)
-    return _fit(terms, H, (r <= 3.0 * s[:, None]).astype(np.float64))
 
 
 def hinge_ends(t: np.ndarray, d: np.ndarray, length: float, quantum: float, noise: float) -> Hinge | None:
@@ -128,30 +80,29 @@ def hinge_ends(t: np.ndarray, d: np.ndarray, length: float, quantum: float, nois
     t0s = t0s[(left >= MIN_PIECE_SAMPLES) & (n - left >= MIN_PIECE_SAMPLES)]
     if t0s.size == 0:
         return None
-    terms = np.stack([np.ones_like(t), t, t * t, d, t * d], axis=1)
-    terms = (terms, terms[:, [0, 1, 3]])
-    # Row 0 is the one line: a hinge column of zeros (its coefficient stays 0), fitted with the candidates.
-    H = np.maximum(t[None] - np.concatenate([[np.inf], t0s])[:, None], 0.0)
-    b2 = _trimmed_fit(t, H, d, floor, terms)
+    from measure.kernels import row_scales, trimmed_crease_fits  # numba loads on first use: `import measure` stays fast
+    # Row 0 is the one line: a crease beyond the far end (a hinge column of zeros), fitted with the candidates.
+    creases = np.concatenate([[np.inf], t0s])
+    b2 = trimmed_crease_fits(t, d, creases, floor)
     r1 = _residuals(t, None, d, b2[:1, :2])[0]
-    s1_row, med1 = _scale(r1[None], floor)
+    s1_row, med1 = row_scales(t, d, creases[:1], b2[:1], floor)
     s1 = float(s1_row[0])
     if s1 <= floor:
         return None  # every s2 is floored there too: the crease cannot lower the scale (condition 1)
-    H, b2 = H[1:], b2[1:]
+    b2 = b2[1:]
     # Condition 3 without its scale term: when no candidate's pieces part by more than a quantum and
     # DISAGREE_REL of its disparity at the crease, the best one's cannot, whatever the scales (most
     # straight profiles end here, without the second pass's residuals and medians).
     part = np.abs(b2[:, 2]) * np.minimum(t0s, length - t0s)
     if not (part > np.maximum(quantum, DISAGREE_REL * np.abs(b2[:, 0] + b2[:, 1] * t0s))).any():
         return None
-    r2 = _residuals(t, H, d, b2)
-    s2, med2 = _scale(r2, floor)
+    s2, med2 = row_scales(t, d, t0s, b2, floor)
     k = int(np.argmin(s2))
-    n_eff = n / correlation_inflation(r2[k]) ** 2
+    r2k = _residuals(t, np.maximum(t - t0s[k], 0.0)[None], d, b2[k : k + 1])[0]
+    n_eff = n / correlation_inflation(r2k) ** 2
     if not n_eff * math.log(s1 * s1 / (s2[k] * s2[k])) > PENALTY * 2.0 * math.log(max(n_eff, 2.0)):
         return None
-    inl = np.abs(r2[k] - med2[k]) <= 3.0 * s2[k]
+    inl = np.abs(r2k - med2[k]) <= 3.0 * s2[k]
     if float(np.mean(inl)) < MIN_INLIERS or s2[k] > LOCAL_ROUGHNESS * max(noise, floor):
         return None
     a, b, c = (float(v) for v in b2[k])
@@ -163,7 +114,7 @@ def hinge_ends(t: np.ndarray, d: np.ndarray, length: float, quantum: float, nois
     # Where the two models part, the samples must follow the crease: a step to scattered wrong matches past an
     # object's edge lowers the (MAD) scale by threading a steep piece through a few of them (condition 4).
     one = np.abs(r1 - med1[0]) <= 3.0 * s2[k]
-    apart = np.abs(r1 - r2[k]) > 3.0 * s2[k]
+    apart = np.abs(r1 - r2k) > 3.0 * s2[k]
     if not (inl & apart).sum() > (one & apart).sum():
         return None
     ends = (a, a + b * length + c * (length - t0))

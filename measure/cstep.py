@@ -3,8 +3,9 @@
 ``c_step``: Mahalanobis distances of all points to all starts from one matrix product of the
 per-point ``monomials`` (1, x, y, z, x², xy, ...) with per-start coefficient rows; the h smallest per
 start form the next subset; its mean and covariance come from one more matrix product of the subset
-mask with the monomials (``moments``). Determinants and adjugates of 1x1, 2x2 and 3x3 covariances are
-closed form (``det_adj``, ``det_lam``). Inputs in ``measure.mcd``'s normalised, dimensionless units.
+mask with the monomials. Determinants and adjugates of 1x1, 2x2 and 3x3 covariances are closed form
+(``det_adj``; per start in ``measure.kernels``). Inputs in ``measure.mcd``'s normalised, dimensionless
+units.
 """
 
 from __future__ import annotations
@@ -13,8 +14,8 @@ import functools
 
 import numpy as np
 
+
 _F32_MAX = float(np.finfo(np.float32).max)
-RIDGE = 1e-8  # regularises singular starts (relative to the start's scale, at least 1)
 
 
 @functools.lru_cache(maxsize=None)
@@ -22,43 +23,11 @@ def pairs(p: int) -> tuple[np.ndarray, np.ndarray]:
     return np.triu_indices(p)
 
 
-@functools.lru_cache(maxsize=None)
-def quad_weights(p: int) -> np.ndarray:
-    """Weights of the upper-triangle entries of a symmetric form: 1 on the diagonal, 2 off it."""
-    j, k = pairs(p)
-    return np.where(j == k, 1.0, 2.0)
-
-
-@functools.lru_cache(maxsize=None)
-def upper_flat(p: int) -> np.ndarray:
-    """Positions of the upper-triangle entries (in ``pairs`` order) in a flattened p x p matrix."""
-    j, k = pairs(p)
-    return j * p + k
-
-
-@functools.lru_cache(maxsize=None)
-def sym_index(p: int) -> np.ndarray:
-    """For each entry of a flattened symmetric p x p matrix, its position in the upper-triangle list."""
-    j, k = pairs(p)
-    pos = np.empty((p, p), dtype=np.intp)
-    pos[j, k] = pos[k, j] = np.arange(len(j))
-    return pos.ravel()
-
-
 def monomials(z: np.ndarray) -> np.ndarray:
     """Per point: (1, z_1..z_p, z_j z_k for j <= k); n x m. The leading 1 makes one matrix
     product give a subset's count and a start's constant term."""
     j, k = pairs(z.shape[1])
     return np.concatenate([np.ones((len(z), 1)), z, z[:, j] * z[:, k]], axis=1)
-
-
-def moments(sums: np.ndarray, p: int) -> tuple[np.ndarray, np.ndarray]:
-    """Mean and (biased) covariance from summed monomials (count first); sums ... x m."""
-    q = sums[..., 1:] / sums[..., :1]
-    mean = q[..., :p]
-    j, k = pairs(p)
-    second = q[..., p:] - mean[..., j] * mean[..., k]
-    return mean, second[..., sym_index(p)].reshape(sums.shape[:-1] + (p, p))
 
 
 def det_adj(cov: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -84,29 +53,6 @@ def det_adj(cov: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     return a * adj[..., 0, 0] + b * adj[..., 0, 1] + c * adj[..., 0, 2], adj
 
 
-def det_lam(cov: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Determinant and lambda_min estimate det / trace(adj) of a batch of symmetric matrices.
-
-    det / trace(adj) lies within a factor p of the smallest eigenvalue: a cheap singularity
-    test. Same expressions as :func:`det_adj`, without building the adjugate.
-    """
-    p = cov.shape[-1]
-    if p == 1:
-        det = cov[..., 0, 0].copy()
-        return det, det.copy()
-    if p == 2:
-        a, b, d = cov[..., 0, 0], cov[..., 0, 1], cov[..., 1, 1]
-        det, tr = a * d - b * b, d + a
-    else:
-        a, b, c = cov[..., 0, 0], cov[..., 0, 1], cov[..., 0, 2]
-        e, f, i = cov[..., 1, 1], cov[..., 1, 2], cov[..., 2, 2]
-        m00 = e * i - f * f
-        det = a * m00 + b * (c * f - b * i) + c * (b * f - c * e)
-        tr = m00 + (a * i - c * c) + (a * e - b * b)
-    # trace(adj) of a covariance is >= 0; where it is 0 the matrix is zero: lambda_min = det / inf = 0.
-    return det, det / np.where(tr > 0, tr, np.inf)
-
-
 def mm(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     """a @ b with a (..., S, K), b (..., K, N), as a stack of small products.
 
@@ -126,29 +72,18 @@ def mm(a: np.ndarray, b: np.ndarray) -> np.ndarray:
 def c_step(mono: np.ndarray, mean: np.ndarray, cov: np.ndarray, lam: np.ndarray, h: int, p: int):
     """One concentration step for G groups of S starts on G point sets (monomials G x n x m).
 
-    ``mean`` is G x S x p, ``cov`` G x S x p x p, ``lam`` their lambda_min estimates (G x S, from
-    :func:`det_lam`). Returns the new subset masks (G x S x n), means, covariances,
-    determinants and lambda_min estimates (each G x S ...).
+    ``mean`` is G x S x p, ``cov`` G x S x p x p, ``lam`` their lambda_min estimates (G x S). Returns
+    the new subset masks (G x S x n), means, covariances, determinants and lambda_min estimates (each
+    G x S ...). The per-start arithmetic and the moments are compiled (``measure.kernels``); the two
+    matrix products stay with BLAS and the selection with numpy's partition (SIMD, faster than a loop).
     """
-    # The ridge and the singularity test scale with the trace: a start spanning far outliers has a
-    # covariance of up to 1e24 whose rounding alone exceeds an absolute ridge (its determinant
-    # could come out zero or negative). At data scale (trace <= 1) it is the absolute 1e-8.
-    ridge = RIDGE * np.maximum(cov.diagonal(axis1=-2, axis2=-1).sum(axis=-1), 1.0)
-    singular = lam <= ridge
-    if singular.any():
-        cov = cov + (singular * ridge)[..., None, None] * np.eye(p)
-    det, adj = det_adj(cov)
-    inv = adj / det[..., None, None]
-    quad = quad_weights(p) * inv.reshape(inv.shape[:-2] + (p * p,))[..., upper_flat(p)]
-    lin = -2.0 * np.einsum("...jk,...k->...j", inv, mean)
-    const = -0.5 * np.einsum("...j,...j->...", lin, mean)
-    coef = np.concatenate([const[..., None], lin, quad], axis=-1)
+    from measure.kernels import moments_det_lam, start_coefficients  # numba loads on first use: `import measure` stays fast
+    coef = start_coefficients(mean, cov, lam)
     d2 = mm(coef.astype(mono.dtype, copy=False), np.swapaxes(mono, -1, -2))
     # Expanded in monomials, d² of a point on the start's support can round a hair below zero.
     np.maximum(d2, 0.0, out=d2)
     mask, sums = _h_smallest(d2, h, mono)
-    new_mean, new_cov = moments(sums.astype(np.float64, copy=False), p)
-    return (mask, new_mean, new_cov) + det_lam(new_cov)
+    return (mask,) + moments_det_lam(sums.astype(np.float64, copy=False), p)
 
 
 def _h_smallest(d2: np.ndarray, h: int, mono: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

@@ -43,7 +43,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from measure.cstep import c_step, det_adj, det_lam, moments, monomials
+from measure.cstep import c_step, det_adj, monomials
 from measure.robust_range import median
 from measure.types import MeasureError
 
@@ -227,6 +227,7 @@ def fast_mcd(
             return _exact_fit_result(x, s, sub, h)
         return _finish(x, z, center, s, np.ones(n, bool), h)
 
+    from measure.kernels import moments_det_lam  # numba loads on first use: `import measure` stays fast
     rng = np.random.default_rng(seed)
     mono = monomials(z)
 
@@ -259,8 +260,7 @@ def fast_mcd(
     draw = rng.integers(0, m, size=(groups, per_group * (p + 1)))
     if groups > 1:
         draw = np.take_along_axis(perm, draw, axis=1)
-    mean, cov = moments(mono[draw].reshape(groups, per_group, p + 1, -1).sum(axis=2), p)
-    lam = det_lam(cov)[1]
+    mean, cov, _, lam = moments_det_lam(mono[draw].reshape(groups, per_group, p + 1, -1).sum(axis=2), p)
     stages = [(perm, max(p + 1, int(math.ceil(h * m / n))), 2, False)]
     if groups > 1:
         merged = perm.reshape(1, -1)

@@ -107,22 +107,3 @@ def test_a_crease_among_scattered_wrong_matches_is_found_where_it_is():
         h = hinge_ends(t, d, 159.0, 0.25, 0.1)
         found += h is not None and abs(h.t0 - t0) < 12
     assert found >= 25
-
-
-def test_median_and_mad_from_one_sort_are_the_partitioned_ones():
-    """The crease search's row medians and MADs from one sort a row (the MAD as the smallest window of
-    the sorted residuals) are np.median's numbers to the bit, on odd and even rows, quantized rows
-    with many ties, constant rows and one-row batches."""
-    from measure.bend import _scale
-
-    rng = np.random.default_rng(3)
-    for n in (20, 21, 268, 1280):
-        for K in (1, 48):
-            r = rng.normal(0, 1, (K, n)) * rng.uniform(0.01, 5, (K, 1)) + rng.normal(0, 3, (K, 1))
-            r[: K // 2] = np.round(r[: K // 2] * 4) / 4  # quantized: ties at the median and at the MAD
-            r[-1] = 2.5 if K > 1 else r[-1]
-            s, med = _scale(r, 0.07)
-            ref_med = np.median(r, axis=1)
-            ref_mad = np.median(np.abs(r - ref_med[:, None]), axis=1)
-            assert np.array_equal(med, ref_med)
-            assert np.array_equal(s, np.maximum(1.4826 * ref_mad, 0.07))
