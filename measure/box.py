@@ -31,11 +31,12 @@ import time
 
 import numpy as np
 
+from measure.box_edges import AXES, FATTEN_REACH_PX, RectFrame, find_side
 from measure.height import height_above, window_plane
 from measure.planes import INLIER_SIGMAS, GrownPlane, Plane, fit_plane, grow_plane, sigma_of
 from measure.sampling import check_point
 from measure.shape_types import BoxMeasurement
-from measure.support import angle_deg, check_options, cross2, parallel_levels, verdict
+from measure.support import angle_deg, check_options, cross2, parallel_levels, polygon_mask, verdict
 from measure.types import Frame, MeasureError, MeasureOptions
 
 BOX_SIGMA_SCALE = 1.0
@@ -44,17 +45,12 @@ FEW_TOP_PX = 300
 MIN_HEIGHT_M = 0.02
 SIDE_SPAN = 0.8
 CORRELATED_PX = 4.0
-BLEED_PX = 1.0
 FILL_MIN = 0.88
 HIDDEN_SHARE = 0.25
 OUTSIDE_PX = 6.0
 TILT_DEG = 5.0
 MIN_SIDE_POINTS = 8
 CREASE_BAND_PX = 14
-CREASE_RESIDUAL = 4.0
-CREASE_GAIN = 25.0
-CREASE_BINS = 5
-EDGE_DISAGREE = 0.05
 MERGED_SIGMAS = 4.0
 
 
@@ -126,7 +122,7 @@ def _rectangle(top: Plane, grown: GrownPlane, frame: Frame) -> dict:
     e = np.array([[math.cos(theta), math.sin(theta)], [-math.sin(theta), math.cos(theta)]])
     pos, sig, seen, outward = np.zeros(4), np.zeros(4), np.zeros(4, bool), []
     for k in range(4):
-        along, across, sign = (1, 0, 1.0) if k == 0 else (1, 0, -1.0) if k == 1 else (0, 1, 1.0) if k == 2 else (0, 1, -1.0)
+        along, across, sign = AXES[k]
         m3 = sign * (e[across, 0] * u + e[across, 1] * v)
         outward.append(m3)
         sel = inner & (side == k) & (np.abs(s[:, along]) <= SIDE_SPAN * half[along])
@@ -143,59 +139,35 @@ def _rectangle(top: Plane, grown: GrownPlane, frame: Frame) -> dict:
             pos[k] = half[across]
             f = float(np.median(foot)) if len(foot) else 0.0
             sig[k] = max(float(half[across]) * 0.1, f)
-        sig[k] = math.hypot(sig[k], BLEED_PX * float(np.median(foot[side == k])) if (side == k).any() else 0.0)
-    creases = _creases(frame, top, grown.mask, pc, u, v, np.array([ra, rb]), e, pos, half, seen)
-    outline_pos = pos.copy()
-    pos = np.where(np.isfinite(creases), creases, pos)
-    return {"pc": pc, "u": u, "v": v, "e": e, "pos": pos, "outline_pos": outline_pos, "sig": sig, "seen": seen, "outward": outward,
-            "line": line, "side": side, "inner": inner, "centre_px": centre_px, "ra_rb": np.array([ra, rb])}
+    rf = RectFrame(pc, u, v, np.array([ra, rb]), e)
+    # The face's pixels against the outline's own rectangle: a top that is no rectangle fills it poorly.
+    cpx = rf.to_px(top, np.array([[a * pos[0] if a > 0 else -pos[1], b * pos[2] if b > 0 else -pos[3]] for a, b in ((-1, -1), (1, -1), (1, 1), (-1, 1))]))
+    area_px = 0.5 * abs(float(cross2(cpx[1] - cpx[0], cpx[2] - cpx[0]) + cross2(cpx[2] - cpx[0], cpx[3] - cpx[0])))
+    sides = [find_side(frame, top, rf, pos, k, float(sig[k])) if seen[k] else None for k in range(4)]
+    rf, pos, sig = _placed(rf, pos, sig, sides)
+    return {"rf": rf, "pos": pos, "sig": sig, "seen": seen, "outward": outward, "sides": sides,
+            "fill": float(grown.mask.sum()) / area_px if area_px > 0 else 0.0,
+            "line": line, "side": side, "inner": inner, "centre_px": centre_px}
 
 
-def _creases(frame: Frame, top: Plane, mask: np.ndarray, pc: np.ndarray, u: np.ndarray, v: np.ndarray,
-             centre: np.ndarray, e: np.ndarray, pos: np.ndarray, half: np.ndarray, seen: np.ndarray) -> np.ndarray:
-    """Eq. 16: each side's crease with the face beyond it, where the disparity residual to the top plane
-    starts a linear trend: a hinge fit to the residual's medians in one-pixel bins across the band of
-    ``CREASE_BAND_PX`` either side of the side. The trend must be significant, reach the inlier
-    tolerance within the band and be seen in ``CREASE_BINS`` bins beyond the hinge (a face, not the
-    thin fattened halo beyond a depth step). NaN for a side without: its outline stands."""
-    import cv2
-
-    ys, xs = np.nonzero(cv2.dilate(mask.astype(np.uint8), np.ones((2 * CREASE_BAND_PX + 1,) * 2, np.uint8)))
-    r = frame.disparity[ys, xs] - top.disparity_at(xs, ys)
-    tol = INLIER_SIGMAS * max(top.sigma_px, top.quantum * 0.75)
-    keep = np.abs(r) <= CREASE_RESIDUAL * tol  # outliers and the background beyond a depth step drop out
-    xs, ys, r = xs[keep], ys[keep], r[keep]
-    p3 = top.points_at(xs, ys)
-    s = (np.stack([(p3 - pc) @ u, (p3 - pc) @ v], axis=1) - centre) @ e.T
-    foot = float(np.median(np.linalg.norm(top.points_at(xs + 1.0, ys) - p3, axis=1))) if len(xs) else 0.0
-    out = np.full(4, np.nan)
-    noise2 = (1.2533 * max(top.sigma_px, top.quantum / math.sqrt(12.0))) ** 2 * CORRELATED_PX
-    nb = 2 * CREASE_BAND_PX
-    centres = (np.arange(nb) - CREASE_BAND_PX + 0.5) * foot
+def _placed(rf: RectFrame, pos: np.ndarray, sig: np.ndarray, sides: list) -> tuple[RectFrame, np.ndarray, np.ndarray]:
+    """The rectangle turned by the image-found sides' weighted mean tilt, and every side's position
+    (m) measured again across the turned axes from its own middle."""
+    tilts = [(-sd.tilt if k < 2 else sd.tilt, sd.tilt_weight) for k, sd in enumerate(sides) if sd is not None and sd.tilt_weight > 0]
+    turn = float(np.average([t for t, _ in tilts], weights=[wt for _, wt in tilts])) if tilts else 0.0
+    c, sn = math.cos(turn), math.sin(turn)
+    e2 = np.array([[c, sn], [-sn, c]]) @ rf.e
+    new_pos, new_sig = pos.copy(), sig.copy()
     for k in range(4):
-        if not seen[k] or foot <= 0:
-            continue
-        along, across, sign = (1, 0, 1.0) if k == 0 else (1, 0, -1.0) if k == 1 else (0, 1, 1.0) if k == 2 else (0, 1, -1.0)
-        t = sign * s[:, across] - pos[k]
-        sel = (np.abs(s[:, along]) <= SIDE_SPAN * half[along]) & (np.abs(t) < CREASE_BAND_PX * foot)
-        b = np.floor(t[sel] / foot).astype(int) + CREASE_BAND_PX
-        rk = r[sel]
-        counts = np.bincount(b, minlength=nb)[:nb]
-        order = np.argsort(b, kind="stable")
-        groups = np.split(rk[order], np.cumsum(counts)[:-1])
-        med = np.array([float(np.median(g)) if len(g) else 0.0 for g in groups])
-        w = counts.astype(float)
-        grid = np.arange(-CREASE_BAND_PX, 0.25, 0.25) * foot
-        hinge = np.maximum(centres[None, :] - grid[:, None], 0.0)
-        su, sru = (w * hinge**2).sum(axis=1), (w * hinge * med).sum(axis=1)
-        gain = np.where(su > 0, sru**2 / np.maximum(su, 1e-30), 0.0)
-        best = int(np.argmax(gain))
-        slope = sru[best] / su[best] if su[best] > 0 else 0.0
-        reach = abs(slope) * (CREASE_BAND_PX * foot - grid[best])
-        beyond = int(((centres > grid[best]) & (counts >= MIN_SIDE_POINTS)).sum())
-        if gain[best] > CREASE_GAIN * noise2 and reach >= tol and beyond >= CREASE_BINS:
-            out[k] = pos[k] + grid[best]
-    return out
+        along, across, sign = AXES[k]
+        p = sides[k].pos if sides[k] is not None else pos[k]
+        lo, hi = (-pos[3], pos[2]) if along == 1 else (-pos[1], pos[0])
+        mid = np.zeros(2)
+        mid[along], mid[across] = (lo + hi) / 2.0, sign * p
+        new_pos[k] = sign * float((mid @ rf.e) @ e2[across])
+        if sides[k] is not None:
+            new_sig[k] = sides[k].sigma
+    return RectFrame(rf.pc, rf.u, rf.v, rf.centre, e2), new_pos, new_sig
 
 
 def _hidden_sides(frame: Frame, top: Plane, rect: dict) -> list[int]:
@@ -228,25 +200,20 @@ def _hidden_sides(frame: Frame, top: Plane, rect: dict) -> list[int]:
     return out
 
 
-def _interior_plane(frame: Frame, grown: GrownPlane, seed: int) -> Plane:
-    """The grown top's plane refit on the pixels at least ``CREASE_BAND_PX`` inside its outline, for the
-    height at the top's centre.
-
-    Near a crease the side face stays within the top's inlier tolerance for a few pixels (the more
-    noise, the wider the tolerance): grown over, they pull the plane down towards the sides and the
-    height at the centre with it. The crease band is where a side face can hide in the top's tolerance,
-    so the height's plane comes from inside it. The rectangle keeps the grown plane: at range the
-    interior is few pixels, and the outline's pixels are projected best by the plane fit over them
-    all (measured: docs/decisions/shape-uncertainty.md). With fewer than ``MIN_TOP_PX`` interior
-    pixels (a small or far top) the grown plane stays.
-    """
+def _face_plane(frame: Frame, grown: GrownPlane, corners_px: np.ndarray, seed: int) -> Plane:
+    """The top's plane refit on the pixels of its found rectangle (``corners_px``, 4 x 2) at least
+    ``FATTEN_REACH_PX`` inside its sides: the face's own pixels. The grown face also holds side-face
+    pixels near its creases (they stay within its tolerance for a few to tens of pixels) and they tilt
+    its plane, which shortens the foreshortened side and lowers the height at the centre
+    (docs/decisions/box-edges.md). With fewer than ``MIN_TOP_PX`` such pixels the grown plane stays."""
     import cv2
 
-    k = 2 * CREASE_BAND_PX + 1
-    inner = cv2.erode(grown.mask.astype(np.uint8), np.ones((k, k), np.uint8), borderType=cv2.BORDER_REPLICATE).astype(bool)
-    if int(inner.sum()) < MIN_TOP_PX:
-        return grown.plane
+    mask = polygon_mask(frame.shape, corners_px).astype(np.uint8)
+    k = 2 * int(FATTEN_REACH_PX) + 1
+    inner = cv2.erode(mask, np.ones((k, k), np.uint8), borderType=cv2.BORDER_CONSTANT, borderValue=0)
     ys, xs = np.nonzero(inner)
+    if len(xs) < MIN_TOP_PX:
+        return grown.plane
     try:
         return fit_plane(frame, xs, ys, seed, start=grown.plane)
     except MeasureError:
@@ -285,8 +252,6 @@ def measure_box(frame: Frame, click_px: tuple[float, float], options: MeasureOpt
     if n_top < MIN_TOP_PX:
         raise MeasureError(f"the clicked face has only {n_top} pixels with depth; click the top face of a box nearer the camera")
     top, mask = grown.plane, grown.mask
-    ys, xs = np.nonzero(mask)
-    cx, cy = float(xs.mean()), float(ys.mean())
     merged = _not_the_clicked_plane(frame, top, x, y, opts.seed)
     floor, between = parallel_levels(frame, mask, top, seed=opts.seed, min_drop_m=MIN_HEIGHT_M)
     if floor is None:
@@ -295,23 +260,23 @@ def measure_box(frame: Frame, click_px: tuple[float, float], options: MeasureOpt
                            "click the box's top face")
     rect = _rectangle(top, grown, frame)
     pos, sig = rect["pos"], rect["sig"]
+    centre = np.array([(pos[0] - pos[1]) / 2, (pos[2] - pos[3]) / 2])
+    half = np.array([pos[0] + pos[1], pos[2] + pos[3]]) / 2
+    cpx = rect["rf"].to_px(top, np.array([centre + [a * half[0], b * half[1]] for a, b in ((-1, -1), (1, -1), (1, 1), (-1, 1))]))
+    # The sides are lines in the image: their corners go onto the face's own plane.
+    face = _face_plane(frame, grown, cpx, opts.seed)
+    corners = face.points_at(cpx[:, 0], cpx[:, 1])
+    dims = [float(np.linalg.norm(corners[1] - corners[0]) + np.linalg.norm(corners[2] - corners[3])) / 2,
+            float(np.linalg.norm(corners[3] - corners[0]) + np.linalg.norm(corners[2] - corners[1])) / 2]
     # Depth scale: every in-plane length scales with the plane's distance from the camera.
-    n, o = top.metric()
-    offs = np.array([top.metric(c)[1] for c in top.coefficient_samples()])
+    o = face.metric()[1]
+    offs = np.array([face.metric(c)[1] for c in face.coefficient_samples()])
     rel_scale = float(sigma_of(offs)) / o
-    dims = [pos[0] + pos[1], pos[2] + pos[3]]
     sig_dims = [math.sqrt(sig[0] ** 2 + sig[1] ** 2 + (dims[0] * rel_scale) ** 2),
                 math.sqrt(sig[2] ** 2 + sig[3] ** 2 + (dims[1] * rel_scale) ** 2)]
-    # The two edge models, the outline's depth step and the crease's hinge, bracket each side: their
-    # difference is an uncertainty of the model, and a large one a reason to check the answer.
-    outline = rect["outline_pos"]
-    spread = [abs(dims[0] - outline[0] - outline[1]), abs(dims[1] - outline[2] - outline[3])]
-    sig_dims = [math.hypot(s, d / 2.0) for s, d in zip(sig_dims, spread)]
-    height, s_h, _, _ = height_above(_interior_plane(frame, grown, opts.seed), floor, cx, cy, 0.0)
+    cx, cy = (float(v) for v in cpx.mean(axis=0))
+    height, s_h, _, _ = height_above(face, floor, cx, cy, 0.0)
     reasons: list[str] = []
-    worst = max(d / v for d, v in zip(spread, dims)) if min(dims) > 0 else math.inf
-    if worst > EDGE_DISAGREE:
-        reasons.append(f"top face's edges uncertain (outline and creases differ by {100 * worst:.0f} %)")
     if grown.touches_border or not rect["seen"].all():
         reasons.append("box cut by the image border" if grown.touches_border else "an edge of the top face is not seen")
     if between:
@@ -321,22 +286,16 @@ def measure_box(frame: Frame, click_px: tuple[float, float], options: MeasureOpt
     hidden = _hidden_sides(frame, top, rect)
     if hidden:
         reasons.append("top face partly hidden by something in front")
-    e, pc, u, v = rect["e"], rect["pc"], rect["u"], rect["v"]
-    centre2 = rect["ra_rb"] + e[0] * (pos[0] - pos[1]) / 2 + e[1] * (pos[2] - pos[3]) / 2
-    corners2 = [centre2 + a * e[0] * dims[0] / 2 + b * e[1] * dims[1] / 2 for a, b in ((-1, -1), (1, -1), (1, 1), (-1, 1))]
-    corners = np.array([pc + c[0] * u + c[1] * v for c in corners2])
     fn, fo = floor.metric()
     base = corners - (corners @ fn + fo)[:, None] * fn
 
     def to_px(p: np.ndarray) -> np.ndarray:
         return np.stack([top.fx * p[:, 0] / p[:, 2] + top.cx, top.fy * p[:, 1] / p[:, 2] + top.cy], 1)
 
-    cpx = to_px(corners)
-    rect_px_area = 0.5 * abs(float(cross2(cpx[1] - cpx[0], cpx[2] - cpx[0]) + cross2(cpx[2] - cpx[0], cpx[3] - cpx[0])))
-    fill = n_top / rect_px_area if rect_px_area > 0 else 0.0
+    fill = rect["fill"]
     if fill < FILL_MIN:
         reasons.append(f"top face not rectangular ({100 * fill:.0f} % of its rectangle)")
-    tilt = angle_deg(top, floor)
+    tilt = angle_deg(face, floor)
     if tilt > TILT_DEG:
         reasons.append(f"top face not parallel to the floor ({tilt:.0f} degrees)")
     few = n_top < FEW_TOP_PX

@@ -1,0 +1,305 @@
+"""The sides of a box's top face: where its colour image steps, accepted where its depth says an edge is (m, px).
+
+The depth finds a top face's sides only roughly: block matching fattens a face into the background
+beyond a depth step (``FATTEN_REACH_PX``), contention eats into it, and across a crease the side
+face stays within the top plane's tolerance for a few to tens of pixels. The colour image steps at
+the edge to within a pixel, but also inside the face (tape, print) and beyond it (a side face seen
+at a grazing angle, floor seams). So each side is found in two steps (docs/decisions/box-edges.md):
+
+1. The depth edge, along profiles across the side on the top plane (Eq. 2, 9): the outermost offset
+   where the share of pixels on the top plane falls below ``EDGE_SHARE`` of the face's share, and
+   what lies beyond it: a *step* (the disparity falls away: background) or a *crease* (it goes on
+   smoothly: a side face), whose start is the hinge of the residual to the top plane.
+2. The image edge: the profiles' gradient magnitude, averaged over each of ``SEGMENTS`` stretches of
+   the side; in each, the significant peaks within the depth's window: a step's edge lies inside its
+   depth edge by at most the fattening reach, a crease's within that reach of its hinge. Beyond a
+   step's true edge lie the fattened background's features, so the innermost peak is taken; inside a
+   crease lie the top's own (tape), so the outermost. A line through the stretches' peaks (the
+   most that agree within ``LINE_TOL_PX``) is the side, with its tilt; a side without one keeps its
+   depth edge, moved inward by half the fattening reach with that reach as its uncertainty.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+from measure.planes import INLIER_SIGMAS, Plane
+
+FATTEN_REACH_PX = 8.0
+STEP_PX = 0.5
+SEGMENTS = 6
+SEGMENT_PROFILES = 16
+SIDE_SPAN = 0.8
+LINE_TOL_PX = 1.5
+MIN_SEGMENTS = 3
+STEP_TOLS = 1.0
+SEARCH_SHARE = 0.4
+PEAK_SIGMAS = 5.0
+PEAK_RATIO = 1.6
+EDGE_PX = 0.5
+CREASE_RESIDUAL = 4.0
+CREASE_GAIN = 25.0
+CREASE_BINS = 5
+CORRELATED_PX = 4.0
+MIN_SIDE_POINTS = 8
+
+# Side k of a rectangle: (along axis, across axis, sign of the outward direction along it).
+AXES = ((1, 0, 1.0), (1, 0, -1.0), (0, 1, 1.0), (0, 1, -1.0))
+
+
+@dataclass(frozen=True)
+class RectFrame:
+    """A rectangle's frame on a plane: ``pc`` (3D point, m), in-plane unit vectors ``u``, ``v``, the
+    rectangle's centre ``centre`` (2D in u, v, m) and its axes ``e`` (2 x 2 rows, in u, v)."""
+
+    pc: np.ndarray
+    u: np.ndarray
+    v: np.ndarray
+    centre: np.ndarray
+    e: np.ndarray
+
+    def to_3d(self, s: np.ndarray) -> np.ndarray:
+        """3D points (..., 3, m) of rectangle coordinates ``s`` (..., 2, m)."""
+        q = np.asarray(s, float) @ self.e + self.centre
+        return self.pc + q[..., :1] * self.u + q[..., 1:] * self.v
+
+    def to_px(self, top: Plane, s: np.ndarray) -> np.ndarray:
+        """Image pixels (..., 2) of rectangle coordinates ``s`` (..., 2, m)."""
+        p = self.to_3d(s)
+        return np.stack([top.fx * p[..., 0] / p[..., 2] + top.cx, top.fy * p[..., 1] / p[..., 2] + top.cy], -1)
+
+
+@dataclass(frozen=True)
+class Side:
+    """One side's position (m from the rectangle's centre along its outward axis), one-sigma (m), how
+    it was found ("image", "crease" or "depth"), its tilt against the rectangle's axis (rad; 0 when
+    not from the image), the weight of that tilt, what lies beyond ("step" or "crease"), and the
+    depth's own position (m) beside the image's."""
+
+    pos: float
+    sigma: float
+    source: str
+    tilt: float
+    tilt_weight: float
+    beyond: str
+    depth_pos: float
+
+
+@dataclass(frozen=True)
+class _Grid:
+    xy: np.ndarray  # profiles x offsets x 2 (px)
+    t: np.ndarray  # offsets (px of the side's footprint)
+    along: np.ndarray  # profiles' positions along the side, from its middle (m)
+    foot: float  # m per px across the side
+    foot_along: float  # m per px along it
+
+
+def _grid(top: Plane, rf: RectFrame, pos: np.ndarray, k: int, t: np.ndarray) -> _Grid:
+    along, across, sign = AXES[k]
+    lo, hi = (-pos[3], pos[2]) if along == 1 else (-pos[1], pos[0])
+    mid, half = (lo + hi) / 2.0, (hi - lo) / 2.0
+    p0 = np.zeros(2)
+    p0[along], p0[across] = mid, sign * pos[k]
+    da, dc = np.zeros(2), np.zeros(2)
+    da[along], dc[across] = 1e-3, sign * 1e-3
+    a, b, c = rf.to_px(top, np.stack([p0, p0 + dc, p0 + da]))
+    foot = 1e-3 / max(float(np.linalg.norm(b - a)), 1e-9)
+    foot_along = 1e-3 / max(float(np.linalg.norm(c - a)), 1e-9)
+    n = int(np.clip(2.0 * SIDE_SPAN * half / foot_along, SEGMENTS * 2, SEGMENTS * SEGMENT_PROFILES))
+    al = np.linspace(-SIDE_SPAN * half, SIDE_SPAN * half, n)
+    s = np.zeros((n, len(t), 2))
+    s[..., along] = mid + al[:, None]
+    s[..., across] = sign * (pos[k] + t[None, :] * foot)
+    return _Grid(rf.to_px(top, s), t, al, foot, foot_along)
+
+
+def _sample_image(image: np.ndarray, xy: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Bilinear colour samples (profiles x offsets x 3, float) at ``xy`` and which lie in the image."""
+    import cv2
+
+    h, w = image.shape[:2]
+    inside = (xy[..., 0] >= 0) & (xy[..., 0] <= w - 1) & (xy[..., 1] >= 0) & (xy[..., 1] <= h - 1)
+    x0 = int(np.clip(np.floor(xy[..., 0].min()) - 1, 0, w - 1))
+    y0 = int(np.clip(np.floor(xy[..., 1].min()) - 1, 0, h - 1))
+    x1 = int(np.clip(np.ceil(xy[..., 0].max()) + 2, x0 + 1, w))
+    y1 = int(np.clip(np.ceil(xy[..., 1].max()) + 2, y0 + 1, h))
+    roi = image[y0:y1, x0:x1].astype(np.float32)
+    mx = (xy[..., 0] - x0).astype(np.float32)
+    my = (xy[..., 1] - y0).astype(np.float32)
+    return cv2.remap(roi, mx, my, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE), inside
+
+
+def _residuals(frame, top: Plane, xy: np.ndarray) -> np.ndarray:
+    """Disparity minus the top plane's (px) at the pixels nearest ``xy``; NaN off the image or without depth."""
+    h, w = frame.shape
+    xi, yi = np.rint(xy[..., 0]).astype(np.int64), np.rint(xy[..., 1]).astype(np.int64)
+    ok = (xi >= 0) & (xi < w) & (yi >= 0) & (yi < h)
+    d = np.full(xi.shape, np.nan)
+    d[ok] = frame.disparity[yi[ok], xi[ok]]
+    return d - top.disparity_at(xi, yi)
+
+
+def _column_median(a: np.ndarray) -> np.ndarray:
+    """Median of each column of ``a`` over its finite values (NaN for a column without any)."""
+    srt = np.sort(a, axis=0)  # NaN sorts last
+    n = np.isfinite(a).sum(axis=0)
+    cols = np.arange(a.shape[1])
+    lo, hi = np.maximum((n - 1) // 2, 0), np.maximum(n // 2, 0)
+    out = 0.5 * (srt[lo, cols] + srt[hi, cols])
+    out[n == 0] = np.nan
+    return out
+
+
+def _depth_edge(t: np.ndarray, r: np.ndarray, tol: float) -> float:
+    """Where the top plane's support ends along the offsets ``t`` (px): the first offset beyond
+    ``-FATTEN_REACH_PX`` from which the residual's median over the profiles stays off the plane
+    (beyond ``tol``) for a pixel; the median keeps contention's outliers (up to half) out of it."""
+    med = _column_median(r)
+    off = ~(np.abs(med) <= tol)  # NaN (no depth across the profiles) counts as off
+    run = off[:-2] & off[1:-1] & off[2:]
+    idx = np.flatnonzero(run & (t[:-2] >= -FATTEN_REACH_PX))
+    return float(t[idx[0]] - STEP_PX / 2.0) if idx.size else float(t[-1])
+
+
+def _is_step(t: np.ndarray, r: np.ndarray, t_d: float, tol: float) -> bool:
+    """Whether the disparity beyond the depth edge ``t_d`` (px) jumps away from the top plane (a step:
+    background, or a side face too steep to matter) rather than going on as the residual's trend just
+    inside it (a crease): its median over ``FATTEN_REACH_PX`` beyond lies more than ``STEP_TOLS``
+    tolerances below that trend's extrapolation, or mostly has no depth."""
+    past = r[:, (t > t_d) & (t <= t_d + FATTEN_REACH_PX)]
+    valid = np.isfinite(past)
+    if past.size == 0 or valid.mean() < 0.5:
+        return True
+    near = (t >= t_d - 2.0 * FATTEN_REACH_PX) & (t <= t_d - 1.0)
+    med = _column_median(r[:, near])
+    ok = np.abs(med) <= tol  # the face itself: a jump just inside the edge is no trend
+    if ok.sum() >= 3:
+        b, a = np.polyfit(t[near][ok], med[ok], 1)
+        trend = a + b * (t_d + FATTEN_REACH_PX / 2.0)
+    else:
+        trend = 0.0
+    return float(np.median(past[valid])) < trend - STEP_TOLS * tol
+
+
+def _hinge(t: np.ndarray, r: np.ndarray, tol: float, noise2: float, lo: float, hi: float) -> float | None:
+    """Where a linear fall of the residual ``r`` (profiles x offsets, px) begins: a hinge fit to its
+    per-offset medians over [lo, hi] px; None unless the fall is significant, reaches the tolerance
+    and is seen over ``CREASE_BINS`` offsets beyond the hinge."""
+    keep = np.abs(r) <= CREASE_RESIDUAL * tol
+    counts = keep.sum(axis=0)
+    med = _column_median(np.where(keep, r, np.nan))
+    use = counts >= MIN_SIDE_POINTS
+    if use.sum() < CREASE_BINS + 2:
+        return None
+    tc, mc, w = t[use], med[use], counts[use].astype(float)
+    grid = np.arange(lo, hi + 1e-9, 0.25)
+    grid = grid[grid < tc.max()]
+    if grid.size == 0:
+        return None
+    hinge = np.maximum(tc[None, :] - grid[:, None], 0.0)
+    su, sru = (w * hinge**2).sum(axis=1), (w * hinge * mc).sum(axis=1)
+    gain = np.where(su > 0, sru**2 / np.maximum(su, 1e-30), 0.0)
+    best = int(np.argmax(gain))
+    slope = sru[best] / su[best] if su[best] > 0 else 0.0
+    reach = -slope * (tc.max() - grid[best])
+    beyond = int((tc > grid[best]).sum())
+    if gain[best] > CREASE_GAIN * noise2 and reach >= tol and beyond >= CREASE_BINS:
+        return float(grid[best])
+    return None
+
+
+def _peak(g: np.ndarray, tm: np.ndarray, lo: float, hi: float, inner: bool) -> float | None:
+    """The innermost (or outermost) significant local maximum (px, sub-pixel) within [lo, hi] of the
+    mean gradient profile of ``g`` (profiles x offsets): ``PEAK_SIGMAS`` standard errors above the
+    profile's median and ``PEAK_RATIO`` times it."""
+    prof = g.mean(axis=0)
+    se = g.std(axis=0) / math.sqrt(max(1, g.shape[0]))
+    bg = float(np.median(prof))
+    i = np.arange(1, len(prof) - 1)
+    ok = (prof[i] >= prof[i - 1]) & (prof[i] >= prof[i + 1]) & (prof[i] > bg + PEAK_SIGMAS * se[i])
+    ok &= (prof[i] > PEAK_RATIO * bg) & (tm[i] >= lo) & (tm[i] <= hi)
+    idx = i[ok]
+    if idx.size == 0:
+        return None
+    j = int(idx.min() if inner else idx.max())
+    a, b, c = prof[j - 1], prof[j], prof[j + 1]
+    den = a - 2.0 * b + c
+    return float(tm[j] + (0.5 * (a - c) / den * STEP_PX if den < 0 else 0.0))
+
+
+def _line(points: np.ndarray) -> tuple[float, float, np.ndarray] | None:
+    """Line t = t0 + b a through the (a, t) points that most agree within ``LINE_TOL_PX`` (every pair
+    tried, then a least-squares fit of its inliers): (t0, b, inliers) or None with fewer than
+    ``MIN_SEGMENTS`` in agreement."""
+    n = len(points)
+    if n < MIN_SEGMENTS:
+        return None
+    a, t = points[:, 0], points[:, 1]
+    i, j = np.triu_indices(n, 1)
+    da = a[j] - a[i]
+    b = np.where(da != 0, (t[j] - t[i]) / np.where(da != 0, da, 1.0), 0.0)
+    t0 = t[i] - b * a[i]
+    res = np.abs(t[None, :] - (t0[:, None] + b[:, None] * a[None, :]))
+    inl = res <= LINE_TOL_PX
+    score = inl.sum(axis=1) - np.where(inl, res, 0.0).sum(axis=1) / (n * LINE_TOL_PX)
+    best = inl[int(np.argmax(score))]
+    if best.sum() < MIN_SEGMENTS:
+        return None
+    bb, tt = np.polyfit(a[best], t[best], 1)
+    return float(tt), float(bb), best
+
+
+def find_side(frame, top: Plane, rf: RectFrame, pos: np.ndarray, k: int, outline_sigma: float) -> Side:
+    """Side ``k`` of the rectangle whose sides lie at ``pos`` (m, from the face's outline), found as the
+    module docstring says; ``outline_sigma`` (m) is the outline's own one-sigma for that side."""
+    tol = INLIER_SIGMAS * max(top.sigma_px, top.quantum * 0.75)
+    probe = _grid(top, rf, pos, k, np.zeros(1))
+    dim_px = (pos[k] + pos[k ^ 1]) / probe.foot
+    reach_in = max(2.0 * FATTEN_REACH_PX, SEARCH_SHARE * dim_px)
+    t = np.arange(-reach_in, 2.0 * FATTEN_REACH_PX + 1e-9, STEP_PX)
+    grid = _grid(top, rf, pos, k, t)
+    r = _residuals(frame, top, grid.xy)
+    t_d = _depth_edge(t, r, tol)
+    step = _is_step(t, r, t_d, tol)
+    hinge = None
+    if not step:
+        noise2 = (1.2533 * max(top.sigma_px, top.quantum / math.sqrt(12.0))) ** 2 * CORRELATED_PX
+        hinge = _hinge(t, r, tol, noise2, -reach_in, t_d)
+    if hinge is not None:
+        lo, hi, inner_first, depth_t = hinge - 2.0 * FATTEN_REACH_PX, t_d + 1.0, False, hinge
+    else:
+        lo, hi, inner_first, depth_t = t_d - FATTEN_REACH_PX, t_d + 1.0, True, t_d
+    img, inside = _sample_image(frame.image, grid.xy)
+    g = np.linalg.norm(np.diff(img, axis=1), axis=2) / STEP_PX
+    tm = t[:-1] + STEP_PX / 2.0
+    n = len(grid.along)
+    peaks = []
+    for q in range(SEGMENTS):
+        sl = slice(q * n // SEGMENTS, (q + 1) * n // SEGMENTS)
+        rows = inside[sl].all(axis=1)
+        if rows.sum() < 2:
+            continue
+        p = _peak(g[sl][rows], tm, lo, hi, inner_first)
+        if p is not None:
+            peaks.append((float(grid.along[sl][rows].mean()), p))
+    fit = _line(np.array(peaks)) if peaks else None
+    depth_pos = pos[k] + depth_t * grid.foot
+    beyond = "step" if step else "crease"
+    if fit is not None:
+        t0, b, inl = fit
+        spread = float(np.std(np.array(peaks)[inl, 1] - (t0 + b * np.array(peaks)[inl, 0])))
+        sig_px = math.hypot(EDGE_PX, spread / math.sqrt(inl.sum()))
+        _, _, sign = AXES[k]
+        return Side(pos[k] + t0 * grid.foot, sig_px * grid.foot, "image", math.atan(sign * b * grid.foot), float(inl.sum()),
+                    beyond, depth_pos)
+    if hinge is not None:
+        # A crease's hinge lies beyond the crease by up to the fattening reach of the ridge.
+        shift, spread_px = FATTEN_REACH_PX / 2.0, FATTEN_REACH_PX / math.sqrt(12.0)
+        return Side(depth_pos - shift * grid.foot, math.hypot(outline_sigma, spread_px * grid.foot), "crease", 0.0, 0.0,
+                    beyond, depth_pos)
+    shift, spread_px = FATTEN_REACH_PX / 2.0, FATTEN_REACH_PX / math.sqrt(12.0)
+    return Side(depth_pos - shift * grid.foot, math.hypot(outline_sigma, spread_px * grid.foot), "depth", 0.0, 0.0,
+                beyond, depth_pos)
