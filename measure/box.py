@@ -41,6 +41,7 @@ from measure.types import Frame, MeasureError, MeasureOptions
 
 BOX_SIGMA_SCALE = 1.0
 MIN_TOP_PX = 60
+FACE_SHARE = 0.25
 FEW_TOP_PX = 300
 MIN_HEIGHT_M = 0.02
 SIDE_SPAN = 0.8
@@ -200,6 +201,12 @@ def _hidden_sides(frame: Frame, top: Plane, rect: dict) -> list[int]:
     return out
 
 
+def _lengths(c: np.ndarray) -> np.ndarray:
+    """The two side lengths (m) of a quadrilateral of corners ``c`` (4 x 3, in order): each the mean of its pair."""
+    side = np.linalg.norm(np.roll(c, -1, axis=0) - c, axis=1)
+    return np.array([(side[0] + side[2]) / 2.0, (side[1] + side[3]) / 2.0])
+
+
 def _face_plane(frame: Frame, grown: GrownPlane, corners_px: np.ndarray, seed: int) -> Plane:
     """The top's plane refit on the pixels of its found rectangle (``corners_px``, 4 x 2) at least
     ``FATTEN_REACH_PX`` inside its sides: the face's own pixels. The grown face also holds side-face
@@ -209,7 +216,8 @@ def _face_plane(frame: Frame, grown: GrownPlane, corners_px: np.ndarray, seed: i
     import cv2
 
     mask = polygon_mask(frame.shape, corners_px).astype(np.uint8)
-    k = 2 * int(FATTEN_REACH_PX) + 1
+    sides_px = np.linalg.norm(np.roll(corners_px, -1, axis=0) - corners_px, axis=1)
+    k = 2 * int(min(FATTEN_REACH_PX, FACE_SHARE * float(sides_px.min()))) + 1
     inner = cv2.erode(mask, np.ones((k, k), np.uint8), borderType=cv2.BORDER_CONSTANT, borderValue=0)
     ys, xs = np.nonzero(inner)
     if len(xs) < MIN_TOP_PX:
@@ -266,19 +274,17 @@ def measure_box(frame: Frame, click_px: tuple[float, float], options: MeasureOpt
     # The sides are lines in the image: their corners go onto the face's own plane.
     face = _face_plane(frame, grown, cpx, opts.seed)
     corners = face.points_at(cpx[:, 0], cpx[:, 1])
-    dims = [float(np.linalg.norm(corners[1] - corners[0]) + np.linalg.norm(corners[2] - corners[3])) / 2,
-            float(np.linalg.norm(corners[3] - corners[0]) + np.linalg.norm(corners[2] - corners[1])) / 2]
-    # Depth scale: every in-plane length scales with the plane's distance from the camera.
-    o = face.metric()[1]
-    offs = np.array([face.metric(c)[1] for c in face.coefficient_samples()])
-    rel_scale = float(sigma_of(offs)) / o
-    sig_dims = [math.sqrt(sig[0] ** 2 + sig[1] ** 2 + (dims[0] * rel_scale) ** 2),
-                math.sqrt(sig[2] ** 2 + sig[3] ** 2 + (dims[1] * rel_scale) ** 2)]
+    dims = _lengths(corners)
+    # The plane's uncertainty moves the corners along their rays: its sigma points give the lengths' spread.
+    spread = sigma_of(np.array([_lengths(face.points_at(cpx[:, 0], cpx[:, 1], c)) for c in face.coefficient_samples()]))
+    sig_dims = [math.sqrt(sig[0] ** 2 + sig[1] ** 2 + spread[0] ** 2), math.sqrt(sig[2] ** 2 + sig[3] ** 2 + spread[1] ** 2)]
     cx, cy = (float(v) for v in cpx.mean(axis=0))
     height, s_h, _, _ = height_above(face, floor, cx, cy, 0.0)
     reasons: list[str] = []
     if grown.touches_border or not rect["seen"].all():
         reasons.append("box cut by the image border" if grown.touches_border else "an edge of the top face is not seen")
+    if any(sd is not None and sd.source != "image" for sd in rect["sides"]):
+        reasons.append("an edge of the top face shows no step in the colour image (placed from the depth alone)")
     if between:
         reasons.append("another level lies between the top and the plane it is measured from (a table or a neighbouring box)")
     if merged:

@@ -32,13 +32,16 @@ FATTEN_REACH_PX = 8.0
 STEP_PX = 0.5
 SEGMENTS = 6
 SEGMENT_PROFILES = 16
+SEGMENT_PROFILES_MIN = 8
 SIDE_SPAN = 0.8
 LINE_TOL_PX = 1.5
 MIN_SEGMENTS = 3
+AGREE_SHARE = 0.6
 STEP_TOLS = 1.0
 SEARCH_SHARE = 0.4
 PEAK_SIGMAS = 5.0
 PEAK_RATIO = 1.6
+STRONG_SHARE = 0.5
 EDGE_PX = 0.5
 CREASE_RESIDUAL = 4.0
 CREASE_GAIN = 25.0
@@ -86,6 +89,7 @@ class Side:
     tilt_weight: float
     beyond: str
     depth_pos: float
+    foot: float
 
 
 @dataclass(frozen=True)
@@ -216,26 +220,32 @@ def _peak(g: np.ndarray, tm: np.ndarray, lo: float, hi: float, inner: bool) -> f
     mean gradient profile of ``g`` (profiles x offsets): ``PEAK_SIGMAS`` standard errors above the
     profile's median and ``PEAK_RATIO`` times it."""
     prof = g.mean(axis=0)
-    se = g.std(axis=0) / math.sqrt(max(1, g.shape[0]))
+    # The texture's noise on the mean, pooled over the offsets (at an edge the profiles' spread also
+    # holds the edge's own wander, which would hide it).
+    se = float(np.median(g.std(axis=0))) / math.sqrt(max(1, g.shape[0]))
     bg = float(np.median(prof))
     i = np.arange(1, len(prof) - 1)
-    ok = (prof[i] >= prof[i - 1]) & (prof[i] >= prof[i + 1]) & (prof[i] > bg + PEAK_SIGMAS * se[i])
+    ok = (prof[i] >= prof[i - 1]) & (prof[i] >= prof[i + 1]) & (prof[i] > bg + PEAK_SIGMAS * se)
     ok &= (prof[i] > PEAK_RATIO * bg) & (tm[i] >= lo) & (tm[i] <= hi)
     idx = i[ok]
     if idx.size == 0:
         return None
+    # Texture beyond a crease (a foreshortened side face) or inside a step's halo makes weak peaks:
+    # only those within ``STRONG_SHARE`` of the strongest count.
+    rise = prof[idx] - bg
+    idx = idx[rise >= STRONG_SHARE * rise.max()]
     j = int(idx.min() if inner else idx.max())
     a, b, c = prof[j - 1], prof[j], prof[j + 1]
     den = a - 2.0 * b + c
     return float(tm[j] + (0.5 * (a - c) / den * STEP_PX if den < 0 else 0.0))
 
 
-def _line(points: np.ndarray) -> tuple[float, float, np.ndarray] | None:
+def _line(points: np.ndarray, need: int) -> tuple[float, float, np.ndarray] | None:
     """Line t = t0 + b a through the (a, t) points that most agree within ``LINE_TOL_PX`` (every pair
     tried, then a least-squares fit of its inliers): (t0, b, inliers) or None with fewer than
     ``MIN_SEGMENTS`` in agreement."""
     n = len(points)
-    if n < MIN_SEGMENTS:
+    if n < need:
         return None
     a, t = points[:, 0], points[:, 1]
     i, j = np.triu_indices(n, 1)
@@ -246,7 +256,7 @@ def _line(points: np.ndarray) -> tuple[float, float, np.ndarray] | None:
     inl = res <= LINE_TOL_PX
     score = inl.sum(axis=1) - np.where(inl, res, 0.0).sum(axis=1) / (n * LINE_TOL_PX)
     best = inl[int(np.argmax(score))]
-    if best.sum() < MIN_SEGMENTS:
+    if best.sum() < need:
         return None
     bb, tt = np.polyfit(a[best], t[best], 1)
     return float(tt), float(bb), best
@@ -276,30 +286,28 @@ def find_side(frame, top: Plane, rf: RectFrame, pos: np.ndarray, k: int, outline
     g = np.linalg.norm(np.diff(img, axis=1), axis=2) / STEP_PX
     tm = t[:-1] + STEP_PX / 2.0
     n = len(grid.along)
+    segments = int(np.clip(n // SEGMENT_PROFILES_MIN, MIN_SEGMENTS, SEGMENTS))
     peaks = []
-    for q in range(SEGMENTS):
-        sl = slice(q * n // SEGMENTS, (q + 1) * n // SEGMENTS)
+    for q in range(segments):
+        sl = slice(q * n // segments, (q + 1) * n // segments)
         rows = inside[sl].all(axis=1)
         if rows.sum() < 2:
             continue
         p = _peak(g[sl][rows], tm, lo, hi, inner_first)
         if p is not None:
             peaks.append((float(grid.along[sl][rows].mean()), p))
-    fit = _line(np.array(peaks)) if peaks else None
+    fit = _line(np.array(peaks), max(MIN_SEGMENTS, math.ceil(AGREE_SHARE * segments))) if peaks else None
     depth_pos = pos[k] + depth_t * grid.foot
     beyond = "step" if step else "crease"
-    if fit is not None:
-        t0, b, inl = fit
-        spread = float(np.std(np.array(peaks)[inl, 1] - (t0 + b * np.array(peaks)[inl, 0])))
-        sig_px = math.hypot(EDGE_PX, spread / math.sqrt(inl.sum()))
-        _, _, sign = AXES[k]
-        return Side(pos[k] + t0 * grid.foot, sig_px * grid.foot, "image", math.atan(sign * b * grid.foot), float(inl.sum()),
-                    beyond, depth_pos)
-    if hinge is not None:
-        # A crease's hinge lies beyond the crease by up to the fattening reach of the ridge.
-        shift, spread_px = FATTEN_REACH_PX / 2.0, FATTEN_REACH_PX / math.sqrt(12.0)
-        return Side(depth_pos - shift * grid.foot, math.hypot(outline_sigma, spread_px * grid.foot), "crease", 0.0, 0.0,
-                    beyond, depth_pos)
-    shift, spread_px = FATTEN_REACH_PX / 2.0, FATTEN_REACH_PX / math.sqrt(12.0)
-    return Side(depth_pos - shift * grid.foot, math.hypot(outline_sigma, spread_px * grid.foot), "depth", 0.0, 0.0,
-                beyond, depth_pos)
+    if fit is None:
+        # The edge lies inside the depth's (a step's fattening, a crease's flattened ridge) by up to the reach.
+        sigma = math.hypot(outline_sigma, FATTEN_REACH_PX / math.sqrt(12.0) * grid.foot)
+        return Side(depth_pos - FATTEN_REACH_PX / 2.0 * grid.foot, sigma, "crease" if hinge is not None else "depth", 0.0, 0.0,
+                    beyond, depth_pos, grid.foot)
+    t0, b, inl = fit
+    pts = np.array(peaks)[inl]
+    spread = float(np.std(pts[:, 1] - (t0 + b * pts[:, 0])))
+    sig_px = math.hypot(EDGE_PX, spread / math.sqrt(inl.sum()))
+    _, _, sign = AXES[k]
+    return Side(pos[k] + t0 * grid.foot, sig_px * grid.foot, "image", math.atan(sign * b * grid.foot), float(inl.sum()),
+                beyond, depth_pos, grid.foot)
