@@ -44,21 +44,22 @@ def _crosses(v: np.ndarray) -> bool:
     return bool(((o1 * o2 < 0) & (o3 * o4 < 0)).any())
 
 
-def one_plane_share(frame: Frame, plane: Plane, mask: np.ndarray) -> float:
-    """Share of the pixels with depth in ``mask`` within ``INLIER_SIGMAS`` noise scales of ``plane``.
+def one_plane_share(frame: Frame, plane: Plane, vertices: np.ndarray) -> float:
+    """Share of the pixels with depth inside the polygon ``vertices`` within ``INLIER_SIGMAS`` noise scales of ``plane``.
 
     The noise scale comes from differences of horizontally neighbouring pixels (1.4826 MAD / sqrt(2),
     floored at 0.75 of the disparity quantum), not from the plane's own residuals: a plane fit across two
     surfaces inflates its residual scale until most pixels look like inliers; neighbour differences
     cancel the surfaces and keep the sensor's noise."""
-    d = frame.disparity
+    mask, x0, y0 = polygon_mask(frame.shape, vertices)
+    d = frame.disparity[y0:y0 + mask.shape[0], x0:x0 + mask.shape[1]]
     pair = mask[:, 1:] & mask[:, :-1]
     diff = (d[:, 1:] - d[:, :-1])[pair]
     diff = diff[np.isfinite(diff)]
     noise = 1.4826 * float(np.median(np.abs(diff))) / math.sqrt(2.0) if diff.size else 0.0
     noise = max(noise, 0.75 * plane.quantum, MIN_SIGMA_PX)
     ys, xs = np.nonzero(mask)
-    r = d[ys, xs] - plane.disparity_at(xs, ys)
+    r = d[ys, xs] - plane.disparity_at(xs + x0, ys + y0)
     r = r[np.isfinite(r)]
     return float(np.mean(np.abs(r) <= INLIER_SIGMAS * noise)) if r.size else 0.0
 
@@ -105,7 +106,7 @@ def measure_area(frame: Frame, vertices: Sequence[tuple[float, float]], options:
     area, sigma, corners = area_on(plane, verts, opts.click_px)
     sigma *= AREA_SIGMA_SCALE
     reasons: list[str] = []
-    share = one_plane_share(frame, plane, polygon_mask(frame.shape, verts))
+    share = one_plane_share(frame, plane, verts)
     off_plane = share < ONE_PLANE_SHARE
     if off_plane:
         reasons.append(f"polygon does not lie on one plane ({100 * share:.0f} % of its pixels do)")

@@ -36,7 +36,7 @@ from measure.height import height_above, window_plane
 from measure.planes import INLIER_SIGMAS, GrownPlane, Plane, fit_plane, grow_plane, sigma_of
 from measure.sampling import check_point
 from measure.shape_types import BoxMeasurement
-from measure.support import angle_deg, check_options, cross2, parallel_levels, polygon_mask, verdict
+from measure.support import angle_deg, check_options, cross2, parallel_levels, shrunk_pixels, verdict
 from measure.types import Frame, MeasureError, MeasureOptions
 
 BOX_SIGMA_SCALE = 1.0
@@ -213,13 +213,8 @@ def _face_plane(frame: Frame, grown: GrownPlane, corners_px: np.ndarray, seed: i
     pixels near its creases (they stay within its tolerance for a few to tens of pixels) and they tilt
     its plane, which shortens the foreshortened side and lowers the height at the centre
     (docs/decisions/box-edges.md). With fewer than ``MIN_TOP_PX`` such pixels the grown plane stays."""
-    import cv2
-
-    mask = polygon_mask(frame.shape, corners_px).astype(np.uint8)
     sides_px = np.linalg.norm(np.roll(corners_px, -1, axis=0) - corners_px, axis=1)
-    k = 2 * int(min(FATTEN_REACH_PX, FACE_SHARE * float(sides_px.min()))) + 1
-    inner = cv2.erode(mask, np.ones((k, k), np.uint8), borderType=cv2.BORDER_CONSTANT, borderValue=0)
-    ys, xs = np.nonzero(inner)
+    xs, ys = shrunk_pixels(frame.shape, corners_px, int(min(FATTEN_REACH_PX, FACE_SHARE * float(sides_px.min()))))
     if len(xs) < MIN_TOP_PX:
         return grown.plane
     try:
@@ -228,14 +223,10 @@ def _face_plane(frame: Frame, grown: GrownPlane, corners_px: np.ndarray, seed: i
         return grown.plane
 
 
-def _not_the_clicked_plane(frame: Frame, top: Plane, x: float, y: float, seed: int) -> bool:
-    """Whether the plane of the click's own window differs from the grown top's at the click by more
+def _not_the_clicked_plane(own: Plane, top: Plane, x: float, y: float) -> bool:
+    """Whether the plane of the click's own window ``own`` differs from the grown top's at the click by more
     than ``MERGED_SIGMAS`` of their combined disparity one-sigma (Eq. 11 covariances): a neighbour's top
     a few centimetres higher or lower joined the grown face and tilted or shifted its plane."""
-    try:
-        own = window_plane(frame, x, y, seed)
-    except MeasureError:
-        return False
     g = np.array([x, y, 1.0])
     diff = float(own.disparity_at(x, y) - top.disparity_at(x, y))
     return abs(diff) > MERGED_SIGMAS * math.sqrt(float(g @ own.cov @ g + g @ top.cov @ g))
@@ -255,12 +246,13 @@ def measure_box(frame: Frame, click_px: tuple[float, float], options: MeasureOpt
     t0 = time.perf_counter()
     opts = check_options(options)
     x, y = check_point(frame, click_px, "click_px")
-    grown = grow_plane(frame, (x, y), opts.seed)
+    window = window_plane(frame, x, y, opts.seed)
+    grown = grow_plane(frame, (x, y), opts.seed, window=window)
     n_top = int(grown.mask.sum())
     if n_top < MIN_TOP_PX:
         raise MeasureError(f"the clicked face has only {n_top} pixels with depth; click the top face of a box nearer the camera")
     top, mask = grown.plane, grown.mask
-    merged = _not_the_clicked_plane(frame, top, x, y, opts.seed)
+    merged = _not_the_clicked_plane(window, top, x, y)
     floor, between = parallel_levels(frame, mask, top, seed=opts.seed, min_drop_m=MIN_HEIGHT_M)
     if floor is None:
         raise MeasureError("no plane parallel to the clicked surface lies below it: this is not the top face of a box "

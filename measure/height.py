@@ -17,10 +17,10 @@ from collections.abc import Sequence
 
 import numpy as np
 
-from measure.planes import SEED_HALF_PX, Plane, fit_plane, grow_plane, sigma_of
+from measure.planes import SEED_HALF_PX, Plane, fit_plane, grow_plane, sigma_of, window_pixels
 from measure.sampling import check_point
 from measure.shape_types import ShapeMeasurement
-from measure.support import check_options, check_points, parallel_support, polygon_mask, support_plane, verdict
+from measure.support import check_options, check_points, parallel_support, shrunk_pixels, support_plane, verdict
 from measure.types import Frame, MeasureError, MeasureOptions
 
 HEIGHT_SIGMA_SCALE = 1.0
@@ -30,25 +30,17 @@ EDGE_SHARE = 0.6  # a click window with fewer of its pixels on its plane straddl
 
 def window_plane(frame: Frame, x: float, y: float, seed: int) -> Plane:
     """The robust plane of the (2 SEED_HALF_PX + 1)² window around pixel (x, y)."""
-    h, w = frame.shape
-    cx, cy, r = int(round(x)), int(round(y)), SEED_HALF_PX
-    yy, xx = np.mgrid[max(0, cy - r):min(h, cy + r + 1), max(0, cx - r):min(w, cx + r + 1)]
     try:
-        return fit_plane(frame, xx, yy, seed)
+        return fit_plane(frame, *window_pixels(frame, x, y), seed)
     except MeasureError as err:
         raise MeasureError(f"the click ({x:g}, {y:g}) is not on a surface with depth: {err}") from None
 
 
 def region_plane(frame: Frame, vertices: np.ndarray, seed: int, erode_px: int = 0) -> Plane:
     """The robust plane of the pixels inside a clicked polygon (shrunk by ``erode_px`` when that leaves enough)."""
-    import cv2
-
-    mask = polygon_mask(frame.shape, vertices)
-    if erode_px:
-        shrunk = cv2.erode(mask.astype(np.uint8), np.ones((2 * erode_px + 1,) * 2, np.uint8)).astype(bool)
-        if shrunk.sum() >= 100:
-            mask = shrunk
-    ys, xs = np.nonzero(mask)
+    xs, ys = shrunk_pixels(frame.shape, vertices, erode_px)
+    if erode_px and len(xs) < 100:
+        xs, ys = shrunk_pixels(frame.shape, vertices, 0)
     return fit_plane(frame, xs, ys, seed)
 
 
@@ -101,7 +93,7 @@ def measure_height(frame: Frame, point: tuple[float, float], base: Sequence[tupl
             floor = region_plane(frame, verts, opts.seed, erode_px=3)
         clicks = ((x, y), *(tuple(v) for v in verts))
     else:
-        grown = grow_plane(frame, (x, y), opts.seed)
+        grown = grow_plane(frame, (x, y), opts.seed, window=top)
         # A level top (a box, a table) stands on a parallel level: the ring's dense level below it is the
         # floor or table alone, where a plane fit on the whole ring can tilt across side faces and a
         # second level (a box on a table). Other tops take the ring's dominant plane.
