@@ -5,23 +5,23 @@ Steps (docs/method.md Eq. 9-15):
 1. The top face: the robust plane grown from the click over its connected surface
    (``measure.planes.grow_plane``); its outline is where the disparity leaves that plane (a depth
    step to the floor, or the crease to a side face), not a bounding box of noisy points.
-2. The supporting plane: the robust plane around the top face, parallel to it and below it
-   (``measure.support.support_plane``). None found: the click is not on a box top (MeasureError).
+2. The supporting plane: the densest level parallel to the top and below it in a ring around the
+   face (``measure.support.parallel_levels``). None found: the click is not on a box top (MeasureError).
 3. The rectangle: the outline's pixels are put on the top plane (Eq. 2, 9); a minimum-area rectangle
-   gives the orientation, refined from the sides' own directions; each side lies at the median
+   gives the orientation, refined from the sides' own directions; each side first lies at the median
    offset of its outline pixels plus half a pixel's footprint outward (Eq. 15), from the middle
-   ``SIDE_SPAN`` of its length (corners are where outliers gather). Image-border pixels are no edge.
-4. The height: the top's centre above the supporting plane (``measure.height.height_above``, Eq. 12),
-   the top's plane refit on its interior, ``CREASE_BAND_PX`` inside the outline (side-face pixels near
-   a crease lie within the grown plane's tolerance and pull it down).
-5. One-sigma per dimension: both sides' median errors (MAD / sqrt(n / ``CORRELATED_PX``)), a
-   pixel's footprint over sqrt(3) each, ``BLEED_PX`` footprints for a side against the background
-   (edge fattening of unknown width), the plane's depth scale, and half the difference between the
-   outline's and the creases' sides (two models of one edge); times ``BOX_SIGMA_SCALE``
-   (docs/decisions/box-edges.md). The verdict says "check" for a box cut by the image border, a face
-   partly hidden by something in front, a top that is not rectangular or not parallel to its floor,
-   edge models that differ by more than ``EDGE_DISAGREE`` of a side, or a grown top whose plane is not
-   the click window's own (``MERGED_SIGMAS``: a neighbouring box's top joined it).
+   ``SIDE_SPAN`` of its length. Then each side goes where the colour image steps within the depth's
+   window (``measure.box_edges``), and the rectangle turns by those sides' mean tilt.
+4. The face's own plane: refit on the pixels inside the found rectangle, clear of its sides
+   (``_face_plane``); the rectangle's corners, lines in the image, are put on it, and the lengths
+   are the means of opposite sides. The height: the rectangle's centre on that plane above the
+   supporting plane (``measure.height.height_above``, Eq. 12).
+5. One-sigma per length: both sides' (the image edge's, or the depth's with the fattening reach) and
+   the face plane's covariance through its sigma points, in quadrature; times ``BOX_SIGMA_SCALE``
+   (docs/decisions/box-edges.md). The verdict says "check" for a box cut by the image border, a side
+   that shows no step in the colour image, a face partly hidden by something in front, a top that is
+   not rectangular or not parallel to its floor, or a grown top whose plane is not the click window's
+   own (``MERGED_SIGMAS``: a neighbouring box's top joined it).
 """
 
 from __future__ import annotations
@@ -31,7 +31,7 @@ import time
 
 import numpy as np
 
-from measure.box_edges import AXES, FATTEN_REACH_PX, RectFrame, find_side
+from measure.box_edges import AXES, CORRELATED_PX, FATTEN_REACH_PX, MIN_SIDE_POINTS, SIDE_SPAN, RectFrame, find_side
 from measure.height import height_above, window_plane
 from measure.planes import INLIER_SIGMAS, GrownPlane, Plane, fit_plane, grow_plane, sigma_of
 from measure.sampling import check_point
@@ -42,16 +42,13 @@ from measure.types import Frame, MeasureError, MeasureOptions
 BOX_SIGMA_SCALE = 1.0
 MIN_TOP_PX = 60
 FACE_SHARE = 0.25
+EDGE_MARGIN_PX = 2.0
 FEW_TOP_PX = 300
 MIN_HEIGHT_M = 0.02
-SIDE_SPAN = 0.8
-CORRELATED_PX = 4.0
 FILL_MIN = 0.88
 HIDDEN_SHARE = 0.25
 OUTSIDE_PX = 6.0
 TILT_DEG = 5.0
-MIN_SIDE_POINTS = 8
-CREASE_BAND_PX = 14
 MERGED_SIGMAS = 4.0
 
 
@@ -142,13 +139,18 @@ def _rectangle(top: Plane, grown: GrownPlane, frame: Frame) -> dict:
             sig[k] = max(float(half[across]) * 0.1, f)
     rf = RectFrame(pc, u, v, np.array([ra, rb]), e)
     # The face's pixels against the outline's own rectangle: a top that is no rectangle fills it poorly.
-    cpx = rf.to_px(top, np.array([[a * pos[0] if a > 0 else -pos[1], b * pos[2] if b > 0 else -pos[3]] for a, b in ((-1, -1), (1, -1), (1, 1), (-1, 1))]))
+    cpx = rf.to_px(top, _corners(pos))
     area_px = 0.5 * abs(float(cross2(cpx[1] - cpx[0], cpx[2] - cpx[0]) + cross2(cpx[2] - cpx[0], cpx[3] - cpx[0])))
     sides = [find_side(frame, top, rf, pos, k, float(sig[k])) if seen[k] else None for k in range(4)]
     rf, pos, sig = _placed(rf, pos, sig, sides)
     return {"rf": rf, "pos": pos, "sig": sig, "seen": seen, "outward": outward, "sides": sides,
             "fill": float(grown.mask.sum()) / area_px if area_px > 0 else 0.0,
             "line": line, "side": side, "inner": inner, "centre_px": centre_px}
+
+
+def _corners(pos: np.ndarray) -> np.ndarray:
+    """Rectangle coordinates (4 x 2, m) of the corners of the rectangle whose sides lie at ``pos``, in order around it."""
+    return np.array([[-pos[1], -pos[3]], [pos[0], -pos[3]], [pos[0], pos[2]], [-pos[1], pos[2]]])
 
 
 def _placed(rf: RectFrame, pos: np.ndarray, sig: np.ndarray, sides: list) -> tuple[RectFrame, np.ndarray, np.ndarray]:
@@ -207,18 +209,24 @@ def _lengths(c: np.ndarray) -> np.ndarray:
     return np.array([(side[0] + side[2]) / 2.0, (side[1] + side[3]) / 2.0])
 
 
-def _face_plane(frame: Frame, grown: GrownPlane, corners_px: np.ndarray, seed: int) -> Plane:
-    """The top's plane refit on the pixels of its found rectangle (``corners_px``, 4 x 2) at least
-    ``FATTEN_REACH_PX`` inside its sides: the face's own pixels. The grown face also holds side-face
-    pixels near its creases (they stay within its tolerance for a few to tens of pixels) and they tilt
-    its plane, which shortens the foreshortened side and lowers the height at the centre
-    (docs/decisions/box-edges.md). With fewer than ``MIN_TOP_PX`` such pixels the grown plane stays."""
-    sides_px = np.linalg.norm(np.roll(corners_px, -1, axis=0) - corners_px, axis=1)
-    xs, ys = shrunk_pixels(frame.shape, corners_px, int(min(FATTEN_REACH_PX, FACE_SHARE * float(sides_px.min()))))
+def _face_plane(frame: Frame, grown: GrownPlane, rect: dict) -> Plane:
+    """The top's plane refit on the pixels of its found rectangle clear of its sides: ``FATTEN_REACH_PX``
+    inside a crease, ``EDGE_MARGIN_PX`` inside a depth step, and at most ``FACE_SHARE`` of the
+    rectangle's width from each side. The grown face also holds side-face pixels beyond its creases
+    (within its tolerance for a few to tens of pixels), and the face's own pixels next to a crease
+    take the ridge's disparity where the matcher flattens it: both tilt its plane, which shortens the
+    foreshortened side and lowers the height at the centre (docs/decisions/box-edges.md). With fewer
+    than ``MIN_TOP_PX`` such pixels the grown plane stays."""
+    pos, sides = rect["pos"].copy(), rect["sides"]
+    for k, sd in enumerate(sides):
+        if sd is not None:
+            margin = (FATTEN_REACH_PX if sd.crease else EDGE_MARGIN_PX) * sd.foot
+            pos[k] -= min(margin, FACE_SHARE * (pos[k] + pos[k ^ 1]))
+    xs, ys = shrunk_pixels(frame.shape, rect["rf"].to_px(grown.plane, _corners(pos)), 0)
     if len(xs) < MIN_TOP_PX:
         return grown.plane
     try:
-        return fit_plane(frame, xs, ys, seed, start=grown.plane)
+        return fit_plane(frame, xs, ys, seed=0, start=grown.plane)
     except MeasureError:
         return grown.plane
 
@@ -230,6 +238,38 @@ def _not_the_clicked_plane(own: Plane, top: Plane, x: float, y: float) -> bool:
     g = np.array([x, y, 1.0])
     diff = float(own.disparity_at(x, y) - top.disparity_at(x, y))
     return abs(diff) > MERGED_SIGMAS * math.sqrt(float(g @ own.cov @ g + g @ top.cov @ g))
+
+
+def _on_face(face: Plane, floor: Plane, cpx: np.ndarray, sig: np.ndarray) -> tuple[np.ndarray, np.ndarray, list[float], tuple[float, float]]:
+    """Step 4-5: the corners (4 x 3, m) where the found rectangle's corner pixels ``cpx`` meet the face
+    plane, the two lengths (m) and their one-sigmas from the sides' ``sig`` (m) and the plane's sigma
+    points, and the height (m) of the rectangle's centre above ``floor`` with its one-sigma."""
+    corners = face.points_at(cpx[:, 0], cpx[:, 1])
+    dims = _lengths(corners)
+    # The plane's uncertainty moves the corners along their rays: its sigma points give the lengths' spread.
+    spread = sigma_of(np.array([_lengths(face.points_at(cpx[:, 0], cpx[:, 1], c)) for c in face.coefficient_samples()]))
+    sig_dims = [math.sqrt(sig[0] ** 2 + sig[1] ** 2 + spread[0] ** 2), math.sqrt(sig[2] ** 2 + sig[3] ** 2 + spread[1] ** 2)]
+    cx, cy = (float(v) for v in cpx.mean(axis=0))
+    height, s_h, _, _ = height_above(face, floor, cx, cy, 0.0)
+    return corners, dims, sig_dims, (height, s_h)
+
+
+def _reasons(frame: Frame, grown: GrownPlane, rect: dict, between: bool, merged: bool) -> list[str]:
+    """Why the answer is one to check, from what the face, its sides and its surroundings showed."""
+    reasons: list[str] = []
+    if grown.touches_border or not rect["seen"].all():
+        reasons.append("box cut by the image border" if grown.touches_border else "an edge of the top face is not seen")
+    if any(sd is not None and sd.source != "image" for sd in rect["sides"]):
+        reasons.append("an edge of the top face shows no step in the colour image (placed from the depth alone)")
+    if between:
+        reasons.append("another level lies between the top and the plane it is measured from (a table or a neighbouring box)")
+    if merged:
+        reasons.append("the grown top is not the clicked face's plane (another surface joined it)")
+    if _hidden_sides(frame, grown.plane, rect):
+        reasons.append("top face partly hidden by something in front")
+    if rect["fill"] < FILL_MIN:
+        reasons.append(f"top face not rectangular ({100 * rect['fill']:.0f} % of its rectangle)")
+    return reasons
 
 
 def measure_box(frame: Frame, click_px: tuple[float, float], options: MeasureOptions | None = None) -> BoxMeasurement:
@@ -252,47 +292,22 @@ def measure_box(frame: Frame, click_px: tuple[float, float], options: MeasureOpt
     if n_top < MIN_TOP_PX:
         raise MeasureError(f"the clicked face has only {n_top} pixels with depth; click the top face of a box nearer the camera")
     top, mask = grown.plane, grown.mask
-    merged = _not_the_clicked_plane(window, top, x, y)
     floor, between = parallel_levels(frame, mask, top, seed=opts.seed, min_drop_m=MIN_HEIGHT_M)
     if floor is None:
         raise MeasureError("no plane parallel to the clicked surface lies below it: this is not the top face of a box "
                            "standing on a floor or table (a click on the floor itself, a wall or a side face); "
                            "click the box's top face")
     rect = _rectangle(top, grown, frame)
-    pos, sig = rect["pos"], rect["sig"]
-    centre = np.array([(pos[0] - pos[1]) / 2, (pos[2] - pos[3]) / 2])
-    half = np.array([pos[0] + pos[1], pos[2] + pos[3]]) / 2
-    cpx = rect["rf"].to_px(top, np.array([centre + [a * half[0], b * half[1]] for a, b in ((-1, -1), (1, -1), (1, 1), (-1, 1))]))
-    # The sides are lines in the image: their corners go onto the face's own plane.
-    face = _face_plane(frame, grown, cpx, opts.seed)
-    corners = face.points_at(cpx[:, 0], cpx[:, 1])
-    dims = _lengths(corners)
-    # The plane's uncertainty moves the corners along their rays: its sigma points give the lengths' spread.
-    spread = sigma_of(np.array([_lengths(face.points_at(cpx[:, 0], cpx[:, 1], c)) for c in face.coefficient_samples()]))
-    sig_dims = [math.sqrt(sig[0] ** 2 + sig[1] ** 2 + spread[0] ** 2), math.sqrt(sig[2] ** 2 + sig[3] ** 2 + spread[1] ** 2)]
-    cx, cy = (float(v) for v in cpx.mean(axis=0))
-    height, s_h, _, _ = height_above(face, floor, cx, cy, 0.0)
-    reasons: list[str] = []
-    if grown.touches_border or not rect["seen"].all():
-        reasons.append("box cut by the image border" if grown.touches_border else "an edge of the top face is not seen")
-    if any(sd is not None and sd.source != "image" for sd in rect["sides"]):
-        reasons.append("an edge of the top face shows no step in the colour image (placed from the depth alone)")
-    if between:
-        reasons.append("another level lies between the top and the plane it is measured from (a table or a neighbouring box)")
-    if merged:
-        reasons.append("the grown top is not the clicked face's plane (another surface joined it)")
-    hidden = _hidden_sides(frame, top, rect)
-    if hidden:
-        reasons.append("top face partly hidden by something in front")
+    cpx = rect["rf"].to_px(top, _corners(rect["pos"]))
+    face = _face_plane(frame, grown, rect)
+    corners, dims, sig_dims, (height, s_h) = _on_face(face, floor, cpx, rect["sig"])
+    reasons = _reasons(frame, grown, rect, between, _not_the_clicked_plane(window, top, x, y))
     fn, fo = floor.metric()
     base = corners - (corners @ fn + fo)[:, None] * fn
 
     def to_px(p: np.ndarray) -> np.ndarray:
         return np.stack([top.fx * p[:, 0] / p[:, 2] + top.cx, top.fy * p[:, 1] / p[:, 2] + top.cy], 1)
 
-    fill = rect["fill"]
-    if fill < FILL_MIN:
-        reasons.append(f"top face not rectangular ({100 * fill:.0f} % of its rectangle)")
     tilt = angle_deg(face, floor)
     if tilt > TILT_DEG:
         reasons.append(f"top face not parallel to the floor ({tilt:.0f} degrees)")

@@ -1,22 +1,24 @@
-"""The sides of a box's top face: where its colour image steps, accepted where its depth says an edge is (m, px).
+"""The sides of a box's top face: where its colour image steps, taken where its depth says an edge is (m, px).
 
 The depth finds a top face's sides only roughly: block matching fattens a face into the background
-beyond a depth step (``FATTEN_REACH_PX``), contention eats into it, and across a crease the side
-face stays within the top plane's tolerance for a few to tens of pixels. The colour image steps at
-the edge to within a pixel, but also inside the face (tape, print) and beyond it (a side face seen
-at a grazing angle, floor seams). So each side is found in two steps (docs/decisions/box-edges.md):
+beyond a depth step (up to ``FATTEN_REACH_PX``), contention eats into it, and across a crease the
+side face stays within the top plane's tolerance for a few to tens of pixels. The colour image steps
+at the edge to within a pixel, but also inside the face (tape, print) and beyond it (a side face seen
+at a grazing angle, floor seams). So each side of the rectangle found from the face's outline is
+placed in two steps, on profiles across it on the top plane (Eq. 2, 9; docs/decisions/box-edges.md):
 
-1. The depth edge, along profiles across the side on the top plane (Eq. 2, 9): the outermost offset
-   where the share of pixels on the top plane falls below ``EDGE_SHARE`` of the face's share, and
-   what lies beyond it: a *step* (the disparity falls away: background) or a *crease* (it goes on
-   smoothly: a side face), whose start is the hinge of the residual to the top plane.
-2. The image edge: the profiles' gradient magnitude, averaged over each of ``SEGMENTS`` stretches of
-   the side; in each, the significant peaks within the depth's window: a step's edge lies inside its
-   depth edge by at most the fattening reach, a crease's within that reach of its hinge. Beyond a
-   step's true edge lie the fattened background's features, so the innermost peak is taken; inside a
-   crease lie the top's own (tape), so the outermost. A line through the stretches' peaks (the
-   most that agree within ``LINE_TOL_PX``) is the side, with its tilt; a side without one keeps its
-   depth edge, moved inward by half the fattening reach with that reach as its uncertainty.
+1. The depth edge: the first offset beyond ``-FATTEN_REACH_PX`` (of the outline) where the median
+   residual to the top plane leaves its tolerance, and what lies beyond it: a *step* (the disparity
+   falls away from the trend just inside: background, or a side face too steep to tell) or a *crease*
+   (it goes on smoothly: a side face), whose start is the hinge of the residual's median.
+2. The image edge: the colour gradient's magnitude across the side, averaged over each of up to
+   ``SEGMENTS`` stretches of it; in each, the strong significant peaks within the depth's window: a
+   step's edge lies inside its depth edge by at most the fattening reach, and beyond it lie the
+   fattened background's features, so the innermost is taken; a crease's lies within twice that
+   reach inside its hinge (the ridge is flattened too) and inside it lie the top's own features, so
+   the outermost. A line through the stretches' peaks that most of them agree on is the side, with
+   its tilt. A side without one keeps its depth edge moved inward by half the fattening reach, with
+   that reach as its uncertainty, and makes the answer one to check (measure.box).
 """
 
 from __future__ import annotations
@@ -78,17 +80,17 @@ class RectFrame:
 @dataclass(frozen=True)
 class Side:
     """One side's position (m from the rectangle's centre along its outward axis), one-sigma (m), how
-    it was found ("image", "crease" or "depth"), its tilt against the rectangle's axis (rad; 0 when
-    not from the image), the weight of that tilt, what lies beyond ("step" or "crease"), and the
-    depth's own position (m) beside the image's."""
+    it was found ("image", or from the depth alone: "crease" at a hinge, "depth" at a depth edge), its
+    tilt against the rectangle's axis (rad, as the slope of its across-coordinate along it; 0 when not
+    from the image) and that tilt's weight (the stretches that agree on it), whether a side face goes on
+    beyond it (a crease, not a depth step) and its pixel's footprint across it (m)."""
 
     pos: float
     sigma: float
     source: str
     tilt: float
     tilt_weight: float
-    beyond: str
-    depth_pos: float
+    crease: bool
     foot: float
 
 
@@ -98,10 +100,11 @@ class _Grid:
     t: np.ndarray  # offsets (px of the side's footprint)
     along: np.ndarray  # profiles' positions along the side, from its middle (m)
     foot: float  # m per px across the side
-    foot_along: float  # m per px along it
 
 
 def _grid(top: Plane, rf: RectFrame, pos: np.ndarray, k: int, t: np.ndarray) -> _Grid:
+    """Profiles across side ``k`` over its middle ``SIDE_SPAN``, one per pixel along it (at most
+    ``SEGMENTS`` x ``SEGMENT_PROFILES``), sampled at offsets ``t`` (px of its footprint) from ``pos[k]``."""
     along, across, sign = AXES[k]
     lo, hi = (-pos[3], pos[2]) if along == 1 else (-pos[1], pos[0])
     mid, half = (lo + hi) / 2.0, (hi - lo) / 2.0
@@ -117,7 +120,7 @@ def _grid(top: Plane, rf: RectFrame, pos: np.ndarray, k: int, t: np.ndarray) -> 
     s = np.zeros((n, len(t), 2))
     s[..., along] = mid + al[:, None]
     s[..., across] = sign * (pos[k] + t[None, :] * foot)
-    return _Grid(rf.to_px(top, s), t, al, foot, foot_along)
+    return _Grid(rf.to_px(top, s), t, al, foot)
 
 
 def _sample_image(image: np.ndarray, xy: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -242,8 +245,8 @@ def _peak(g: np.ndarray, tm: np.ndarray, lo: float, hi: float, inner: bool) -> f
 
 def _line(points: np.ndarray, need: int) -> tuple[float, float, np.ndarray] | None:
     """Line t = t0 + b a through the (a, t) points that most agree within ``LINE_TOL_PX`` (every pair
-    tried, then a least-squares fit of its inliers): (t0, b, inliers) or None with fewer than
-    ``MIN_SEGMENTS`` in agreement."""
+    tried, then a least-squares fit of its inliers): (t0, b, inliers) or None with fewer than ``need``
+    in agreement."""
     n = len(points)
     if n < need:
         return None
@@ -262,52 +265,61 @@ def _line(points: np.ndarray, need: int) -> tuple[float, float, np.ndarray] | No
     return float(tt), float(bb), best
 
 
-def find_side(frame, top: Plane, rf: RectFrame, pos: np.ndarray, k: int, outline_sigma: float) -> Side:
-    """Side ``k`` of the rectangle whose sides lie at ``pos`` (m, from the face's outline), found as the
-    module docstring says; ``outline_sigma`` (m) is the outline's own one-sigma for that side."""
+def _depth_window(t: np.ndarray, r: np.ndarray, top: Plane, reach_in: float) -> tuple[float, float, bool, float, bool, bool]:
+    """Step 1 on the residuals ``r`` (profiles x offsets ``t``, px): the window (lo, hi, px) where the
+    image edge may lie, whether the innermost peak is taken, the depth's own edge (px), whether it is
+    a crease's hinge, and whether a side face goes on beyond it."""
     tol = INLIER_SIGMAS * max(top.sigma_px, top.quantum * 0.75)
-    probe = _grid(top, rf, pos, k, np.zeros(1))
-    dim_px = (pos[k] + pos[k ^ 1]) / probe.foot
-    reach_in = max(2.0 * FATTEN_REACH_PX, SEARCH_SHARE * dim_px)
-    t = np.arange(-reach_in, 2.0 * FATTEN_REACH_PX + 1e-9, STEP_PX)
-    grid = _grid(top, rf, pos, k, t)
-    r = _residuals(frame, top, grid.xy)
     t_d = _depth_edge(t, r, tol)
-    step = _is_step(t, r, t_d, tol)
-    hinge = None
-    if not step:
-        noise2 = (1.2533 * max(top.sigma_px, top.quantum / math.sqrt(12.0))) ** 2 * CORRELATED_PX
-        hinge = _hinge(t, r, tol, noise2, -reach_in, t_d)
+    if _is_step(t, r, t_d, tol):
+        return t_d - FATTEN_REACH_PX, t_d + 1.0, True, t_d, False, False
+    noise2 = (1.2533 * max(top.sigma_px, top.quantum / math.sqrt(12.0))) ** 2 * CORRELATED_PX
+    hinge = _hinge(t, r, tol, noise2, -reach_in, t_d)
     if hinge is not None:
-        lo, hi, inner_first, depth_t = hinge - 2.0 * FATTEN_REACH_PX, t_d + 1.0, False, hinge
-    else:
-        lo, hi, inner_first, depth_t = t_d - FATTEN_REACH_PX, t_d + 1.0, True, t_d
+        return hinge - 2.0 * FATTEN_REACH_PX, t_d + 1.0, False, hinge, True, True
+    return t_d - FATTEN_REACH_PX, t_d + 1.0, True, t_d, False, True
+
+
+def _image_line(frame, grid: _Grid, lo: float, hi: float, inner: bool) -> tuple[float, float, float, int] | None:
+    """Step 2: the line (offset at the side's middle px, slope px per m along it, one-sigma px, stretches
+    agreeing) through the stretches' image peaks within [lo, hi] px, or None."""
     img, inside = _sample_image(frame.image, grid.xy)
     g = np.linalg.norm(np.diff(img, axis=1), axis=2) / STEP_PX
-    tm = t[:-1] + STEP_PX / 2.0
+    tm = grid.t[:-1] + STEP_PX / 2.0
     n = len(grid.along)
     segments = int(np.clip(n // SEGMENT_PROFILES_MIN, MIN_SEGMENTS, SEGMENTS))
     peaks = []
     for q in range(segments):
         sl = slice(q * n // segments, (q + 1) * n // segments)
-        rows = inside[sl].all(axis=1)
+        rows = inside[sl].all(axis=1)  # profiles that leave the image have no step to show
         if rows.sum() < 2:
             continue
-        p = _peak(g[sl][rows], tm, lo, hi, inner_first)
+        p = _peak(g[sl][rows], tm, lo, hi, inner)
         if p is not None:
             peaks.append((float(grid.along[sl][rows].mean()), p))
     fit = _line(np.array(peaks), max(MIN_SEGMENTS, math.ceil(AGREE_SHARE * segments))) if peaks else None
-    depth_pos = pos[k] + depth_t * grid.foot
-    beyond = "step" if step else "crease"
     if fit is None:
-        # The edge lies inside the depth's (a step's fattening, a crease's flattened ridge) by up to the reach.
-        sigma = math.hypot(outline_sigma, FATTEN_REACH_PX / math.sqrt(12.0) * grid.foot)
-        return Side(depth_pos - FATTEN_REACH_PX / 2.0 * grid.foot, sigma, "crease" if hinge is not None else "depth", 0.0, 0.0,
-                    beyond, depth_pos, grid.foot)
+        return None
     t0, b, inl = fit
     pts = np.array(peaks)[inl]
     spread = float(np.std(pts[:, 1] - (t0 + b * pts[:, 0])))
-    sig_px = math.hypot(EDGE_PX, spread / math.sqrt(inl.sum()))
-    _, _, sign = AXES[k]
-    return Side(pos[k] + t0 * grid.foot, sig_px * grid.foot, "image", math.atan(sign * b * grid.foot), float(inl.sum()),
-                beyond, depth_pos, grid.foot)
+    return t0, b, math.hypot(EDGE_PX, spread / math.sqrt(inl.sum())), int(inl.sum())
+
+
+def find_side(frame, top: Plane, rf: RectFrame, pos: np.ndarray, k: int, outline_sigma: float) -> Side:
+    """Side ``k`` of the rectangle ``rf`` on the plane ``top`` whose sides lie at ``pos`` (m, from the
+    face's outline), placed as the module docstring says; ``outline_sigma`` (m) is the outline's own
+    one-sigma for that side, part of the depth's when the image shows no edge."""
+    probe = _grid(top, rf, pos, k, np.zeros(1))
+    reach_in = max(2.0 * FATTEN_REACH_PX, SEARCH_SHARE * (pos[k] + pos[k ^ 1]) / probe.foot)
+    grid = _grid(top, rf, pos, k, np.arange(-reach_in, 2.0 * FATTEN_REACH_PX + 1e-9, STEP_PX))
+    lo, hi, inner, depth_t, hinge, crease = _depth_window(grid.t, _residuals(frame, top, grid.xy), top, reach_in)
+    line = _image_line(frame, grid, lo, hi, inner)
+    if line is None:
+        # The edge lies inside the depth's (a step's fattening, a crease's flattened ridge) by up to the reach.
+        sigma = math.hypot(outline_sigma, FATTEN_REACH_PX / math.sqrt(12.0) * grid.foot)
+        return Side(pos[k] + (depth_t - FATTEN_REACH_PX / 2.0) * grid.foot, sigma, "crease" if hinge else "depth", 0.0, 0.0,
+                    crease, grid.foot)
+    t0, b, sig_px, agree = line
+    return Side(pos[k] + t0 * grid.foot, sig_px * grid.foot, "image", math.atan(AXES[k][2] * b * grid.foot), float(agree),
+                crease, grid.foot)
