@@ -113,8 +113,33 @@ def parallel_levels(frame: Frame, mask: np.ndarray, top: Plane, seed: int = 0,
         # neighbour's top; which one the box stands on is not known from the ring alone.
         nearer = [j for j in dense if j < k - 2]
         between = any(level_plane(int(j)) is not None for j in nearer[:MAX_CANDIDATES])
-        return plane, between
+        return _clear_of_sides(frame, xs, ys, plane, seed), between
     return None, False
+
+
+def _clear_of_sides(frame: Frame, xs: np.ndarray, ys: np.ndarray, plane: Plane, seed: int) -> Plane:
+    """``plane`` refit on the ring pixels (xs, ys, a regular grid) farther than ``RING_GAP_PX`` from any
+    that stand clearly above it: where an object's side face meets its floor, the face's first
+    pixels lie within the floor's tolerance and lift the plane (a box's height comes out short)."""
+    import cv2
+
+    tol = INLIER_SIGMAS * max(plane.sigma_px, plane.quantum * 0.75)
+    with np.errstate(invalid="ignore"):
+        above = frame.disparity[ys, xs] - plane.disparity_at(xs, ys) > tol
+    if not above.any():
+        return plane
+    step = max(1, int(np.gcd.reduce(np.concatenate([xs - xs.min(), ys - ys.min()]))))
+    gx, gy = (xs - xs.min()) // step, (ys - ys.min()) // step
+    grid = np.zeros((int(gy.max()) + 1, int(gx.max()) + 1), np.uint8)
+    grid[gy[above], gx[above]] = 1
+    reach = int(math.ceil(RING_GAP_PX / step))
+    near = cv2.dilate(grid, np.ones((2 * reach + 1,) * 2, np.uint8))[gy, gx].astype(bool)
+    if np.count_nonzero(~near) < MIN_PLANE_PIXELS * 4:
+        return plane
+    try:
+        return fit_plane(frame, xs[~near], ys[~near], seed, start=plane)
+    except MeasureError:
+        return plane
 
 
 def parallel_support(frame: Frame, mask: np.ndarray, top: Plane, seed: int = 0, min_drop_m: float = 0.0) -> Plane | None:
