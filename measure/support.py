@@ -29,6 +29,7 @@ INTERVAL_Z = 1.96
 LEVEL_BIN_M = 0.01
 LEVEL_SHARE = 0.08
 MAX_LEVEL_BINS = 4096
+LEVEL_FIT_PIXELS = 500
 
 
 def ring_pixels(mask: np.ndarray, gap_px: int, width_px: int) -> tuple[np.ndarray, np.ndarray]:
@@ -96,23 +97,27 @@ def parallel_levels(frame: Frame, mask: np.ndarray, top: Plane, seed: int = 0,
     dense = np.flatnonzero(pair >= LEVEL_SHARE * len(xs))
 
     def level_plane(k: int) -> Plane | None:
-        # The top moved down to the level (its two bins' middle) starts a fit on the whole ring: inliers
-        # chosen by their residual to the plane, not by their noisy level, which would truncate the
-        # noise on one side and bias the plane.
+        # The level's pixels, from the top moved down to them (its two bins' middle); the chosen level is
+        # then refit on the whole ring (_clear_of_sides): inliers chosen by their residual to the plane,
+        # not by their noisy level, which would truncate the noise on one side and bias the plane.
+        level = np.flatnonzero((below >= lo + (k - 1) * bin_m) & (below <= lo + (k + 3) * bin_m))
+        level = level[::max(1, len(level) // LEVEL_FIT_PIXELS)]  # it only steers the fit on the ring
         try:
-            plane = fit_plane(frame, xs, ys, seed, start=parallel_plane(top, o + lo + (k + 1) * bin_m))
+            plane = fit_plane(frame, xs[level], ys[level], seed, start=parallel_plane(top, o + lo + (k + 1) * bin_m))
         except MeasureError:
             return None
         return plane if angle_deg(plane, top) <= PARALLEL_DEG and plane.n_support >= MIN_PLANE_PIXELS * 4 else None
 
-    for k in dense[np.argsort(-pair[dense], kind="stable")][:MAX_CANDIDATES]:  # densest level first
-        plane = level_plane(int(k))
+    # Runs of neighbouring dense bins: a level is a run of two or three, side faces a long one.
+    runs = np.split(dense, np.flatnonzero(np.diff(dense) > 1) + 1) if dense.size else []
+    peaks = [int(r[np.argmax(pair[r])]) for r in runs]  # each run's densest bin
+    for i in np.argsort([-pair[p] for p in peaks], kind="stable")[:MAX_CANDIDATES]:  # densest level first
+        plane = level_plane(peaks[i])
         if plane is None:
             continue
         # A parallel level nearer below the top than the one chosen: a table under the box, or a
         # neighbour's top; which one the box stands on is not known from the ring alone.
-        nearer = [j for j in dense if j < k - 2]
-        between = any(level_plane(int(j)) is not None for j in nearer[:MAX_CANDIDATES])
+        between = any(level_plane(peaks[j]) is not None for j in range(i))
         return _clear_of_sides(frame, xs, ys, plane, seed), between
     return None, False
 
@@ -126,18 +131,18 @@ def _clear_of_sides(frame: Frame, xs: np.ndarray, ys: np.ndarray, plane: Plane, 
     tol = INLIER_SIGMAS * max(plane.sigma_px, plane.quantum * 0.75)
     with np.errstate(invalid="ignore"):
         above = frame.disparity[ys, xs] - plane.disparity_at(xs, ys) > tol
-    if not above.any():
-        return plane
-    step = max(1, int(np.gcd.reduce(np.concatenate([xs - xs.min(), ys - ys.min()]))))
-    gx, gy = (xs - xs.min()) // step, (ys - ys.min()) // step
-    grid = np.zeros((int(gy.max()) + 1, int(gx.max()) + 1), np.uint8)
-    grid[gy[above], gx[above]] = 1
-    reach = int(math.ceil(RING_GAP_PX / step))
-    near = cv2.dilate(grid, np.ones((2 * reach + 1,) * 2, np.uint8))[gy, gx].astype(bool)
-    if np.count_nonzero(~near) < MIN_PLANE_PIXELS * 4:
-        return plane
+    keep = np.ones(len(xs), bool)
+    if above.any():
+        step = max(1, int(np.gcd.reduce(np.concatenate([xs - xs.min(), ys - ys.min()]))))
+        gx, gy = (xs - xs.min()) // step, (ys - ys.min()) // step
+        grid = np.zeros((int(gy.max()) + 1, int(gx.max()) + 1), np.uint8)
+        grid[gy[above], gx[above]] = 1
+        reach = int(math.ceil(RING_GAP_PX / step))
+        keep = ~cv2.dilate(grid, np.ones((2 * reach + 1,) * 2, np.uint8))[gy, gx].astype(bool)
+        if np.count_nonzero(keep) < MIN_PLANE_PIXELS * 4:
+            keep[:] = True
     try:
-        return fit_plane(frame, xs[~near], ys[~near], seed, start=plane)
+        return fit_plane(frame, xs[keep], ys[keep], seed, start=plane)
     except MeasureError:
         return plane
 
