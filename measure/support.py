@@ -97,13 +97,15 @@ def parallel_levels(frame: Frame, mask: np.ndarray, top: Plane, seed: int = 0,
     dense = np.flatnonzero(pair >= LEVEL_SHARE * len(xs))
 
     def level_plane(k: int) -> Plane | None:
-        # The level's pixels, from the top moved down to them (its two bins' middle); the chosen level is
-        # then refit on the whole ring (_clear_of_sides): inliers chosen by their residual to the plane,
-        # not by their noisy level, which would truncate the noise on one side and bias the plane.
+        # The level's pixels, from the top moved down to them (its two bins' middle), then the whole ring
+        # from there: inliers chosen by their residual to the plane, not by their noisy level, which
+        # would truncate the noise on one side and bias the plane; a slab of side faces cut out by its
+        # level fits a plane parallel to the top, but on the whole ring it turns away.
         level = np.flatnonzero((below >= lo + (k - 1) * bin_m) & (below <= lo + (k + 3) * bin_m))
         level = level[::max(1, len(level) // LEVEL_FIT_PIXELS)]  # it only steers the fit on the ring
         try:
             plane = fit_plane(frame, xs[level], ys[level], seed, start=parallel_plane(top, o + lo + (k + 1) * bin_m))
+            plane = fit_plane(frame, xs, ys, seed, start=plane)
         except MeasureError:
             return None
         return plane if angle_deg(plane, top) <= PARALLEL_DEG and plane.n_support >= MIN_PLANE_PIXELS * 4 else None
