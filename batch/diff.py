@@ -1,13 +1,16 @@
 """`depthruler batch diff A B`: what changed between two batch results.
 
-Rows pair up by what was measured — (source, frame or saved-frame uid, clicked points), the k-th such
-row of A with the k-th of B — so two runs with other options or another version of the method
-compare. An answer *moved* when ``|d_B - d_A|`` exceeds the larger of the two uncertainties (each
-answer lies outside the other's +-u band). Verdicts compared: answered vs error, the gap flag, and
-every column both files have among :data:`VERDICT_COLUMNS`.
+Rows pair up by what was measured — (source, frame or saved-frame uid, kind, clicked points), the
+k-th such row of A with the k-th of B — so two runs with other options or another version of the
+method compare. Each answer of a row is compared with its one-sigma (:data:`ANSWERS`): a segment's
+distance, a height's, path's or area's value, each of a box's three dimensions. An answer *moved*
+when ``|v_B - v_A|`` exceeds the larger of the two uncertainties (each answer lies outside the
+other's +-u band); a row moved when any of its answers did, and is unchanged when all are equal.
+Changes are summarised per kind (an area's in m², the others' in m). Verdicts compared: answered vs
+error, the gap flag, and every column both files have among :data:`VERDICT_COLUMNS`.
 
 Steps: read only the columns the comparison uses (a results row has ~50 columns, the diff needs
-about 12), build one key per row with its occurrence number, join A and B on it with Arrow's hash
+about 20), build one key per row with its occurrence number, join A and B on it with Arrow's hash
 join and compare whole columns with numpy. Memory grows with the rows times those few columns, not
 with Python objects per row. The options each run used (the file's ``depthruler.defaults``,
 executor and version) are reported beside the counts.
@@ -23,10 +26,13 @@ from typing import Any
 import numpy as np
 
 from batch.results import column_names, read_metadata, read_table
+from batch.schema import BOX_DIMENSIONS
 
-MATCH = ("source", "frame", "frame_uid", "p1_x", "p1_y", "p2_x", "p2_y")
+MATCH = ("source", "frame", "frame_uid", "kind", "p1_x", "p1_y", "p2_x", "p2_y", "points", "on")
 VERDICT_COLUMNS = ("quality", "gap_detected", "fit")
-VALUES = ("task", "error", "distance_m", "uncertainty_m")
+# (answer, its one-sigma) columns: a segment's, a height's / path's / area's, a box's three
+ANSWERS = (("distance_m", "uncertainty_m"), ("value", "uncertainty"), *((f"{d}_m", f"{d}_sigma_m") for d in BOX_DIMENSIONS))
+VALUES = ("task", "error", "kind", *(c for pair in ANSWERS for c in pair))
 _KEY = "__key"
 
 
@@ -35,8 +41,8 @@ def _keyed(path: Path, columns: list[str]):
     import pyarrow as pa
     import pyarrow.compute as pc
 
-    t = read_table(path, columns=[c for c in (*MATCH, *columns)])
-    parts = [pc.fill_null(pc.cast(t.column(c), pa.string()), "\x00") if c in t.column_names else pa.nulls(t.num_rows, pa.string()).fill_null("\x00")
+    t = read_table(path, columns=list(dict.fromkeys((*MATCH, *columns))))
+    parts = [pc.fill_null(_as_text(t.column(c)), "\x00") if c in t.column_names else pa.nulls(t.num_rows, pa.string()).fill_null("\x00")
              for c in MATCH]  # fmt: skip
     key = pc.binary_join_element_wise(*parts, "\x1f") if t.num_rows else pa.array([], pa.string())
     key_np = np.asarray(key.to_numpy(zero_copy_only=False), dtype=object)
@@ -53,6 +59,16 @@ def _keyed(path: Path, columns: list[str]):
         if pa.types.is_null(field.type):  # an all-null column of hand-made files: Arrow's join needs a type
             t = t.set_column(i, field.name, t.column(i).cast(pa.string()))
     return t.append_column(_KEY, full)
+
+
+def _as_text(column):  # noqa: ANN001, ANN202 — a pyarrow ChunkedArray
+    """``column`` as strings for the row key: a list column (a shape's clicks) as JSON text, by row."""
+    import pyarrow as pa
+    import pyarrow.compute as pc
+
+    if not pa.types.is_list(column.type) and not pa.types.is_large_list(column.type):
+        return pc.cast(column, pa.string())
+    return pa.array([None if v is None else json.dumps(v) for v in column.to_pylist()], pa.string())
 
 
 def _float(table, name: str) -> np.ndarray:
@@ -101,22 +117,42 @@ def diff_results(a_path: Path, b_path: Path, top: int = 10) -> dict[str, Any]:
         changed = both_ok & (va != vb)
         if changed.any():
             verdicts[c] = dict(Counter(f"{x} -> {y}" for x, y in zip(va[changed], vb[changed])))
-    da, db = _float(joined, side("distance_m", "a")), _float(joined, side("distance_m", "b"))
-    ua = np.nan_to_num(_float(joined, side("uncertainty_m", "a")), nan=0.0, posinf=0.0)
-    ub = np.nan_to_num(_float(joined, side("uncertainty_m", "b")), nan=0.0, posinf=0.0)
-    finite = np.isfinite(da) & np.isfinite(db)
-    delta = np.where(finite, db - da, np.nan)
-    moved = finite & (np.abs(np.nan_to_num(delta)) > np.maximum(ua, ub))
-    idx = np.flatnonzero(moved)
-    idx = idx[np.argsort(-np.abs(delta[idx]), kind="stable")][:top]
+    kind_column = side("kind", "a")
+    kind_a = _text(joined, kind_column) if kind_column in joined.column_names else np.full(n, None, object)
+    kinds = np.where(np.equal(kind_a, None), "segment", kind_a).astype(str)  # files from before shapes: segments
+    compared = np.zeros(n, bool)
+    moved_row = np.zeros(n, bool)
+    changed_row = np.zeros(n, bool)
+    moves: list[tuple[float, int, str, float, float, float, float]] = []  # (|delta|, row, answer, a, b, u_a, u_b)
+    abs_by_kind: dict[str, list[np.ndarray]] = {}
+    for value, sigma in ANSWERS:
+        va, vb = _float(joined, side(value, "a")), _float(joined, side(value, "b"))
+        ua = np.nan_to_num(_float(joined, side(sigma, "a")), nan=0.0, posinf=0.0)
+        ub = np.nan_to_num(_float(joined, side(sigma, "b")), nan=0.0, posinf=0.0)
+        finite = np.isfinite(va) & np.isfinite(vb)
+        delta = np.where(finite, vb - va, 0.0)
+        moved = finite & (np.abs(delta) > np.maximum(ua, ub))
+        compared |= finite
+        moved_row |= moved
+        changed_row |= finite & (delta != 0)
+        for kind in np.unique(kinds[finite]):
+            abs_by_kind.setdefault(str(kind), []).append(np.abs(delta[finite & (kinds == kind)]))
+        biggest = np.flatnonzero(moved)
+        biggest = biggest[np.argsort(-np.abs(delta[biggest]), kind="stable")][:top]
+        moves += [(abs(float(delta[i])), int(i), value, float(va[i]), float(vb[i]), float(ua[i]), float(ub[i])) for i in biggest]
+    moves.sort(key=lambda m: -m[0])  # stable: ties keep the ANSWERS order
+    idx = np.array([m[1] for m in moves[:top]], dtype=np.int64)
     ta, tb = joined.column(side("task", "a")).take(idx).to_pylist(), joined.column(side("task", "b")).take(idx).to_pylist()
     src, frame = joined.column("source").take(idx).to_pylist(), joined.column("frame").take(idx).to_pylist()
     largest = [
-        {"task_a": ta[j], "task_b": tb[j], "source": src[j], "frame": frame[j], "distance_a_m": float(da[i]),
-         "distance_b_m": float(db[i]), "delta_m": float(delta[i]), "uncertainty_a_m": float(ua[i]), "uncertainty_b_m": float(ub[i])}
-        for j, i in enumerate(idx)
+        {"task_a": ta[j], "task_b": tb[j], "source": src[j], "frame": frame[j], "kind": str(kinds[i]), "answer": what,
+         "a": a_v, "b": b_v, "delta": b_v - a_v, "uncertainty_a": u_a, "uncertainty_b": u_b}
+        for j, (_, i, what, a_v, b_v, u_a, u_b) in enumerate(moves[:top])
     ]  # fmt: skip
-    abs_d = np.sort(np.abs(delta[finite]))
+    changes = {}
+    for kind, parts in sorted(abs_by_kind.items()):
+        d = np.sort(np.concatenate(parts))
+        changes[kind] = {"unit": "m2" if kind == "area" else "m", "answers": len(d), "median_abs_change": float(d[len(d) // 2]), "max_abs_change": float(d[-1])}
     return {
         "a": str(a_path),
         "b": str(b_path),
@@ -127,11 +163,10 @@ def diff_results(a_path: Path, b_path: Path, top: int = 10) -> dict[str, Any]:
         "only_in_a": a.num_rows - n,
         "only_in_b": b.num_rows - n,
         "status": dict(status),
-        "compared_distances": int(finite.sum()),
-        "moved_beyond_uncertainty": int(moved.sum()),
-        "unchanged_exactly": int(np.sum(delta[finite] == 0)),
-        "median_abs_change_m": float(abs_d[len(abs_d) // 2]) if len(abs_d) else None,
-        "max_abs_change_m": float(abs_d[-1]) if len(abs_d) else None,
+        "compared": int(compared.sum()),
+        "moved_beyond_uncertainty": int(moved_row.sum()),
+        "unchanged_exactly": int(np.sum(compared & ~changed_row)),
+        "changes_by_kind": changes,
         "verdict_changes": verdicts,
         "verdict_columns": columns,
         "largest_moves": largest,

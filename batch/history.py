@@ -18,7 +18,7 @@ from history.errors import HistoryUnreadable
 from history.frame_file import SUFFIX, load_frame_file
 from measure import Frame
 
-from batch.tasks import OPTION_FIELDS, Task, TaskError
+from batch.tasks import KINDS, LEAST_CLICKS, OPTION_FIELDS, SEGMENT, Task, TaskError, parse_clicks
 
 HISTORY_KIND = "history"
 
@@ -28,10 +28,13 @@ class HistoryError(TaskError):
 
 
 def history_tasks(db: Path) -> list[Task]:
-    """One task per stored measurement, oldest first. The database is read here, once: a task's
-    frame is the absolute path of its saved frame file (workers only read that file, never the
-    database, which SQLite cannot share over a network filesystem), or ``missing:UID`` /
-    ``dropped:UID`` for a frame that was never saved or was deleted by the service's size cap."""
+    """One task per stored measurement of every kind, oldest first: a segment's two clicks, a shape's
+    clicks (and a height's base clicks) as the service stored them, with its stored options. The
+    database is read here, once: a task's frame is the absolute path of its saved frame file
+    (workers only read that file, never the database, which SQLite cannot share over a network
+    filesystem), or ``missing:UID`` / ``dropped:UID`` for a frame that was never saved or was
+    deleted by the service's size cap. A row whose kind or clicks cannot be read is that task's
+    error row (``error_field`` "kind" or "points")."""
     db = db.resolve()
     try:
         con = schema.open_read_only(db)
@@ -52,8 +55,28 @@ def history_tasks(db: Path) -> list[Task]:
         uid = r["frame_uid"]
         frame = str(folder / r["file"]) if r["file"] else f"{'missing' if r['file'] is None else 'dropped'}:{uid}"
         extra = {"history_id": int(r["id"]), "history_source": r["source"], "frame_uid": uid}
-        tasks.append(Task(i, f"{HISTORY_KIND}:{db}", frame, (r["p1_x"], r["p1_y"]), (r["p2_x"], r["p2_y"]), options, extra))
+        source = f"{HISTORY_KIND}:{db}"
+        if r["kind"] == SEGMENT:
+            tasks.append(Task(i, source, frame, (r["p1_x"], r["p1_y"]), (r["p2_x"], r["p2_y"]), options, extra))
+        else:
+            tasks.append(_shape_task(i, source, frame, r["kind"], r["extra"], options, extra))
     return tasks
+
+
+def _shape_task(i: int, source: str, frame: str, kind: str, stored: str, options: dict, extra: dict) -> Task:
+    """The task of a stored shape: its kind and the clicks its row's ``extra`` keeps (an error task
+    naming ``kind`` or ``points`` when they cannot be read)."""
+    none = (None, None)
+    if kind not in KINDS:
+        return Task(i, source, frame, none, none, options, extra, f"kind {kind!r} is not a kind this version measures", "kind", None)
+    try:
+        shape = json.loads(stored or "{}").get("shape") or {}
+        least = LEAST_CLICKS[kind]
+        points = parse_clicks("points", shape.get("points"), least, least if least == 1 else None, f"a {kind}")
+        on = parse_clicks("on", shape["on"], 1, what="a height's base") if kind == "height" and shape.get("on") else None
+    except (TaskError, ValueError, AttributeError) as exc:
+        return Task(i, source, frame, none, none, options, extra, f"the stored clicks of this {kind} cannot be read ({exc})", "points", kind)
+    return Task(i, source, frame, none, none, options, extra, kind=kind, points=points, on=on)
 
 
 class HistoryFrames:

@@ -3,12 +3,15 @@
 :func:`run_group` is the one per-group function of every executor (this process, a pool, Ray).
 Steps: open the group's source once (kept open for the next group of the same source in this
 process, :mod:`batch.readers`); read each frame once; measure every task on it; encode the rows
-in the run's fixed schema (:mod:`batch.schema`) as one Parquet file. A task that fails becomes a
+in the run's fixed schema (:mod:`batch.schema`) as one Parquet file. A segment is measured by
+``measure.measure_distance``, a shape (height, path, area, box) by ``measure.measure_shape``, the
+function the service calls. A task that fails becomes a
 row with ``error``, ``error_type`` and, where a field is to blame, ``error_field``: an invalid task
 (its own message), a source that cannot be opened (``source``), a frame that cannot be read
 (``frame``), options that do not go together (``options``), a measurement error. A row holds the
-task's columns, the options used (``opt_*``), every field of :meth:`measure.Measurement.to_dict`
-(so fields added later flow through), the project version and where and when it ran.
+task's columns, the options used (``opt_*``), every field of its answer's ``to_dict``
+(:meth:`measure.Measurement.to_dict` for a segment, :func:`batch.schema.shape_columns` for a shape;
+a field added later must be given its column there), the project version and where and when it ran.
 """
 
 from __future__ import annotations
@@ -22,11 +25,11 @@ from collections.abc import Iterable
 from dataclasses import asdict, dataclass
 from typing import Any
 
-from measure import Frame, MeasureError, measure_distance
+from measure import Frame, MeasureError, measure_distance, measure_shape
 
 from batch.readers import FrameReader, reader_for
-from batch.schema import encode_rows, extra_column, measurement_column, result_schema
-from batch.tasks import Task, measure_options
+from batch.schema import encode_rows, extra_column, measurement_column, result_schema, shape_columns
+from batch.tasks import SEGMENT, Task, measure_options
 from batch.tasktable import TaskGroup, TaskTable
 
 
@@ -62,10 +65,13 @@ def task_row(task: Task, run: str, defaults: dict[str, Any]) -> dict[str, Any]:
         "task_key": task.key(defaults),
         "source": task.source,
         "frame": task.frame if isinstance(task.frame, int) else None,  # a history frame's uid is in frame_uid
+        "kind": task.kind,
         "p1_x": task.p1[0],
         "p1_y": task.p1[1],
         "p2_x": task.p2[0],
         "p2_y": task.p2[1],
+        "points": None if task.points is None else [list(p) for p in task.points],
+        "on": None if task.on is None else [list(p) for p in task.on],
         "run": run,
     }
     for k, v in task.extra.items():
@@ -85,11 +91,13 @@ def measure_task(task: Task, frame: Frame | None, defaults: dict[str, Any]) -> d
     if frame is None:
         return out
     try:
-        m = measure_distance(frame, task.p1, task.p2, options)  # type: ignore[arg-type] — a valid task's points are floats
+        if task.kind == SEGMENT:
+            answer = {measurement_column(k): v for k, v in measure_distance(frame, task.p1, task.p2, options).to_dict().items()}  # type: ignore[arg-type]
+        else:  # a valid shape task has its kind and clicks
+            answer = shape_columns(measure_shape(frame, task.kind, task.points, task.on, options))  # type: ignore[arg-type]
     except Exception as exc:  # noqa: BLE001 — bad clicks (MeasureError) or a bug: this task's error row, not a lost run
         return {**out, "error": str(exc) or repr(exc), "error_type": type(exc).__name__}
-    for k, v in m.to_dict().items():
-        out[measurement_column(k)] = flatten(v)
+    out.update((k, flatten(v)) for k, v in answer.items())
     return out
 
 

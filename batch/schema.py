@@ -1,8 +1,11 @@
 """The one Arrow schema of a batch's result rows: every row, error rows included, has every column.
 
-Built from the task table's columns, the :class:`measure.MeasureOptions` fields and the
-:class:`measure.Measurement` fields, so a group that starts with an error row encodes its valid rows
-with the same columns as any other group (inferring the columns from the first row lost them).
+Built from the task table's columns, the :class:`measure.MeasureOptions` fields, the
+:class:`measure.Measurement` fields (a segment's answer) and the shape answers' fields
+(:class:`measure.ShapeMeasurement` of a height, a path or an area; :class:`measure.BoxMeasurement`,
+its (length, width, height) tuples split into one column each), so a group that starts with an
+error row, or mixes kinds, encodes every row with the same columns as any other group (inferring
+the columns from the first row lost them). A row fills the columns of its kind; the others are null.
 """
 
 from __future__ import annotations
@@ -37,15 +40,46 @@ MEASUREMENT_TYPES: dict[str, str] = {
     "frames_used": "int64",
     "single_frame_uncertainty_m": "float64",
 }
+# A height's, a path's or an area's ShapeMeasurement.to_dict() fields beyond the shared ones below.
+SHAPE_TYPES: dict[str, str] = {
+    "value": "float64",
+    "unit": "string",
+    "uncertainty": "float64",
+    "interval": "list<float64>",
+    "points_m": "list<list<float64>>",
+    "parts": "list<float64>",
+    "part_sigmas": "list<float64>",
+}
+BOX_DIMENSIONS = ("length", "width", "height")
+# A box's BoxMeasurement.to_dict() fields: its uncertainty_m and intervals_m, one value per dimension,
+# become BOX_SPLIT's columns ("length_sigma_m", "length_interval_m", ...).
+BOX_SPLIT: dict[str, tuple[str, str]] = {"uncertainty_m": ("{}_sigma_m", "float64"), "intervals_m": ("{}_interval_m", "list<float64>")}
+BOX_TYPES: dict[str, str] = {
+    "length_m": "float64",
+    "width_m": "float64",
+    "height_m": "float64",
+    **{pattern.format(d): t for pattern, t in BOX_SPLIT.values() for d in BOX_DIMENSIONS},
+    "corners_m": "list<list<float64>>",
+    "base_corners_m": "list<list<float64>>",
+    "corners_px": "list<list<float64>>",
+    "base_corners_px": "list<list<float64>>",
+    "support_plane": "list<float64>",
+    "n_top_px": "int64",
+}
+SHAPE_SHARED = ("quality", "reasons", "elapsed_ms")  # a shape's fields that fill the segment's columns of the same name
+SHAPE_IN_TASK = ("kind", "clicks_px", "click_px")  # a shape's fields the task's columns already hold (kind, points)
 TASK_TYPES: dict[str, str] = {
     "task": "int64",
     "task_key": "string",
     "source": "string",
     "frame": "int64",
+    "kind": "string",
     "p1_x": "float64",
     "p1_y": "float64",
     "p2_x": "float64",
     "p2_y": "float64",
+    "points": "list<list<float64>>",
+    "on": "list<list<float64>>",
 }
 RUN_TYPES: dict[str, str] = {
     "run": "string",
@@ -82,9 +116,26 @@ def measurement_column(name: str) -> str:
     return f"m_{name}" if name in TASK_TYPES or name in RUN_TYPES else name
 
 
+def answer_types() -> dict[str, str]:
+    """Every answer column (a segment's, then a shape's, then a box's) -> its Arrow type name."""
+    return {**{measurement_column(k): v for k, v in MEASUREMENT_TYPES.items()}, **SHAPE_TYPES, **BOX_TYPES}
+
+
+def shape_columns(result: Any) -> dict[str, Any]:
+    """The answer columns of a shape's result (a ShapeMeasurement or BoxMeasurement): its ``to_dict()``
+    fields by :data:`SHAPE_TYPES`, :data:`BOX_TYPES` and :data:`SHAPE_SHARED`; NaN as None."""
+    out: dict[str, Any] = {}
+    for k, v in result.to_dict().items():
+        if k in BOX_SPLIT:
+            out.update({BOX_SPLIT[k][0].format(d): x for d, x in zip(BOX_DIMENSIONS, v)})
+        elif k not in SHAPE_IN_TASK:
+            out[measurement_column(k) if k in SHAPE_SHARED else k] = v
+    return out
+
+
 def extra_column(name: str) -> str:
     """The result column of a task table's own column (``task_`` in front where a result column has its name)."""
-    taken = {**TASK_TYPES, **RUN_TYPES, **option_types(), **{measurement_column(k): v for k, v in MEASUREMENT_TYPES.items()}}
+    taken = {**TASK_TYPES, **RUN_TYPES, **option_types(), **answer_types()}
     return f"task_{name}" if name in taken else name
 
 
@@ -109,7 +160,7 @@ def result_schema(extras: Mapping[str, Iterable[Any]] | None = None):
     for name, values in (extras or {}).items():
         fields.append(pa.field(extra_column(name), _extra_type(values)))
     fields += [pa.field(k, _arrow(v)) for k, v in option_types().items()]
-    fields += [pa.field(measurement_column(k), _arrow(v)) for k, v in MEASUREMENT_TYPES.items()]
+    fields += [pa.field(k, _arrow(v)) for k, v in answer_types().items()]
     fields += [pa.field(k, _arrow(v)) for k, v in RUN_TYPES.items()]
     return pa.schema(fields)
 

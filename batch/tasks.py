@@ -7,7 +7,13 @@ A task table has one row per measurement with the columns
   the folder of the task table and are made absolute here (Ray workers do not share the caller's
   working directory);
 - ``frame``: the 0-based frame index in that source, a whole number from 0 to 2^53 - 1;
-- ``p1_x``, ``p1_y``, ``p2_x``, ``p2_y``: the clicked points, finite pixels of the colour image;
+- ``kind`` (optional): ``segment`` (an empty cell, or no column) or a shape, ``height``, ``path``,
+  ``area``, ``box``;
+- a segment's clicks ``p1_x``, ``p1_y``, ``p2_x``, ``p2_y``: finite pixels of the colour image;
+- a shape's clicks ``points``: ``[[x, y], ...]`` as JSON text (or a list, in JSONL and Parquet): one
+  for a box or a height, two or more for a path, three or more for an area, in order; ``on``
+  likewise, a height's base plane (one click on it, or three or more around it; empty: the plane
+  the object stands on);
 - optional option columns named after :class:`measure.MeasureOptions` fields (``method``,
   ``support_fraction``, ``window``, ``extension_px``, ``gap_detection``, ``seed``, ``click_px``:
   docs/usage.md "Measure options"); an empty cell takes the run's default;
@@ -16,8 +22,9 @@ A task table has one row per measurement with the columns
 :func:`read_tasks` reads the table (a CSV's byte-order mark, as Excel writes it, is skipped) and
 refuses it only when it cannot be read, holds no row or lacks a required column. Each row is then
 checked on its own: a bad cell (an empty or NaN pixel, a frame beyond 2^53 - 1, an empty or live
-source, a bad option, a JSONL line that is no object) makes an *invalid* task whose ``error`` names
-the field and what to write; it becomes an error row and the other rows are measured.
+source, an unknown kind, clicks that are no JSON list of pairs or too few for the kind, a bad
+option, a JSONL line that is no object) makes an *invalid* task whose ``error`` names the field
+and what to write; it becomes an error row and the other rows are measured.
 """
 
 from __future__ import annotations
@@ -33,15 +40,19 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
-from measure import MeasureError, MeasureOptions
+from measure import SHAPE_KINDS, MeasureError, MeasureOptions
 
 from batch.errors import BatchError
 
 if TYPE_CHECKING:
     from batch.tasktable import TaskTable
 
-REQUIRED = ("source", "frame", "p1_x", "p1_y", "p2_x", "p2_y")
+REQUIRED = ("source", "frame", "p1_x", "p1_y", "p2_x", "p2_y")  # a table of shapes only: source, frame, kind and points
 POINT_COLUMNS = REQUIRED[2:]
+SEGMENT = "segment"
+KINDS = (SEGMENT, *SHAPE_KINDS)
+SHAPE_COLUMNS = ("kind", "points", "on")
+LEAST_CLICKS = {"box": 1, "height": 1, "path": 2, "area": 3}
 MAX_FRAME = 2**53 - 1  # the largest whole number a float64 (and so JSON and JavaScript) holds exactly
 OPTION_FIELDS: dict[str, type] = {f.name: f.type for f in dataclasses.fields(MeasureOptions)}  # type: ignore[misc]
 FILE_KINDS = ("replay", "depthpng", "middlebury", "video", "history")  # spec kinds whose target is a path
@@ -70,12 +81,17 @@ class Task:
     extra: dict[str, Any] = field(default_factory=dict)
     error: str | None = None
     error_field: str | None = None
+    kind: str | None = SEGMENT  # None: the kind cell could not be read
+    points: tuple[tuple[float, float], ...] | None = None
+    on: tuple[tuple[float, float], ...] | None = None
 
     def key(self, defaults: dict[str, Any] | None = None) -> str:
-        """A digest of what the task measures (source, frame, points, its options over the run's
+        """A digest of what the task measures (source, frame, kind, clicks, its options over the run's
         ``defaults``): ``--resume`` checks that a row done by an earlier run is the same task."""
         options = sorted({**(defaults or {}), **self.options}.items())
         what: list[Any] = [self.source, self.frame, self.p1, self.p2, options]
+        if self.kind != SEGMENT:  # a segment's digest is the one runs made before shapes
+            what += [self.kind, self.points, self.on]
         if self.error:
             what.append(self.error)
         return hashlib.sha1(json.dumps(what, default=str).encode()).hexdigest()[:16]
@@ -215,6 +231,54 @@ def parse_pixel(name: str, value: Any) -> float:
     return f
 
 
+def parse_kind(value: Any) -> str:
+    """A ``kind`` cell: "segment" when empty, else one of :data:`KINDS` (any case)."""
+    if _empty(value):
+        return SEGMENT
+    kind = str(value).strip().lower()
+    if kind not in KINDS:
+        raise TaskError(f"kind={shown(value)} is not a kind of measurement; write one of {', '.join(KINDS)} (empty: segment)")
+    return kind
+
+
+def _pair(p: Any) -> tuple[float, float]:
+    if not isinstance(p, (list, tuple)) or len(p) != 2 or any(v is None or isinstance(v, (bool, str)) for v in p):
+        raise ValueError
+    return float(p[0]), float(p[1])
+
+
+def no_clicks(value: Any) -> bool:
+    """An empty ``points`` or ``on`` cell: nothing, blank text, ``[]`` or ``null``."""
+    if isinstance(value, (list, tuple)):
+        return not value
+    return _empty(value) or (isinstance(value, str) and value.strip().lower() in ("[]", "null"))
+
+
+def parse_clicks(name: str, value: Any, least: int, most: int | None = None, what: str = "this kind") -> tuple[tuple[float, float], ...]:
+    """A ``points`` or ``on`` cell: JSON text ``[[x, y], ...]`` or a list of pairs, finite pixels,
+    ``least`` to ``most`` of them (``what`` takes them, for the message)."""
+    if no_clicks(value):
+        raise TaskError(f"{name} is empty; give the clicks as JSON [[x, y], ...]")
+    pairs = value
+    if isinstance(value, str):
+        try:
+            pairs = json.loads(value)
+        except (json.JSONDecodeError, RecursionError):
+            raise TaskError(f"{name}={shown(value)} is not JSON; write the clicks as [[x, y], ...]") from None
+    try:
+        if not isinstance(pairs, (list, tuple)):
+            raise ValueError
+        clicks = tuple(_pair(p) for p in pairs)
+    except (TypeError, ValueError, OverflowError):
+        raise TaskError(f"{name}={shown(value)} must be a list of [x, y] pixel pairs, e.g. [[120, 80], [300, 95]]") from None
+    if not all(math.isfinite(v) for p in clicks for v in p):
+        raise TaskError(f"{name}={shown(value)} holds a coordinate that is not finite; give finite pixels")
+    if len(clicks) < least or (most is not None and len(clicks) > most):
+        count = f"exactly {least}" if most == least else f"at least {least}"
+        raise TaskError(f"{name} holds {len(clicks)} click(s); {what} takes {count}")
+    return clicks
+
+
 def read_rows(path: Path) -> Iterator[dict[str, Any] | BadLine]:
     """The rows of a CSV, JSONL or Parquet table as dicts (by file suffix), one at a time (a table of
     a million rows is never held as dicts); a JSONL line that is no JSON object is a :class:`BadLine`.
@@ -281,16 +345,19 @@ def _tasks(rows: Iterable[dict[str, Any] | BadLine], base: Path | str, where: Pa
         tasks.add(parse_row(i, row, base))
     if not len(tasks.index):
         raise TaskError(f"{where} holds no task rows")
-    missing = [c for c in REQUIRED if c not in columns]
+    missing = [c for c in REQUIRED if c not in columns and (c in REQUIRED[:2] or "points" not in columns)]
     if missing:
-        raise TaskError(f"{where} lacks the column(s) {', '.join(missing)}; a task table needs {', '.join(REQUIRED)}")
+        raise TaskError(
+            f"{where} lacks the column(s) {', '.join(missing)}; a task table needs {', '.join(REQUIRED)} "
+            "(a table of shapes only: source, frame, kind and points)"
+        )
     return tasks.table()
 
 
 def parse_row(index: int, row: dict[str, Any] | BadLine, base: Path | str) -> Task:
     """The task of one table row; a bad cell makes it invalid (``error`` names every bad field)."""
     if isinstance(row, BadLine):
-        return Task(index, "", None, (None, None), (None, None), error=row.message, error_field="row")
+        return Task(index, "", None, (None, None), (None, None), error=row.message, error_field="row", kind=None)
     bad: dict[str, str] = {}
 
     def check(name: str, parse, value: Any) -> Any:  # noqa: ANN001 — one of the parsers above
@@ -301,7 +368,23 @@ def parse_row(index: int, row: dict[str, Any] | BadLine, base: Path | str) -> Ta
             return None
 
     frame = check("frame", parse_frame, row.get("frame"))
-    pts = [check(c, lambda v, c=c: parse_pixel(c, v), row.get(c)) for c in POINT_COLUMNS]
+    kind = check("kind", parse_kind, row.get("kind"))
+    pts: list[float | None] = [None] * 4
+    points = on = None
+    if kind == SEGMENT:
+        pts = [check(c, lambda v, c=c: parse_pixel(c, v), row.get(c)) for c in POINT_COLUMNS]
+        for c in SHAPE_COLUMNS[1:]:
+            if not no_clicks(row.get(c)):
+                bad[c] = f"{c} holds the clicks of a shape; a segment's are p1_x, p1_y, p2_x, p2_y (set kind to {', '.join(SHAPE_KINDS)})"
+    elif kind is not None:
+        least = LEAST_CLICKS[kind]
+        points = check("points", lambda v: parse_clicks("points", v, least, least if least == 1 else None, f"a {kind}"), row.get("points"))
+        if kind == "height" and not no_clicks(row.get("on")):
+            on = check("on", lambda v: parse_clicks("on", v, 1, what="a height's base"), row.get("on"))
+            if on is not None and len(on) == 2:
+                bad["on"], on = "on holds 2 clicks; give 1 click on the base plane or 3 or more around a region of it", None
+        elif not no_clicks(row.get("on")):
+            bad["on"] = f"on names the base plane of a height; leave it empty for a {kind}"
     options = {}
     for name in OPTION_FIELDS:
         value = check(name, lambda v, name=name: parse_option(name, v), row.get(name))
@@ -317,9 +400,9 @@ def parse_row(index: int, row: dict[str, Any] | BadLine, base: Path | str) -> Ta
     source = check("source", lambda v: _normalised("" if _empty(v) else str(v), base), raw_source)
     if None in row:  # csv.DictReader keeps a row's cells beyond the header under the key None
         bad["row"] = f"the row has {len(row[None])} more cell(s) than the header; quote cells that hold commas"
-    extra = {k: v for k, v in row.items() if k is not None and k not in REQUIRED and k not in OPTION_FIELDS}
+    extra = {k: v for k, v in row.items() if k is not None and k not in REQUIRED and k not in SHAPE_COLUMNS and k not in OPTION_FIELDS}
     return Task(
         index, source if source is not None else ("" if _empty(raw_source) else str(raw_source)), frame,
         (pts[0], pts[1]), (pts[2], pts[3]), options, extra,
-        error="; ".join(bad.values()) or None, error_field=",".join(bad) or None,
+        error="; ".join(bad.values()) or None, error_field=",".join(bad) or None, kind=kind, points=points, on=on,
     )  # fmt: skip

@@ -2,7 +2,8 @@
 
 A :class:`batch.tasks.Task` is a Python object of ~830 bytes; a million of them would be most of a
 driver's memory. :class:`TaskTable` keeps the same tasks as numpy columns (~80 bytes a task: row
-index, source code, frame, four pixels, options code, error and error field) and builds a ``Task``
+index, source code, frame, kind code, four pixels, options code, error and error field; a shape's
+clicks only in a table that holds shapes) and builds a ``Task``
 only when one is asked for, so the driver never holds the table as objects and a group crosses to
 a worker as a few arrays. :func:`group_tasks` sorts and cuts those columns into
 :class:`TaskGroup` slices; a worker iterates its group's tasks one at a time.
@@ -19,9 +20,10 @@ from typing import Any
 
 import numpy as np
 
-from batch.tasks import RANDOM_ACCESS_KINDS, Task, source_kind
+from batch.tasks import KINDS, RANDOM_ACCESS_KINDS, Task, source_kind
 
 NO_FRAME = -1  # the frame column of a task whose frame cell could not be read
+NO_KIND = -1  # the kind column of a task whose kind cell could not be read
 
 
 def _key(options: dict[str, Any]) -> str:
@@ -34,7 +36,9 @@ class TaskColumns:
 
     def __init__(self) -> None:
         self.index, self.source, self.option = array("q"), array("i"), array("i")
+        self.kind = array("b")
         self.points = array("d")
+        self.shapes: list[tuple[int, Any, Any]] = []  # (row, points, on) of the shape tasks
         self.frames: list[Any] | array = array("q")
         self.errors: list[tuple[int, str, str | None]] = []  # (row, error, error field): invalid rows are few
         self.sources: dict[str, int] = {}
@@ -48,6 +52,9 @@ class TaskColumns:
         key = _key(t.options)
         self.option.append(self.options.setdefault(key, (len(self.options), dict(t.options)))[0])
         self.points.extend(math.nan if v is None else v for v in (*t.p1, *t.p2))
+        self.kind.append(NO_KIND if t.kind is None else KINDS.index(t.kind))
+        if t.points is not None or t.on is not None:
+            self.shapes.append((n, t.points, t.on))
         frame = NO_FRAME if t.frame is None else t.frame
         if isinstance(frame, str) and isinstance(self.frames, array):  # a history uid: frames become objects
             self.frames = list(self.frames)
@@ -70,6 +77,11 @@ class TaskColumns:
             extra[k] = np.empty(n, dtype=object)
             extra[k][:] = values
         frames = np.frombuffer(self.frames, dtype=np.int64) if isinstance(self.frames, array) else np.array(self.frames, dtype=object)
+        clicks = on = None
+        if self.shapes:
+            clicks, on = np.full(n, None, dtype=object), np.full(n, None, dtype=object)
+            for row, points, base in self.shapes:
+                clicks[row], on[row] = points, base
         return TaskTable(
             np.frombuffer(self.index, dtype=np.int64),  # views of the builder's arrays, no copy
             np.frombuffer(self.source, dtype=np.int32),
@@ -81,6 +93,9 @@ class TaskColumns:
             error,
             error_field,
             extra,
+            np.frombuffer(self.kind, dtype=np.int8),
+            clicks,
+            on,
         )
 
 
@@ -89,7 +104,9 @@ class TaskTable(Sequence[Task]):
     """Tasks as columns (module docstring); ``table[i]`` is the i-th :class:`Task`, a slice or an
     index array is a table of those rows. ``frame`` is int64 (:data:`NO_FRAME` for none) or, for
     the service history, objects; ``points`` is (n, 4) float64 p1_x, p1_y, p2_x, p2_y, NaN for none;
-    ``extra`` holds the carried-through columns, None where a row lacks one."""
+    ``extra`` holds the carried-through columns, None where a row lacks one; ``kind`` indexes
+    :data:`batch.tasks.KINDS` (:data:`NO_KIND` for none); ``clicks`` and ``on`` hold a shape's
+    clicks (None for a segment), or are None when no task is a shape."""
 
     ids: np.ndarray  # each task's row in its table (Task.index)
     source: np.ndarray
@@ -101,6 +118,9 @@ class TaskTable(Sequence[Task]):
     error: np.ndarray
     error_field: np.ndarray
     extra: dict[str, np.ndarray] = field(default_factory=dict)
+    kind: np.ndarray | None = None  # None: every task is a segment
+    clicks: np.ndarray | None = None
+    on: np.ndarray | None = None
 
     @staticmethod
     def of(tasks: Iterable[Task]) -> TaskTable:
@@ -121,6 +141,7 @@ class TaskTable(Sequence[Task]):
         return TaskTable(
             self.ids[rows], self.source[rows], self.sources, self.frame[rows], self.points[rows], self.option[rows],
             self.options, self.error[rows], self.error_field[rows], {k: v[rows] for k, v in self.extra.items()},
+            *(None if a is None else a[rows] for a in (self.kind, self.clicks, self.on)),
         )  # fmt: skip
 
     def __iter__(self) -> Iterator[Task]:
@@ -132,9 +153,12 @@ class TaskTable(Sequence[Task]):
         frame = self.frame[i]
         frame = None if frame is None or (not isinstance(frame, str) and frame == NO_FRAME) else (frame if isinstance(frame, str) else int(frame))
         extra = {k: v[i] for k, v in self.extra.items() if v[i] is not None}
+        code = 0 if self.kind is None else int(self.kind[i])
         return Task(
             int(self.ids[i]), self.sources[self.source[i]], frame, (p[0], p[1]), (p[2], p[3]),
             dict(self.options[self.option[i]]), extra, self.error[i], self.error_field[i],
+            None if code == NO_KIND else KINDS[code],
+            None if self.clicks is None else self.clicks[i], None if self.on is None else self.on[i],
         )  # fmt: skip
 
     def invalid(self) -> np.ndarray:

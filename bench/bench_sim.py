@@ -41,7 +41,7 @@ def run(repeat: int = 30) -> dict[str, float]:
     get_view.cache_clear()
     t0 = time.perf_counter()
     sim.scenario("person", distance_m=4.0)
-    results["cold scene (ray-cast + 3 renders), ms"] = (time.perf_counter() - t0) * 1e3
+    results["cold scene (ray-cast + its render), ms"] = (time.perf_counter() - t0) * 1e3
     with open_source("sim:poster?distance=4&fps=0") as src:
         src.read()
         results["sim source frame 1280x720, ms"] = _median_ms(src.read, repeat)

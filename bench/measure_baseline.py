@@ -28,6 +28,7 @@ class Baseline:
     def __init__(self, rev: str):
         self.rev = rev
         self.short = subprocess.run(["git", "-C", str(ROOT), "rev-parse", "--short", rev], check=True, capture_output=True, text=True).stdout.strip()
+        self.label = rev if rev == self.short else f"{rev} ({self.short})"
         self._tmp = tempfile.TemporaryDirectory(prefix="bench-measure-baseline-")
         tree = Path(self._tmp.name) / "tree"
         tree.mkdir()

@@ -47,9 +47,9 @@ def _progress():
 
 @app.command("run")
 def run_command(
-    tasks_file: str = typer.Argument(None, metavar="TASKS", help="CSV, JSONL or Parquet table of tasks (a path or a URL such as s3://bucket/tasks.csv): source, frame, p1_x, p1_y, p2_x, p2_y [, method, ...]."),
+    tasks_file: str = typer.Argument(None, metavar="TASKS", help="CSV, JSONL or Parquet table of tasks (a path or a URL such as s3://bucket/tasks.csv): source, frame, p1_x, p1_y, p2_x, p2_y [, method, ...]; shapes: kind (height, path, area, box) and points as JSON [[x, y], ...] [, on] (docs/batch.md)."),
     out: Path = typer.Option(..., "--out", "-o", help="Results file (Parquet)."),
-    from_history: Path = typer.Option(None, "--from-history", help="Re-measure every measurement in this service history database instead of TASKS."),
+    from_history: Path = typer.Option(None, "--from-history", help="Re-measure every measurement (segments and shapes) in this service history database instead of TASKS."),
     workers: int = typer.Option(os.cpu_count() or 1, "--workers", "-j", min=1, help="Worker processes (1 = in this process; the default is one per CPU). With --ray local: the CPUs Ray may use."),
     ray: str = typer.Option(None, "--ray", help="Run on Ray: 'auto' (the cluster running here or at RAY_ADDRESS), 'local' (start one here) or an address (HOST:6379, ray://HOST:10001)."),
     set_: list[str] = typer.Option([], "--set", help="Default measurement option KEY=VALUE for tasks that do not set it (repeatable), e.g. --set method=paper."),
@@ -136,7 +136,7 @@ def diff_command(
     top: int = typer.Option(10, "--top", min=0, help="List this many of the largest moves."),
     as_json: bool = typer.Option(False, "--json", help="Print the summary as JSON."),
 ) -> None:
-    """What changed from A to B: answers that moved by more than their uncertainty, changed verdicts."""
+    """What changed from A to B: answers (distances, shape values, box dimensions) that moved by more than their uncertainty, changed verdicts."""
     from batch.diff import diff_results
     from batch.errors import BatchError
 
@@ -157,22 +157,23 @@ def diff_command(
         opts = ", ".join(f"{k}={v}" for k, v in sorted(run["options"].items())) or "defaults"
         con.print(f"{side.upper()} options: {opts}" + (f" (depthruler {run['version']})" if run["version"] else ""))
     con.print("status: " + ", ".join(f"{k} {v}" for k, v in sorted(d["status"].items())))
-    med, mx = d["median_abs_change_m"], d["max_abs_change_m"]
     con.print(
-        f"distances compared {d['compared_distances']}: {d['unchanged_exactly']} identical, "
-        f"{d['moved_beyond_uncertainty']} moved by more than their uncertainty"
-        + (f"; |change| median {med * 1e3:.2f} mm, max {mx * 1e3:.2f} mm" if med is not None else "")
+        f"answers compared {d['compared']}: {d['unchanged_exactly']} identical, "
+        f"{d['moved_beyond_uncertainty']} moved by more than their uncertainty (a box: any of its three dimensions)"
     )
+    for kind, c in d["changes_by_kind"].items():
+        scale, unit = (1e4, "cm²") if c["unit"] == "m2" else (1e3, "mm")
+        con.print(f"{kind}: {c['answers']} answer(s), |change| median {c['median_abs_change'] * scale:.2f} {unit}, max {c['max_abs_change'] * scale:.2f} {unit}")
     for col in d["verdict_columns"]:
         changes = d["verdict_changes"].get(col, {})
         con.print(f"{col} changed: " + (", ".join(f"{k} ({v})" for k, v in sorted(changes.items())) or "none"))
     if d["largest_moves"]:
         t = Table(title="largest moves")
-        for c in ("task A", "source", "frame", "A m", "B m", "change mm", "u A mm", "u B mm"):
+        for c in ("task A", "source", "frame", "kind", "answer", "A", "B", "change", "u A", "u B"):
             t.add_column(c)
         for m in d["largest_moves"]:
             t.add_row(
-                str(m["task_a"]), m["source"], str(m["frame"]), f"{m['distance_a_m']:.4f}", f"{m['distance_b_m']:.4f}",
-                f"{m['delta_m'] * 1e3:+.2f}", f"{m['uncertainty_a_m'] * 1e3:.2f}", f"{m['uncertainty_b_m'] * 1e3:.2f}",
+                str(m["task_a"]), m["source"], str(m["frame"]), m["kind"], m["answer"], f"{m['a']:.4f}", f"{m['b']:.4f}",
+                f"{m['delta']:+.4f}", f"{m['uncertainty_a']:.4f}", f"{m['uncertainty_b']:.4f}",
             )  # fmt: skip
         con.print(t)

@@ -39,24 +39,31 @@ def shape_kind(box: str | None, height: str | None, path: bool, area: bool, poin
     return None if kind == "segment" else kind
 
 
-def measure_shape(frame: Any, kind: str, click: tuple[float, float] | None, clicks: list[tuple[float, float]],
-                  base: list[tuple[float, float]], options: Any) -> Any:
-    """The core's answer for ``kind`` on ``frame`` (raises measure.MeasureError on bad input)."""
-    from measure import measure_area, measure_box, measure_height, measure_path
-
-    if kind == "box":
-        return measure_box(frame, click, options)
-    if kind == "height":
-        return measure_height(frame, click, base or None, options)
-    return (measure_path if kind == "path" else measure_area)(frame, clicks, options)
-
-
 def _m(v: float, unit: str = "m") -> str:
     return f"{v:.4f} {unit}" if math.isfinite(v) else "unknown"
 
 
 def _verdict(quality: str, reasons: tuple[str, ...]) -> str:
     return f"quality: {quality.upper()}" + (f" ({'; '.join(reasons)})" if reasons else "")
+
+
+def segment_text(result: Any, frames: int, frame: int) -> list[str]:
+    """Text lines of a segment's answer measured on ``frames`` frames ending at ``frame``: the distance with
+    one sigma and 95 % interval, the verdict, the fit, the basic estimate and, pooled, the gain over the
+    newest frame alone; a value that is not finite reads "unknown", never "nan m"."""
+    lo, hi = result.interval_m
+    lines = [f"distance {_m(result.distance_m)}" + (f" ± {_m(result.uncertainty_m)}" if math.isfinite(result.uncertainty_m) else " (uncertainty unknown)"),
+             f"95 % interval {lo:.4f} - {hi:.4f} m" if math.isfinite(lo) and math.isfinite(hi) else "95 % interval unknown",
+             _verdict(result.quality, result.reasons),
+             f"method {result.method}, fit {result.fit}, {result.n_support}/{result.n_valid} samples in support",
+             f"basic estimate {_m(result.basic_distance_m)}" if math.isfinite(result.basic_distance_m)
+             else "basic estimate: none (no depth within the window at an end point)"]
+    if frames > 1:
+        single, pooled = result.single_frame_uncertainty_m, result.uncertainty_m
+        gain = f", {single / pooled:.2f}x narrower pooled" if math.isfinite(single) and math.isfinite(pooled) and pooled > 0 else ""
+        lines.append(f"frames: {result.frames_used} of {frames} pooled (frames {frame - result.frames_used + 1}-{frame}); "
+                     f"one sigma {_m(single)} on the newest frame alone{gain}")
+    return lines
 
 
 def shape_json(result: Any, kind: str, source: str, frame: int, truth: dict | None) -> str:

@@ -19,6 +19,12 @@ from measure import Frame
 from device.errors import SourceError
 
 
+# A frame's meta key for a zero-argument callable that returns the frame's image bit for bit (the
+# simulator's: its render plus a crop of a fixed noise sheet). A holder of many frames (the service's
+# ring) may drop the image and call it when the image is asked for; recordings do not store it.
+REBUILD_IMAGE = "rebuild_image"
+
+
 @dataclass(frozen=True)
 class SourceInfo:
     """What a source is: kind (a :data:`BACKENDS` kind, or "usb" for an unrecognised USB camera), name, serial, size, fps."""

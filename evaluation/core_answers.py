@@ -42,11 +42,13 @@ def _row(protocol: str, key: str, frame: Any, p1, p2, truth: float) -> dict[str,
                    "fit": m.fit, "gap": bool(m.gap_detected), "error": ""}
 
 
-def _cases(middlebury_dir: Path | None) -> Iterator[tuple[str, str, Any, Any, Any, float]]:
+def _cases(middlebury_dir: Path | None, sim_cases: list[tuple[Any, list]] | None = None) -> Iterator[tuple[str, str, Any, Any, Any, float]]:
+    """Every (protocol, key, frame, p1, p2, truth) to answer; ``sim_cases``: the simulated stress frames and cases
+    (``stress_sim_cases(SIM_SEEDS, SIM_DISTANCES)``) when the caller has them already."""
     from evaluation.bent_rooms import room_cases
     from evaluation.stress_sim import stress_sim_cases
 
-    for i, (frame, cases) in enumerate(stress_sim_cases(SIM_SEEDS, SIM_DISTANCES)):
+    for i, (frame, cases) in enumerate(stress_sim_cases(SIM_SEEDS, SIM_DISTANCES) if sim_cases is None else sim_cases):
         for j, c in enumerate(cases):
             yield "stress-sim", f"{i}.{j}.{c.condition}", frame, c.p1_px, c.p2_px, c.truth_m
     for i, (frame, cases) in enumerate(room_cases(ROOM_SEEDS)):

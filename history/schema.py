@@ -139,13 +139,15 @@ def open_read_only(db: Path) -> sqlite3.Connection:
 
 
 def measurement_inputs(con: sqlite3.Connection) -> list[sqlite3.Row]:
-    """What re-measuring every stored segment needs, oldest first: ``id``, ``frame_uid``,
-    ``source``, ``p1_x`` .. ``p2_y`` (px), ``options`` (JSON) and its frame's ``file`` (None: no
-    frame row; '': deleted by the size cap). Shape rows are left out: two points do not re-measure
-    them. A database the service has not migrated yet (no ``kind`` column) holds segments only."""
-    has_kind = "kind" in {r[1] for r in con.execute("PRAGMA table_info(measurements)")}
-    where = f"WHERE m.kind = '{SEGMENT}' " if has_kind else ""
+    """What re-measuring every stored measurement needs, oldest first: ``id``, ``kind`` ("segment" or
+    a shape kind), ``frame_uid``, ``source``, ``p1_x`` .. ``p2_y`` (px), ``options`` (JSON), ``extra``
+    (JSON; a shape's clicks are its ``shape``, :mod:`history.shape_records`) and its frame's ``file``
+    (None: no frame row; '': deleted by the size cap). A database the service has not migrated yet
+    (no ``kind`` or ``extra`` column) holds segments only."""
+    have = {r[1] for r in con.execute("PRAGMA table_info(measurements)")}
+    kind = "m.kind" if "kind" in have else f"'{SEGMENT}'"
+    extra = "m.extra" if "extra" in have else "'{}'"
     return con.execute(
-        "SELECT m.id, m.frame_uid, m.source, m.p1_x, m.p1_y, m.p2_x, m.p2_y, m.options, f.file "
-        f"FROM measurements m LEFT JOIN frames f ON f.uid = m.frame_uid {where}ORDER BY m.id"
+        f"SELECT m.id, {kind} AS kind, m.frame_uid, m.source, m.p1_x, m.p1_y, m.p2_x, m.p2_y, m.options, {extra} AS extra, f.file "
+        "FROM measurements m LEFT JOIN frames f ON f.uid = m.frame_uid ORDER BY m.id"
     ).fetchall()

@@ -16,6 +16,7 @@ from measure.path import measure_path
 from measure.robust import robust_with_terms
 from measure.sampling import ray
 from measure.sequence import MAX_FRAMES, measure_sequence
+from measure.shape import measure_shape
 from measure.options import METHODS
 from measure.shape_types import SHAPE_KINDS, BoxMeasurement, ShapeMeasurement, outlines
 from measure.types import MAX_CLICK_PX, Frame, MeasureError, MeasureOptions, Measurement, PinholeCamera
@@ -44,6 +45,7 @@ __all__ = [
     "measure_height",
     "measure_path",
     "measure_sequence",
+    "measure_shape",
     "measure_z_only",
     "option",
     "options_of",

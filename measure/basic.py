@@ -18,7 +18,7 @@ from measure.request import NO_DEPTH, Request, require_resolved_windows
 from measure.robust_range import median
 from measure.sampling import backproject, window_disparities
 from measure.types import Frame, MeasureError, Measurement
-from measure.uncertainty import disparity_quantum, endpoint_depth_sigma, window_disparity_se, window_depth_sigma
+from measure.uncertainty import depth_sigma, disparity_quantum, endpoint_depth_sigma, window_disparity_se
 
 
 @dataclass(frozen=True)
@@ -49,8 +49,8 @@ def basic_ends(frame: Frame, xy1: tuple[float, float], xy2: tuple[float, float],
     dist = float(np.linalg.norm(pts[0] - pts[1]))
     q = disparity_quantum(np.concatenate([w1, w2]))
     fb = frame.camera.fx * frame.baseline_m
-    s1 = window_depth_sigma(w1, float(pts[0, 2]), fb, q)
-    s2 = window_depth_sigma(w2, float(pts[1, 2]), fb, q)
+    se = (window_disparity_se(w1, q), window_disparity_se(w2, q))
+    s1, s2 = (depth_sigma(float(pts[e, 2]), fb, se[e]) for e in (0, 1))
     if dist > 0 and math.isfinite(dist):
         sigma = endpoint_depth_sigma(pts[0], pts[1], s1, s2)
     elif dist == 0:
@@ -58,7 +58,6 @@ def basic_ends(frame: Frame, xy1: tuple[float, float], xy2: tuple[float, float],
         sigma = float(np.linalg.norm(pts[0] / pts[0][2])) * math.hypot(s1, s2)
     else:
         sigma = math.nan
-    se = (window_disparity_se(w1, q), window_disparity_se(w2, q))
     return BasicEnds(pts[0], pts[1], dist, sigma, (s1, s2), xy1, xy2, (float(d[0]), float(d[1])), se)
 
 

@@ -112,9 +112,11 @@ def _irls(t: np.ndarray, d: np.ndarray, alpha: float, beta: float, scale: float,
     # Stop when the fitted line moves by less than 1e-4 of the noise scale anywhere on the segment:
     # far below its own standard error (>= scale / sqrt(n)).
     tol = 1e-4 * scale
+    w, line = np.empty_like(r), np.empty_like(r)  # reused: the loop allocates nothing
     for _ in range(iterations):
-        u = r * inv_cs
-        w = 1.0 - u * u
+        np.multiply(r, inv_cs, out=w)  # u, then 1 - u², then the weight (1 - u²)² inside the band
+        np.multiply(w, w, out=w)
+        np.subtract(1.0, w, out=w)
         np.maximum(w, 0.0, out=w)
         w *= w
         sw, swt, swtt, swd, swtd = (terms @ w).tolist()
@@ -125,7 +127,9 @@ def _irls(t: np.ndarray, d: np.ndarray, alpha: float, beta: float, scale: float,
         b_new = (sw * swtd - swt * swd) / det
         done = abs(a_new - alpha) + abs(b_new - beta) * span < tol
         alpha, beta = float(a_new), float(b_new)
-        r = d - (alpha + beta * t)
+        np.multiply(t, beta, out=line)
+        line += alpha
+        r = d - line
         if done:
             break
     return alpha, beta, r

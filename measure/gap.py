@@ -10,7 +10,8 @@
   ``MIN_EXTENSION_SAMPLES`` samples, and its Tukey location must exceed the segment's line at the end
   by ``GAP_STEP_REL`` and by ``GAP_SIGMAS`` standard errors of the difference, each inflated for the
   lag-one correlation of its residuals. On a gap the answer is measured between the clicks' rays at
-  the two end surfaces' depths.
+  the two end surfaces' depths; each surface also carries the rounding error its samples share
+  (``measure.uncertainty.rounding_sigma`` on the levels near its location).
 
 Why evidence at both ends: on a poster on a wall the bare comparison is a coin toss per side, and
 smooth SGBM noise makes per-pixel standard errors too small (docs/decisions/gap-evidence.md).
@@ -23,10 +24,10 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from measure.robust_range import tukey_location
+from measure.robust_range import TUKEY_C, tukey_location, tukey_scale
 from measure.sampling import depth_of, extension_pixels, valid_disparity
 from measure.types import Frame
-from measure.uncertainty import correlation_inflation
+from measure.uncertainty import correlation_inflation, rounding_sigma
 
 
 @dataclass(frozen=True)
@@ -73,6 +74,7 @@ class EndSurface:
     disparity: float  # Tukey location (px); NaN without samples
     se: float  # its correlation-inflated standard error (px)
     n_valid: int
+    rounding: float = 0.0  # the disparity rounding error its samples share (px, one sigma)
 
 
 def _end_run(frame: Frame, start: tuple[float, float], other: tuple[float, float], length: int, leading: np.ndarray) -> np.ndarray:
@@ -84,11 +86,19 @@ def _end_run(frame: Frame, start: tuple[float, float], other: tuple[float, float
     return np.concatenate([d[::-1], np.asarray(leading, dtype=np.float64)])
 
 
-def _surface_of(run: np.ndarray) -> EndSurface:
-    """Tukey location of a non-empty run and its correlation-inflated standard error."""
+def _surface_of(run: np.ndarray, quantum: float) -> EndSurface:
+    """Tukey location of a non-empty run (px), its correlation-inflated standard error and the rounding
+    error shared by the levels of step ``quantum`` (px) that the location rests on (the bisquare's
+    inliers), with their scatter about it as the dithering noise."""
     loc, se = tukey_location(run)
-    inflate = correlation_inflation(run - loc)
-    return EndSurface(loc, se * inflate, int(run.size))
+    res = run - loc
+    inflate = correlation_inflation(res)
+    rounding = 0.0
+    if quantum > 0:
+        near = np.abs(res) < TUKEY_C * tukey_scale(run)
+        near = near if near.any() else np.ones(run.size, bool)  # all values equal: one level
+        rounding = rounding_sigma(quantum, int(np.unique(run[near]).size), float(np.sqrt(np.mean(res[near] ** 2))))
+    return EndSurface(loc, se * inflate, int(run.size), rounding)
 
 
 def leading_run(residuals: np.ndarray, support: np.ndarray) -> int:
@@ -107,7 +117,7 @@ def _clear_at(e: EndSurface, d: float, s: float, doffs: float) -> bool:
 
 
 def clear_gap_ends(frame: Frame, xy1: tuple[float, float], xy2: tuple[float, float], length: int, leading: tuple[np.ndarray, np.ndarray],
-                   d_segment: tuple[float, float], se_segment: tuple[float, float]) -> tuple[EndSurface, EndSurface] | None:
+                   d_segment: tuple[float, float], se_segment: tuple[float, float], quantum: float = 0.0) -> tuple[EndSurface, EndSurface] | None:
     """Both ends' surfaces when they show a clear gap, else None (the module docstring's rule): at each
     end, the ``length``-px extension's valid pixels beyond the click together with its ``leading``
     samples (the segment's next to the click in front of its line, nearest first), a surface of at
@@ -115,7 +125,8 @@ def clear_gap_ends(frame: Frame, xy1: tuple[float, float], xy2: tuple[float, flo
     (``d_segment``, px, standard errors ``se_segment``) by ``GAP_STEP_REL`` of it and by ``GAP_SIGMAS``
     combined standard errors. End by end: the second end is not read once the first shows no gap, and
     no Tukey location is computed where it cannot pass (a weighted mean lies within its samples' range,
-    so an end whose largest sample does not exceed the segment's disparity by ``GAP_STEP_REL`` has none)."""
+    so an end whose largest sample does not exceed the segment's disparity by ``GAP_STEP_REL`` has none).
+    ``quantum`` is the disparity step (px) for each surface's rounding error (0: none)."""
     ends = []
     for (a, b), lead, d, s in zip(((xy1, xy2), (xy2, xy1)), leading, d_segment, se_segment):
         run = _end_run(frame, a, b, length, lead)
@@ -125,7 +136,7 @@ def clear_gap_ends(frame: Frame, xy1: tuple[float, float], xy2: tuple[float, flo
         # 1e-9: the bound holds for the float mean too (its rounding is far below it).
         if top + 1e-9 * (abs(top) + 1.0) - d <= GAP_STEP_REL * (d + frame.doffs):
             return None
-        e = _surface_of(run)
+        e = _surface_of(run, quantum)
         if not _clear_at(e, d, s, frame.doffs):
             return None
         ends.append(e)

@@ -199,9 +199,10 @@ def fast_mcd(
         x = x[:, None]
     if x.ndim != 2 or x.shape[0] < 1 or not 1 <= x.shape[1] <= 3:
         raise MeasureError(f"fast_mcd needs an n x p array with n >= 1 and 1 <= p <= 3, got shape {x.shape}")
-    if not np.isfinite(x).all():
+    largest = float(np.abs(x).max())  # NaN when any coordinate is
+    if not math.isfinite(largest):
         raise MeasureError("fast_mcd got NaN or infinite coordinates; drop invalid points first")
-    if np.abs(x).max() > _MAX_ABS:
+    if largest > _MAX_ABS:
         raise MeasureError(f"fast_mcd got coordinates beyond {_MAX_ABS:g} in magnitude; rescale the points")
     n, p = x.shape
     if h is None:
@@ -211,11 +212,12 @@ def fast_mcd(
     if min(n_starts, n_best, max_iter) < 1:
         raise MeasureError(f"n_starts={n_starts}, n_best={n_best} and max_iter={max_iter} must each be at least 1")
     center = median(x.T)
-    mad = 1.4826 * median(np.abs(x - center).T)
+    dev = np.abs(x - center)
+    mad = 1.4826 * median(dev.T)
     s = float(np.sqrt((mad**2).sum()))
     if s == 0.0:
         s = float(np.sqrt(x.var(axis=0).sum()))
-    s = max(s, float(np.abs(x - center).max()) / _MAX_SPREAD)
+    s = max(s, float(dev.max()) / _MAX_SPREAD)
     z = (x - center) / s if s > 0 else np.zeros_like(x)
     tol = exact_tol
 
@@ -254,7 +256,9 @@ def fast_mcd(
         groups, perm = 1, np.arange(n)[None, :]
     m = perm.shape[1]
     per_group = max(1, n_starts // groups)
-    draw = np.take_along_axis(perm, rng.integers(0, m, size=(groups, per_group * (p + 1))), axis=1)
+    draw = rng.integers(0, m, size=(groups, per_group * (p + 1)))
+    if groups > 1:
+        draw = np.take_along_axis(perm, draw, axis=1)
     mean, cov = moments(mono[draw].reshape(groups, per_group, p + 1, -1).sum(axis=2), p)
     lam = det_lam(cov)[1]
     stages = [(perm, max(p + 1, int(math.ceil(h * m / n))), 2, False)]

@@ -24,7 +24,7 @@ from measure.linefit import LineModel, fit_line
 from measure.request import NO_DEPTH, Request, fit_samples, focal_baseline, require_resolved_windows
 from measure.sampling import SegmentSamples, backproject_depth
 from measure.types import Frame, MeasureError, Measurement
-from measure.uncertainty import disparity_quantum, line_fit_sigma, quantization_sigma
+from measure.uncertainty import disparity_quantum, distinct_levels, line_fit_sigma, quantization_sigma
 from measure.verdict import FEW_SAMPLES, FEW_SHARE, disagreement
 
 
@@ -41,7 +41,7 @@ def measure_paper(request: Request) -> Measurement:
 
 def _quant_term(frame: Frame, samples: SegmentSamples, model: LineModel, p1: np.ndarray, p2: np.ndarray) -> float:
     dist = float(np.linalg.norm(p2 - p1))
-    levels = int(np.unique(samples.disparity[model.support]).size)
+    levels = distinct_levels(samples.disparity[model.support])
     mean_z = 0.5 * float(p1[2] + p2[2])
     return quantization_sigma(dist, mean_z, focal_baseline(frame), disparity_quantum(samples.disparity), levels)
 

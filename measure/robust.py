@@ -50,6 +50,7 @@ from measure.uncertainty import (
     click_sigma,
     correlation_inflation,
     disparity_quantum,
+    distinct_levels,
     endpoint_depth_sigma,
     quantization_sigma,
 )
@@ -126,7 +127,7 @@ def _robust(request: Request, samples: SegmentSamples, terms: dict[str, float] |
     # dD/dd_i = dD/dZ_i * dZ_i/dd_i with dZ/dd = -Z²/(fB); the two fitted disparities are correlated.
     grad = np.array([r1 @ (q1 - q2), r2 @ (q2 - q1)]) / dist * (-(z**2) / fb)
     fit_sigma = inflate * math.sqrt(max(0.0, float(grad @ ends.cov @ grad)))
-    levels = int(np.unique(samples.disparity[line.support]).size)
+    levels = distinct_levels(samples.disparity[line.support])
     quant = quantization_sigma(dist, float(z.mean()), fb, quantum, levels, line.sigma_d)
     click_1px = _click_term(frame, xy1, xy2, d_end, ends.slope, dist, 1.0)
     click = options.click_px * click_1px if options.click_px > 0 else 0.0
@@ -157,19 +158,20 @@ def _robust(request: Request, samples: SegmentSamples, terms: dict[str, float] |
         cov_g = line.cov_at(0.0, length)
         se_g = (inflate * math.sqrt(max(0.0, float(cov_g[0, 0]))), inflate * math.sqrt(max(0.0, float(cov_g[1, 1]))))
         ends_s = clear_gap_ends(frame, xy1, xy2, options.extension_px, (samples.disparity[:k1], samples.disparity[::-1][:k2]),
-                                (line.at(0.0), line.at(length)), se_g)
+                                (line.at(0.0), line.at(length)), se_g, quantum)
         if ends_s is not None:
             zg1, zg2 = (fb / (e.disparity + frame.doffs) for e in ends_s)
             g1, g2 = r1 * zg1, r2 * zg2
             gd = float(np.linalg.norm(g2 - g1))
             ext_sigma = endpoint_depth_sigma(g1, g2, zg1 * zg1 / fb * ends_s[0].se, zg2 * zg2 / fb * ends_s[1].se)
-            # What limits a gap's width: its end surfaces' depths and the clicks (a click off by a pixel
-            # stays on its end's surface), both shrinking as the camera comes closer. The segment's own
-            # surface (no gap) is not counted: at a doorway it is metres behind the ends
-            # (docs/decisions/gap-sigma.md).
+            # What limits a gap's width: its end surfaces' depths (their noise and their rounding) and
+            # the clicks (a click off by a pixel stays on its end's surface), all shrinking as the camera
+            # comes closer. The segment's own surface (no gap) is not counted, its rounding neither: at a
+            # doorway it is metres behind the ends (docs/decisions/gap-sigma.md).
+            quant_g = endpoint_depth_sigma(g1, g2, zg1 * zg1 / fb * ends_s[0].rounding, zg2 * zg2 / fb * ends_s[1].rounding)
             click_g = _click_term(frame, xy1, xy2, np.array([e.disparity for e in ends_s]), np.zeros(2), gd, options.click_px)
-            sigma = calibrated_sigma(math.sqrt(ext_sigma**2 + quant**2 + click_g**2), gd)
-            parts = {"fit": ext_sigma, "click": click_g, "quant": quant, "model": 0.0, "structure": 0.0}
+            sigma = calibrated_sigma(math.sqrt(ext_sigma**2 + quant_g**2 + click_g**2), gd)
+            parts = {"fit": ext_sigma, "click": click_g, "quant": quant_g, "model": 0.0, "structure": 0.0}
             warnings.append("gap detected: both ends' surfaces are in front of the segment's; measured at their depths")
             reasons = [r for r in reasons if r != "segment crosses several surfaces"] + ["gap detected"]
             q1f, q2f, gap = g1, g2, True

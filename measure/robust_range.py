@@ -26,6 +26,15 @@ def median(values: np.ndarray) -> np.ndarray | float:
     return float(out) if a.ndim == 1 else out
 
 
+def tukey_scale(values: np.ndarray) -> float:
+    """The scale ``tukey_location`` weighs ``values`` (any unit, non-empty) with: 1.4826 MAD, or 1.2533
+    times the mean absolute deviation from the median where the MAD is zero (zero: all values equal)."""
+    v = np.asarray(values, dtype=np.float64)
+    dev = np.abs(v - median(v))
+    s = 1.4826 * median(dev)
+    return s if s > 0.0 else 1.2533 * float(dev.mean())
+
+
 def tukey_location(values: np.ndarray, c: float = TUKEY_C, iterations: int = 30) -> tuple[float, float]:
     """Bisquare M-estimate of location of ``values`` (any unit) and its standard error.
 
@@ -38,15 +47,19 @@ def tukey_location(values: np.ndarray, c: float = TUKEY_C, iterations: int = 30)
     if v.size == 0:
         return math.nan, math.nan
     m = median(v)
-    dev = np.abs(v - m)
-    s = 1.4826 * median(dev)
-    if s == 0.0:
-        s = 1.2533 * float(dev.mean())
+    s = tukey_scale(v)
     if s == 0.0:
         return m, 0.0
+    cs = c * s
+    w = np.empty_like(v)
     for _ in range(iterations):
-        u = (v - m) / (c * s)
-        w = np.where(np.abs(u) < 1.0, (1.0 - u * u) ** 2, 0.0)
+        # (1 - u²)² for |u| < 1, else 0, with u = (v - m) / cs (1 - u² <= 0 exactly where |u| >= 1).
+        np.subtract(v, m, out=w)
+        w /= cs
+        np.multiply(w, w, out=w)
+        np.subtract(1.0, w, out=w)
+        np.maximum(w, 0.0, out=w)
+        w *= w
         m_new = float((w * v).sum() / w.sum())
         if abs(m_new - m) <= 1e-12 * max(1.0, abs(m)):
             m = m_new

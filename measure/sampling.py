@@ -50,7 +50,9 @@ def segment_pixels(x1: float, y1: float, x2: float, y2: float) -> np.ndarray:
     else:
         minor = x1 + (major - y1) * (dx / dy) if dy != 0 else np.full_like(major, x1)
         xs, ys = np.rint(minor), major
-    return np.stack([xs, ys], axis=1).astype(np.int64)
+    out = np.empty((major.size, 2), np.int64)
+    out[:, 0], out[:, 1] = xs, ys
+    return out
 
 
 def extension_pixels(frame: Frame, start: tuple[float, float], away_from: tuple[float, float], length: int) -> np.ndarray:

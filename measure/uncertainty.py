@@ -9,8 +9,9 @@ Terms, added in quadrature:
    ray nearly parallel to the line, shows as a large uncertainty.
 2. **Quantization term** (``quantization_sigma``): samples on one disparity level share one rounding
    error. With quantum q (``disparity_quantum``) and L levels in the support the distance moves by
-   D Z / (fB) q / sqrt(12 L), damped by exp(-2 pi² s² / q²) for noise s before the rounding. For a
-   constant-depth or plane exact fit this is the whole uncertainty.
+   D Z / (fB) q / sqrt(12 L), damped by exp(-2 pi² s² / q²) for noise s before the rounding
+   (``rounding_sigma``). For a constant-depth or plane exact fit this is the whole uncertainty; a
+   gap's ends each have their own (``measure.gap``).
 3. **Window ends** (basic, the paper's end point input, gap answers): the standard error of the median
    depth, Z²/(fB) 1.2533 * 1.4826 MAD(d) / sqrt(k) for k window disparities (floored at the
    quantization term), propagated through dD/dZ_i = r_i . (P_i - P_j) / D (``endpoint_depth_sigma``).
@@ -37,15 +38,24 @@ from measure.robust_range import median
 
 def disparity_quantum(disparities: np.ndarray) -> float:
     """Smallest positive step between distinct disparity values (px), capped at 1 px."""
-    u = np.unique(np.asarray(disparities, dtype=np.float64))
-    if u.size < 2:
-        return 1.0
-    step = float(np.diff(u).min())
-    return min(1.0, step)
+    steps = _steps(disparities)
+    return min(1.0, float(steps.min())) if steps.size else 1.0
 
 
-def quantization_sigma(distance: float, mean_depth: float, fb: float, quantum: float, levels: int, noise_px: float = 0.0) -> float:
-    """Distance error (m) from a common disparity rounding error of ``levels`` independent levels.
+def distinct_levels(disparities: np.ndarray) -> int:
+    """Number of distinct disparity values."""
+    return int(np.size(disparities) > 0) + int(_steps(disparities).size)
+
+
+def _steps(disparities: np.ndarray) -> np.ndarray:
+    """The positive steps between neighbouring distinct values (np.unique's, without its overhead)."""
+    steps = np.diff(np.sort(np.asarray(disparities, dtype=np.float64).ravel()))
+    return steps[steps > 0]
+
+
+def rounding_sigma(quantum: float, levels: int, noise_px: float = 0.0) -> float:
+    """Disparity error (px) that samples on ``levels`` independent levels of step ``quantum`` share
+    through rounding: q / sqrt(12 L), damped for dithering noise.
 
     Noise of standard deviation s before rounding dithers it: the rounding error then varies
     from sample to sample (and is in the fit's residuals) instead of being shared; its shared
@@ -54,7 +64,13 @@ def quantization_sigma(distance: float, mean_depth: float, fb: float, quantum: f
     """
     s2 = max(0.0, noise_px * noise_px - quantum * quantum / 12.0)
     shared = math.exp(-2.0 * math.pi**2 * s2 / (quantum * quantum)) if quantum > 0 else 0.0
-    return abs(distance) * mean_depth / fb * quantum / math.sqrt(12.0 * max(1, levels)) * shared
+    return quantum / math.sqrt(12.0 * max(1, levels)) * shared
+
+
+def quantization_sigma(distance: float, mean_depth: float, fb: float, quantum: float, levels: int, noise_px: float = 0.0) -> float:
+    """Distance error (m) from a common disparity rounding error of ``levels`` independent levels
+    (``rounding_sigma``) on a segment at ``mean_depth`` (m): D Z / (fB) times that error."""
+    return abs(distance) * mean_depth / fb * rounding_sigma(quantum, levels, noise_px)
 
 
 def line_fit_sigma(
@@ -100,11 +116,11 @@ def window_disparity_se(window_disparities: np.ndarray, quantum: float) -> float
     return max(1.2533 * mad / math.sqrt(d.size), quantum / math.sqrt(12.0))
 
 
-def window_depth_sigma(window_disparities: np.ndarray, depth: float, fb: float, quantum: float) -> float:
-    """Standard error (m) of the depth from a window's median disparity."""
+def depth_sigma(depth: float, fb: float, disparity_se: float) -> float:
+    """Standard error (m) of a depth (m) from its disparity's standard error (px): Z² / (fB) times it."""
     if not math.isfinite(depth):
         return math.nan
-    return depth * depth / fb * window_disparity_se(window_disparities, quantum)
+    return depth * depth / fb * disparity_se
 
 
 def endpoint_depth_sigma(p1: np.ndarray, p2: np.ndarray, sigma_z1: float, sigma_z2: float) -> float:

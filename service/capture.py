@@ -14,6 +14,7 @@ from measure import Frame
 from service.frame_errors import NotAReplay, SeekOutOfRange
 from service.frames import FrameRing
 from service.provenance import RECORDED_KINDS, recorded_index
+from service.render import live_jpeg
 
 __all__ = ["Capture", "FrameSink", "SourceFactory"]
 
@@ -239,7 +240,11 @@ class Capture:
             backoff = min(self.backoff_max_s, backoff * 2)
 
     def _deliver(self, frame: Frame, info: SourceInfo) -> None:
-        self.ring.push(frame)
+        entry = self.ring.push(frame)
+        if self.ring.last_viewed and entry.id == self.ring.last_viewed + 1:
+            # A page follows every frame: make its JPEG here, so that the live view's request finds it
+            # made instead of encoding on a worker thread behind the measurements.
+            live_jpeg(entry)
         now = time.monotonic()
         with self._lock:
             self._state = "streaming"

@@ -75,6 +75,51 @@ def _answer(status: int, reason: str, detail: str) -> bytes:
     return head.encode("latin-1") + body
 
 
+class CoalescingTransport:
+    """A transport whose writes in one turn of the event loop go to the socket as one write: uvicorn
+    writes a response's head and its body apart, and every socket write gives up the interpreter lock
+    and waits for it again behind the worker threads (docs/decisions/measure-pool.md). Closing or
+    ending the stream writes what is held first; everything else is the wrapped transport's."""
+
+    def __init__(self, transport: asyncio.Transport) -> None:
+        self._transport = transport
+        self._held: list[bytes] = []
+
+    def write(self, data: bytes) -> None:
+        if not self._held:
+            asyncio.get_running_loop().call_soon(self.flush)
+        self._held.append(bytes(data))
+
+    def writelines(self, chunks: Any) -> None:
+        for chunk in chunks:
+            self.write(chunk)
+
+    def flush(self) -> None:
+        if self._held:
+            data = b"".join(self._held)
+            self._held.clear()
+            if not self._transport.is_closing():
+                self._transport.write(data)
+
+    def write_eof(self) -> None:
+        self.flush()
+        self._transport.write_eof()
+
+    def close(self) -> None:
+        self.flush()
+        self._transport.close()
+
+    def abort(self) -> None:
+        self._held.clear()
+        self._transport.abort()
+
+    def get_write_buffer_size(self) -> int:
+        return self._transport.get_write_buffer_size() + sum(map(len, self._held))
+
+    def __getattr__(self, name: str) -> Any:
+        return getattr(self._transport, name)
+
+
 def guarded(base: type[asyncio.Protocol], limits: ConnectionLimits, cap: int) -> type[asyncio.Protocol]:
     """uvicorn's protocol class ``base`` with the deadlines and the cap of the module docstring."""
 
@@ -86,7 +131,7 @@ def guarded(base: type[asyncio.Protocol], limits: ConnectionLimits, cap: int) ->
         _refused = False
 
         def connection_made(self, transport: asyncio.Transport) -> None:  # type: ignore[override]
-            super().connection_made(transport)
+            super().connection_made(CoalescingTransport(transport))  # type: ignore[arg-type]
             if len(self.connections) > cap:
                 self._refuse()
                 return

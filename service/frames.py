@@ -48,6 +48,10 @@ class RingFrame:
     def frame(self) -> Frame:
         return self.packed.unpack()
 
+    def cached(self, key: str) -> bytes | None:
+        """The encoding ``key`` if made already (no lock, no waiting: for the event loop)."""
+        return self.cache.get(key)
+
     def encoded(self, key: str, encode: Callable[[Any], bytes], *, image_only: bool = False) -> bytes:
         """``encode(frame)`` computed once per frame (the page polls the same frame repeatedly);
         ``image_only``: ``encode`` reads only ``.image``, handed the packed frame (nothing unpacked)."""
@@ -92,6 +96,7 @@ class FrameRing:
         self._ids = itertools.count(1)
         self._next = 1
         self._viewed: deque[int] = deque(maxlen=keep_viewed)
+        self.last_viewed = 0  # the newest frame id handed out as "latest"
         self.hold_before = hold_before
         self._held: tuple[int, list[RingFrame]] = (0, [])  # (frozen id, the frames just before it)
         self._cond = threading.Condition()
@@ -172,6 +177,7 @@ class FrameRing:
     def mark_viewed(self, fid: int) -> None:
         """Keep frame ``fid`` while it is among the last ``keep_viewed`` frames shown to a client."""
         with self._cond:
+            self.last_viewed = max(self.last_viewed, fid)
             if fid in self._frames and fid not in self._viewed:
                 self._viewed.append(fid)
                 self._evict()

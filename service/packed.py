@@ -4,20 +4,24 @@ A quantized disparity (the simulator's 1/4 px, a DepthAI's 1/8 px, SGBM's 1/16 p
 of two no finer than 1/64 px, below 512 px) is held as codes of its own step: uint8 when they fit
 below ``NAN_CODE_U8`` (NaN), else int16 codes ``round(d * 64)`` (NaN ``NAN_CODE``); an 8-bit confidence (a device's 0-255 map, the simulator's) as uint8 codes
 ``round(c * 255)``. Each packing is checked by unpacking it and comparing bit for bit: an array it
-does not give back exactly (noise-free float disparity, a finer confidence) is held as it is. Why:
-the ring holds 30 frames for several-frame measurements, and at 1280x720 a float32 disparity and
-confidence are 7.4 of a frame's 10.1 MB (docs/decisions/measure-pool.md).
+does not give back exactly (noise-free float disparity, a finer confidence) is held as it is. The
+image of a frame whose source says how to make it again (``meta[REBUILD_IMAGE]``: the simulator's
+render plus a crop of its noise sheet) is not held: it is made when asked for. Why: the ring holds
+30 frames for several-frame measurements, and at 1280x720 a float32 disparity and confidence are
+7.4 of a frame's 10.1 MB, the image 2.8 (docs/decisions/measure-pool.md).
 """
 
 from __future__ import annotations
 
 import weakref
 from collections.abc import Mapping
+from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
 
+from device.base import REBUILD_IMAGE
 from measure import Frame, PinholeCamera
 
 DISPARITY_SCALE = np.float32(64.0)  # codes per pixel of disparity (1/64 px steps)
@@ -89,12 +93,14 @@ def _unpack_confidence(codes: np.ndarray) -> np.ndarray:
 
 @dataclass(eq=False)
 class PackedFrame:
-    """A :class:`measure.Frame` with its disparity and confidence as codes where that is exact.
+    """A :class:`measure.Frame` with its disparity and confidence as codes where that is exact, and
+    without its image where the frame's source can make it again.
 
     ``camera``, ``baseline_m``, ``doffs``, ``meta`` and ``shape`` answer without unpacking;
-    :meth:`unpack` gives the frame back (the same object while anyone still holds it)."""
+    :meth:`unpack` gives the frame back (the same object while anyone still holds it); ``image``
+    is the image, made again when it is not held."""
 
-    image: np.ndarray
+    held_image: np.ndarray | None  # None: made by meta[REBUILD_IMAGE] when asked for
     disparity: np.ndarray  # uint8 or int16 codes, or the float32 disparity itself
     disparity_scale: np.float32  # codes per pixel (1 for the float32 disparity)
     confidence: np.ndarray | None  # uint8 codes, float32 values or None
@@ -109,7 +115,8 @@ class PackedFrame:
     def pack(cls, frame: Frame) -> PackedFrame:
         disparity, scale = _pack_disparity(frame.disparity) or (frame.disparity, np.float32(1.0))
         confidence = None if frame.confidence is None else _pack_confidence(frame.confidence)
-        packed = cls(frame.image, disparity, scale,
+        image = None if callable(frame.meta.get(REBUILD_IMAGE)) else frame.image
+        packed = cls(image, disparity, scale,
                      frame.confidence if confidence is None else confidence, frame.camera, frame.baseline_m, frame.doffs,
                      frame.timestamp, frame.meta)  # fmt: skip
         packed._last = weakref.ref(frame)
@@ -120,9 +127,26 @@ class PackedFrame:
         return self.disparity.shape  # type: ignore[return-value]
 
     @property
+    def image(self) -> np.ndarray:
+        """The colour image: held, the unpacked frame's while it lives, else made again."""
+        if self.held_image is not None:
+            return self.held_image
+        frame = self._last() if self._last is not None else None
+        if frame is not None:
+            return frame.image
+        rebuild: Callable[[], np.ndarray] = self.meta[REBUILD_IMAGE]
+        return rebuild()
+
+    def keep_image(self) -> None:
+        """Hold the image from now on (a frozen frame: measured, saved and drawn, each asking for it)."""
+        if self.held_image is None:
+            self.held_image = self.image
+
+    @property
     def nbytes(self) -> int:
         """Bytes of the arrays held (image, disparity, confidence)."""
-        return self.image.nbytes + self.disparity.nbytes + (0 if self.confidence is None else self.confidence.nbytes)
+        image = 0 if self.held_image is None else self.held_image.nbytes
+        return image + self.disparity.nbytes + (0 if self.confidence is None else self.confidence.nbytes)
 
     def unpack(self) -> Frame:
         """The frame, arrays as they were pushed (bit for bit)."""

@@ -46,6 +46,14 @@ def encode_jpeg(image: np.ndarray, quality: int = LIVE_JPEG_QUALITY) -> bytes:
     return buf.tobytes()
 
 
+LIVE_JPEG = "color.jpg"  # the ring's cache key of the live view's JPEG
+
+
+def live_jpeg(entry: RingFrame) -> bytes:
+    """The live view's JPEG of a ring frame, encoded once per frame."""
+    return entry.encoded(LIVE_JPEG, lambda f: encode_jpeg(f.image), image_only=True)
+
+
 def png_from_jpeg(data: bytes) -> bytes:
     """A small JPEG (a thumbnail) as PNG, for the URLs that promise PNG."""
     return encode_png(cv2.imdecode(np.frombuffer(data, np.uint8), cv2.IMREAD_COLOR))

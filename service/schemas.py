@@ -449,7 +449,8 @@ class ChecksOut(_Out):
 
 class CheckOut(_Out):
     """``POST /api/checks``: the check's record as the checks log keeps it (status, figures, findings,
-    source, serial, calibration hashes) with ``id``, the frames used, the board and ``png_url``."""
+    source, serial, calibration hashes) with ``id``, the frames used and asked for (``frames_note`` says
+    "used 2 of 3 frames ..." when the ring held fewer), the board and ``png_url``."""
 
     model_config = ConfigDict(extra="allow")
     id: str
@@ -458,6 +459,8 @@ class CheckOut(_Out):
     findings: list[dict[str, Any]]
     frame_id: int
     frame_ids: list[int]
+    frames_requested: int
+    frames_note: str | None = None
     board: dict[str, Any]
     png_url: str | None = None
 

@@ -1,10 +1,8 @@
-"""The shapes the service measures (a box, a height, a path, an area): the core's call for each kind,
-and what the page and the thumbnail draw of the answer, in pixels of the frame.
+"""What the page and the thumbnail draw of a shape's answer (a box, a height, a path, an area; measured
+by ``measure.measure_shape``), in pixels of the frame.
 
-:func:`measure_shape` calls ``measure.measure_box`` / ``measure_height`` / ``measure_path`` /
-``measure_area`` (raising ``measure.MeasureError`` on bad input); :func:`draw_px` gives the points
-to draw: a path's vertices and an area's corners as clicked, a height's top point and its foot on
-the base plane projected with the frame's pinhole camera (u = fx X / Z + cx, v = fy Y / Z + cy), a
+:func:`draw_px` gives the points to draw: a path's vertices and an area's corners as clicked, a
+height's top point and its foot on the base plane projected with the frame's pinhole camera (u = fx X / Z + cx, v = fy Y / Z + cy), a
 box's four top corners then its four base corners (``measure.shape_types.outlines`` turns them into
 polylines).
 """
@@ -14,23 +12,7 @@ from __future__ import annotations
 import math
 from collections.abc import Sequence
 
-from measure import (
-    BoxMeasurement, Frame, MeasureOptions, PinholeCamera, ShapeMeasurement, measure_area, measure_box, measure_height, measure_path,
-)
-
-Point = tuple[float, float]
-
-
-def measure_shape(frame: Frame, kind: str, points: Sequence[Point], on: Sequence[Point] | None,
-                  options: MeasureOptions) -> ShapeMeasurement | BoxMeasurement:
-    """The core's answer for ``kind`` ("box", "height": one point; "path", "area": the points in
-    order; ``on`` a height's base clicks, None for the plane found under it)."""
-    if kind == "box":
-        return measure_box(frame, tuple(points[0]), options)
-    if kind == "height":
-        return measure_height(frame, tuple(points[0]), [tuple(p) for p in on] if on else None, options)
-    measure = measure_path if kind == "path" else measure_area
-    return measure(frame, [tuple(p) for p in points], options)
+from measure import BoxMeasurement, PinholeCamera, ShapeMeasurement
 
 
 def _px(p: Sequence[float]) -> list[float | None]:

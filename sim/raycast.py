@@ -95,7 +95,7 @@ class Rect:
         if (o - c) @ n < 0:  # one camera centre sees one side of a plane: face it
             n = -n
         q = P - c
-        return n, np.stack([q @ u, q @ v], axis=-1)
+        return n, np.stack([q @ u, q @ v]).T  # N x 2, each coordinate contiguous (what the textures read)
 
 
 @dataclass(frozen=True)
@@ -140,7 +140,7 @@ class Box:
         # Texture coords: the two in-plane local coordinates of the face that was hit.
         s = np.where(axis == 0, q[..., 2], q[..., 0])
         r = np.where(axis == 1, q[..., 2], q[..., 1])
-        return nl @ A, np.stack([s, r], axis=-1)
+        return nl @ A, np.stack([s, r]).T
 
 
 @dataclass(frozen=True)
@@ -237,13 +237,25 @@ def pixel_rays(camera: PinholeCamera, pose: Pose) -> np.ndarray:
 
 
 def _screen_box(prim: Primitive, camera: PinholeCamera, pose: Pose, margin: int = 2) -> tuple[slice, slice]:
-    px = pose.project(camera, prim.corners())
-    if not np.all(np.isfinite(px)):
-        return slice(0, camera.height), slice(0, camera.width)
-    x0 = int(np.clip(np.floor(px[:, 0].min()) - margin, 0, camera.width))
-    x1 = int(np.clip(np.ceil(px[:, 0].max()) + margin + 1, 0, camera.width))
-    y0 = int(np.clip(np.floor(px[:, 1].min()) - margin, 0, camera.height))
-    y1 = int(np.clip(np.ceil(px[:, 1].max()) + margin + 1, 0, camera.height))
+    """The pixel rows and columns a primitive can be hit at: the bounding box (plus ``margin`` px) of its
+    corners' hull clipped to the part in front of the camera (depth >= ``_EPS``, as every hit is), so a floor
+    that runs on behind the camera is looked for below the horizon only, not in every pixel."""
+    z_near = _EPS
+    pc = pose.to_camera(prim.corners())
+    front, behind = pc[pc[:, 2] >= z_near], pc[pc[:, 2] < z_near]
+    if not len(front):
+        return slice(0, 0), slice(0, 0)
+    # where the hull meets the plane z = z_near: on the segments from each corner in front to each behind
+    a, b = np.repeat(front, len(behind), axis=0), np.tile(behind, (len(front), 1))
+    f = (a[:, 2] - z_near) / (a[:, 2] - b[:, 2])
+    pts = np.concatenate([front, a + f[:, None] * (b - a)])
+    with np.errstate(over="ignore"):
+        u = camera.fx * pts[:, 0] / np.maximum(pts[:, 2], z_near) + camera.cx
+        v = camera.fy * pts[:, 1] / np.maximum(pts[:, 2], z_near) + camera.cy
+    x0 = int(np.clip(np.floor(u.min()) - margin, 0, camera.width))
+    x1 = int(np.clip(np.ceil(u.max()) + margin + 1, 0, camera.width))
+    y0 = int(np.clip(np.floor(v.min()) - margin, 0, camera.height))
+    y1 = int(np.clip(np.ceil(v.max()) + margin + 1, 0, camera.height))
     return slice(y0, y1), slice(x0, x1)
 
 
@@ -253,20 +265,24 @@ def cast(prims: tuple[Primitive, ...], camera: PinholeCamera, pose: Pose) -> Hit
     o = pose.C
     depth = np.full((camera.height, camera.width), np.inf)
     prim = np.full((camera.height, camera.width), -1, dtype=np.int16)
-    for i, p in enumerate(prims):
-        sy, sx = _screen_box(p, camera, pose)
+    boxes = [_screen_box(p, camera, pose) for p in prims]
+    for i, (p, (sy, sx)) in enumerate(zip(prims, boxes)):
         if sy.stop <= sy.start or sx.stop <= sx.start:
             continue
         t = p.intersect(o, D[sy, sx])
         closer = t < depth[sy, sx]
-        depth[sy, sx] = np.where(closer, t, depth[sy, sx])
-        prim[sy, sx] = np.where(closer, i, prim[sy, sx])
-    flat_prim, flat_depth, flat_D = prim.ravel(), depth.ravel(), D.reshape(-1, 3)
+        np.copyto(depth[sy, sx], t, where=closer)
+        np.copyto(prim[sy, sx], i, where=closer)
     surfaces = []
-    for i, p in enumerate(prims):
-        idx = np.flatnonzero(flat_prim == i)
-        if idx.size:
-            P = o + flat_depth[idx, None] * flat_D[idx]
+    flat_depth, flat_D = depth.ravel(), D.reshape(-1, 3)
+    for i, (p, (sy, sx)) in enumerate(zip(prims, boxes)):
+        # a primitive is nearest only inside its own box: look there (np.nonzero keeps the image's row-major order)
+        rows, cols = np.nonzero(prim[sy, sx] == i)
+        if rows.size:
+            idx = (rows + sy.start) * camera.width + (cols + sx.start)
+            P = flat_D.take(idx, axis=0)  # the hit point C + t D, t the depth along the scaled ray
+            P *= flat_depth.take(idx)[:, None]
+            P += o
             normals, uv = p.surface(P, o)
             surfaces.append(Surface(p, idx, uv, normals))
     return Hits(depth=depth, prim=prim, surfaces=tuple(surfaces))

@@ -3,13 +3,15 @@
 from __future__ import annotations
 
 import time
-from dataclasses import fields
+from dataclasses import dataclass, fields
 from functools import lru_cache
 from typing import Any
 
 import numpy as np
 
 from measure import Frame
+
+from device.base import REBUILD_IMAGE
 
 from sim.scenes import BOARD_M, STANDOFFS_M, SceneParams, View, get_view, resolve_target
 from sim.sensor import SensorError, SensorModel, get_profile, sense
@@ -29,16 +31,39 @@ def _image_noise(height: int, width: int, sigma: float) -> np.ndarray:
     return sheet
 
 
+@dataclass(frozen=True, eq=False)
+class NoisyImage:
+    """A simulated colour image as it is made: ``render`` (uint8 BGR) plus the crop at ``(oy, ox)`` of
+    the fixed noise sheet of ``sigma`` grey levels, saturated; calling it makes the image, bit for
+    bit the same on every call (what ``meta[REBUILD_IMAGE]`` holds)."""
+
+    render: np.ndarray
+    sigma: float
+    oy: int = 0
+    ox: int = 0
+
+    def __call__(self) -> np.ndarray:
+        import cv2
+
+        if self.sigma <= 0:
+            return self.render.copy()
+        h, w = self.render.shape[:2]
+        sheet = _image_noise(h, w, float(self.sigma))
+        return cv2.add(self.render, sheet[self.oy : self.oy + h, self.ox : self.ox + w], dtype=cv2.CV_8U)
+
+
+def image_noise(render: np.ndarray, sigma: float, rng: np.random.Generator) -> NoisyImage:
+    """How to make ``render`` plus image-sensor noise of ``sigma`` grey levels: the sheet offset
+    drawn from ``rng`` (nothing drawn when ``sigma`` is 0)."""
+    if sigma <= 0:
+        return NoisyImage(render, 0.0)
+    oy, ox = (int(v) for v in rng.integers(0, 33, 2))
+    return NoisyImage(render, float(sigma), oy, ox)
+
+
 def noisy_image(render: np.ndarray, sigma: float, rng: np.random.Generator) -> np.ndarray:
     """``render`` (uint8 BGR) plus image-sensor noise of ``sigma`` grey levels, saturated to uint8."""
-    import cv2
-
-    h, w = render.shape[:2]
-    if sigma <= 0:
-        return render.copy()
-    sheet = _image_noise(h, w, float(sigma))
-    oy, ox = (int(v) for v in rng.integers(0, 33, 2))
-    return cv2.add(render, sheet[oy : oy + h, ox : ox + w], dtype=cv2.CV_8U)
+    return image_noise(render, sigma, rng)()
 
 
 def make_model(lighting: str = "indoor", profile: str = "stress", **overrides: Any) -> SensorModel:
@@ -54,20 +79,27 @@ def make_model(lighting: str = "indoor", profile: str = "stress", **overrides: A
 
 def simulate_frame(
     params: SceneParams, model: SensorModel, rng: np.random.Generator, *, target: str | None = None,
-    timestamp: float | None = None, meta: dict[str, Any] | None = None,
+    timestamp: float | None = None, meta: dict[str, Any] | None = None, rebuild_image: bool = False,
 ) -> tuple[Frame, Truth]:
-    """One frame of the rig looking at the scene, with the truth of ``target`` in ``meta["truth"]``."""
+    """One frame of the rig looking at the scene, with the truth of ``target`` in ``meta["truth"]``
+    (``rebuild_image``: see :func:`frame_from_view`)."""
     view = get_view(params)
     truth = view.truth(target)
     meta = {"source": "sim", "scene": params.scene, "lighting": model.lighting, "truth": truth, **(meta or {})}
-    return frame_from_view(view, model, rng, timestamp=timestamp, meta=meta), truth
+    return frame_from_view(view, model, rng, timestamp=timestamp, meta=meta, rebuild_image=rebuild_image), truth
 
 
 def frame_from_view(view: View, model: SensorModel, rng: np.random.Generator, *, timestamp: float | None = None,
-                    meta: dict[str, Any] | None = None) -> Frame:
-    """One frame of the rig looking at ``view``: sensed disparity, confidence and a noisy colour image."""
+                    meta: dict[str, Any] | None = None, rebuild_image: bool = False) -> Frame:
+    """One frame of the rig looking at ``view``: sensed disparity, confidence and a noisy colour image;
+    ``rebuild_image``: ``meta[REBUILD_IMAGE]`` holds the :class:`NoisyImage` that makes the image again,
+    so that a holder of many live frames can drop their images (the live source sets it)."""
     out = sense(view, model, rng)
-    image = noisy_image(view.renders[model.lighting], LIGHTING[model.lighting].image_noise, rng)
+    recipe = image_noise(view.renders[model.lighting], LIGHTING[model.lighting].image_noise, rng)
+    image = recipe()
+    meta = dict(meta or {"source": "sim"})
+    if rebuild_image:
+        meta[REBUILD_IMAGE] = recipe
     return Frame(
         image=image,
         disparity=out.disparity,
@@ -76,7 +108,7 @@ def frame_from_view(view: View, model: SensorModel, rng: np.random.Generator, *,
         doffs=0.0,
         confidence=out.confidence,
         timestamp=time.time() if timestamp is None else timestamp,
-        meta=dict(meta or {"source": "sim"}),
+        meta=meta,
     )
 
 

@@ -13,13 +13,15 @@ The "charuco" scene stands a printed ChArUco board the same way (OpenCV's own bo
 ``SceneParams.charuco``; sim/charuco.py), so its corners' 3D positions are known exactly and
 `depthruler check` runs end to end on the simulator.
 
-A :class:`View` caches one ray-cast (depth, object ids) and the colour renders of every lighting
-preset per (scene, pose, image size), so a new frame only costs the sensor noise.
+A :class:`View` caches one ray-cast (depth, object ids) and its colour render under each lighting
+preset, shaded the first time that preset is asked for, per (scene, pose, image size), so a new frame
+only costs the sensor noise.
 """
 
 from __future__ import annotations
 
 import math
+from collections.abc import Mapping
 from dataclasses import dataclass
 from functools import lru_cache
 
@@ -28,7 +30,8 @@ import numpy as np
 from measure import PinholeCamera
 
 from sim.raycast import Box, Capsule, Pose, Primitive, Rect, Surface, cast
-from sim.textures import LIGHTING, albedo, pattern
+from sim.shading import Painted, Renders
+from sim.textures import pattern
 from sim.truth import Truth
 
 CAMERA_HEIGHT_M = 1.4
@@ -362,7 +365,7 @@ class View:
     depth: np.ndarray  # H x W float64, read-only
     obj: np.ndarray  # H x W int16 index into objects, -1 = nothing
     objects: tuple[str, ...]
-    renders: dict[str, np.ndarray]  # lighting -> H x W x 3 uint8 BGR, read-only
+    renders: Mapping[str, np.ndarray]  # lighting -> H x W x 3 uint8 BGR, read-only (Renders)
     spec: SceneSpec
 
     def truth(self, target: str | None = None) -> Truth:
@@ -412,29 +415,13 @@ class View:
         return self.pose.to_camera(world)
 
 
-def _shade(surfaces: tuple[Surface, ...], patterns: list[np.ndarray], shape: tuple[int, int], lighting: str) -> np.ndarray:
-    """Lambert shading of the visible textured surfaces."""
-    light = LIGHTING[lighting]
-    h, w = shape
-    img = np.empty((h * w, 3), np.float32)
-    img[:] = np.array([0.95, 0.85, 0.75], np.float32)  # what lies beyond every surface: a pale sky
-    to_light = -np.asarray(light.light_dir, np.float64)
-    to_light /= np.linalg.norm(to_light)
-    gain = light.exposure * np.asarray(light.tint, np.float32)
-    for surf, pat in zip(surfaces, patterns):
-        alb = albedo(surf.prim.material, pat, light.contrast)
-        lambert = np.maximum(surf.normals @ to_light, 0.0).astype(np.float32)  # one value for a plane
-        img[surf.index] = alb * (light.ambient + light.diffuse * lambert)[..., None] * gain
-    return (np.clip(img, 0, 1) * 255.0 + 0.5).astype(np.uint8).reshape(h, w, 3)
-
-
 def _charuco_pattern(surface: Surface, camera: PinholeCamera, pose: Pose, board: tuple) -> np.ndarray:
     from sim.charuco import board_pattern  # OpenCV's ArUco module, only for this scene
 
     return board_pattern(surface, camera, pose, board)
 
 
-@lru_cache(maxsize=32)  # ~18 MB each at 1280x720
+@lru_cache(maxsize=32)  # ~20 MB each at 1280x720
 def get_view(params: SceneParams, shift_m: float = 0.0) -> View:
     """The cached ray-cast of ``params`` from the reference camera, or from a camera ``shift_m`` metres to
     its right (same orientation: a rectified stereo partner)."""
@@ -448,16 +435,20 @@ def get_view(params: SceneParams, shift_m: float = 0.0) -> View:
 
 
 def make_view(params: SceneParams, spec: SceneSpec, camera: PinholeCamera, pose: Pose) -> View:
-    """Ray-cast ``spec``'s primitives from ``pose`` and render every lighting preset (not cached)."""
+    """Ray-cast ``spec``'s primitives from ``pose`` and paint their textures (not cached); each lighting
+    preset is shaded when first asked for (:class:`Renders`)."""
     hits = cast(spec.prims, camera, pose)
     depth = np.where(np.isfinite(hits.depth), hits.depth, np.nan)
     objects = tuple(dict.fromkeys(p.obj for p in spec.prims))
     lut = np.array([objects.index(p.obj) for p in spec.prims] + [-1], np.int16)
     obj = lut[hits.prim]  # prim == -1 picks the trailing -1
     poster_mm = (int(round(params.board_w_m * 1000)), int(round(params.board_l_m * 1000)))  # print fills the board
-    patterns = [pattern(s.prim.material, s.uv, seed=params.texture_seed, poster_mm=poster_mm) if s.prim.material != "charuco"
-                else _charuco_pattern(s, camera, pose, params.charuco) for s in hits.surfaces]
-    renders = {name: _shade(hits.surfaces, patterns, depth.shape, name) for name in LIGHTING}
-    for a in (depth, obj, *renders.values()):
+    painted = tuple(
+        Painted(s.prim.material, s.index.astype(np.int32), s.normals,
+                 pattern(s.prim.material, s.uv, seed=params.texture_seed, poster_mm=poster_mm) if s.prim.material != "charuco"
+                 else _charuco_pattern(s, camera, pose, params.charuco))
+        for s in hits.surfaces
+    )
+    for a in (depth, obj):
         a.setflags(write=False)
-    return View(params, camera, pose, depth, obj, objects, renders, spec)
+    return View(params, camera, pose, depth, obj, objects, Renders(painted, depth.shape), spec)

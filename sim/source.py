@@ -169,7 +169,7 @@ class SimSource(SourceBase):
 
             frame, _ = stereo_frame(cfg.scene_params(), self.model, rng, target=cfg.target, meta=meta)
         else:
-            frame, _ = simulate_frame(cfg.scene_params(), self.model, rng, target=cfg.target, meta=meta)
+            frame, _ = simulate_frame(cfg.scene_params(), self.model, rng, target=cfg.target, meta=meta, rebuild_image=True)
         if cfg.baseline_error:
             frame = replace(frame, baseline_m=frame.baseline_m * (1.0 + cfg.baseline_error))
         return frame

@@ -6,6 +6,7 @@ from typing import Annotated, Any
 
 import numpy as np
 from fastapi import APIRouter, HTTPException, Query
+from fastapi.concurrency import run_in_threadpool
 from fastapi.responses import Response
 
 from service.deps import FrameDep, State
@@ -14,9 +15,10 @@ from service.render import (
     colorize_disparity,
     confidence_image,
     disparity_range,
-    encode_jpeg,
+    LIVE_JPEG,
     encode_png,
     frame_json,
+    live_jpeg,
     turbo_colors,
 )
 from service.schemas import MAX_ID, DepthOut, DepthScaleOut, FrameOut, json_doc, media_doc
@@ -53,9 +55,11 @@ def color_png(entry: FrameDep) -> Response:
 
 
 @router.get("/{frame_id}/color.jpg", **media_doc("image/jpeg"))
-def color_jpg(entry: FrameDep) -> Response:
-    """The colour image for the live view: JPEG quality 85 (color.png has the exact pixels)."""
-    data = entry.encoded("color.jpg", lambda f: encode_jpeg(f.image), image_only=True)
+async def color_jpg(entry: FrameDep) -> Response:
+    """The colour image for the live view: JPEG quality 85 (color.png has the exact pixels). Answered
+    on the event loop when the JPEG is made already (the capture thread makes it ahead while a page
+    follows every frame), else encoded on a worker thread."""
+    data = entry.cached(LIVE_JPEG) or await run_in_threadpool(live_jpeg, entry)
     return Response(data, media_type="image/jpeg", headers={"Cache-Control": "private, max-age=3600"})
 
 
@@ -131,6 +135,7 @@ def depth_scale(entry: FrameDep) -> dict[str, Any]:
 
 @router.post("/{frame_id}/freeze", **json_doc(FrameOut))
 def freeze(state: State, entry: FrameDep) -> dict[str, Any]:
+    entry.packed.keep_image()  # measured, saved and drawn next: made once, not for each of them
     state.store.presave(entry.uid, entry.frame)  # a frozen frame is about to be measured: save it meanwhile
     return frame_json(state.ring.freeze(entry.id, True))
 

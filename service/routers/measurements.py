@@ -151,7 +151,8 @@ def _thumb(state: ServiceState, mid: int) -> bytes:
     data = state.store.thumb(mid)
     if data is None:
         entry = state.ring.find(uid)  # the frame is usually still in the ring: no file to read and decode
-        image, width = (quarter(entry.packed.image), entry.packed.image.shape[1]) if entry else state.store.preview(uid)
+        full = entry.packed.image if entry else None  # made again for a frame whose image the ring does not hold
+        image, width = (quarter(full), full.shape[1]) if full is not None else state.store.preview(uid)
         data = make_thumb(image, width, outlines(kind, points))
         state.store.set_thumb(mid, data)
     return data

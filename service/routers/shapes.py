@@ -6,10 +6,12 @@ from __future__ import annotations
 from fastapi import APIRouter
 from fastapi.responses import Response
 
+from measure import measure_shape
+
 from service.deps import State
 from service.routers.measurements import json_response, stored_frame
 from service.schemas import ShapeIn, ShapeOut, json_doc
-from service.shapes import draw_px, measure_shape
+from service.shapes import draw_px
 from service.state import ServiceState
 
 router = APIRouter(prefix="/api", tags=["measurements"])

@@ -55,6 +55,7 @@
       el("div", { id: "check-error", class: "error hidden" }),
       el("div", { id: "check-result", class: "check-result hidden" },
         el("div", { class: "row" }, el("span", { id: "check-status", class: "verdict" }), el("span", { id: "check-figures", class: "check-figures" })),
+        el("div", { id: "check-frames-note", class: "check-frames-note hidden" }),
         el("ul", { id: "check-findings", class: "check-findings" }),
         el("a", { id: "check-link", target: "_blank", rel: "noopener" }, el("img", { id: "check-img", class: "check-img", alt: "The board with its pairs coloured by error" }))),
       el("div", { class: "card-title", text: "Check history" }),
@@ -112,6 +113,9 @@
       `spread ${f.spread_pct === undefined ? "–" : f.spread_pct.toFixed(2)} %, truth inside the 95 % interval ${Math.round(100 * (f.interval_coverage || 0))} %`;
     $("check-figures").dataset.bias = String(f.bias_pct);
     $("check-figures").dataset.pairs = String(f.pairs);
+    // fewer frames than asked for (the ring held no more before the frozen one): said, not hidden
+    $("check-frames-note").textContent = rec.frames_note || "";
+    $("check-frames-note").classList.toggle("hidden", !rec.frames_note);
     const list = $("check-findings");
     list.replaceChildren(...(rec.findings || []).map((x) => el("li", { class: `finding finding-${x.severity}` },
       el("b", { text: `${x.severity}: ` }), x.measured,
@@ -137,7 +141,8 @@
       const when = (rec.time || "").replace("T", " ").replace(/\+00:00$/, " UTC");
       const li = el("li", { class: "check-item", title: rec.source || "" },
         el("span", { class: verdictClass(rec.status), text: STATUS_WORD[rec.status] || rec.status }),
-        ` ${when} · bias ${pct(f.bias_pct)} · ${f.pairs} pairs${rec.png_url ? "" : " · cli"}`);
+        ` ${when} · bias ${pct(f.bias_pct)} · ${f.pairs} pairs${rec.frames_note ? ` · ${rec.frame_ids.length} of ${rec.frames_requested} frames` : ""}` +
+        `${rec.png_url ? "" : " · cli"}`);
       li.dataset.checkId = rec.id || "";
       li.addEventListener("click", () => show(rec));
       return li;

@@ -1,4 +1,4 @@
-"""Fixtures of the batch tests: a small simulated archive, one Ray instance per session."""
+"""Fixtures of the batch tests: a small simulated archive, a recording of shape scenes, one Ray instance per session."""
 
 from __future__ import annotations
 
@@ -16,6 +16,23 @@ def archive(tmp_path_factory) -> Path:
     invoke(["record", "--source", f"sim:poster?fps=0&distance=3&{SIZE}", "--out", str(root / "rec_poster"), "--frames", "4"])
     invoke(["record", "--source", f"sim:poster?fps=0&distance=4.5&target=poster-length&yaw=15&lighting=mixed&seed=3&{SIZE}", "--out", str(root / "rec_tilted"), "--frames", "4"])
     return root
+
+
+@pytest.fixture(scope="session")
+def shape_rec(tmp_path_factory):
+    """A recording of two simulated shape scenes (480x270): frame 0 a box on the floor, frame 1 a
+    framed panel on a wall; with the cases that made them (their truth and clicks)."""
+    from device import SourceInfo
+    from device.formats.recording import RecordingWriter
+    from sim.shapes import box_case, panel_case
+
+    box = box_case(1, range_m=1.0, variant="plain", width=480, height=270)
+    panel = panel_case(2, range_m=1.2, width=480, height=270)
+    path = tmp_path_factory.mktemp("shapes") / "rec_shapes"
+    with RecordingWriter(path, SourceInfo(kind="sim", name="shapes", width=480, height=270)) as w:
+        w.write(box.frame)
+        w.write(panel.frame)
+    return path, box, panel
 
 
 @pytest.fixture(scope="session")

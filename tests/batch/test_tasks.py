@@ -178,3 +178,66 @@ def test_a_table_is_parsed_row_by_row_not_held_as_dicts(tmp_path, suffix):
     assert len(tasks) == 20_000 and all(t.error is None for t in tasks)
     assert tasks[8].p1 == (101.0, 200.0) and tasks[8].frame == 8 and tasks[8].extra["label"] == "L8"
     assert kept < 200 * len(tasks) and peak < 2 * kept
+
+
+def test_shape_cells_from_csv_jsonl_and_parquet(tmp_path):
+    """A shape's clicks read as JSON text (CSV) or as lists (JSONL, Parquet); every bad shape cell is
+    its row's error naming the field; a table of shapes only needs no p1_x..p2_y columns."""
+    import pyarrow as pa
+
+    (tmp_path / "rec").mkdir()
+    good = [
+        {"kind": "box", "points": [[10, 20]]},
+        {"kind": "Height", "points": [[10, 20]], "on": [[5, 60]]},
+        {"kind": "height", "points": [[10, 20]], "on": [[1, 60], [9, 60], [5, 70]]},
+        {"kind": "path", "points": [[1, 2], [3, 4]], "on": []},
+        {"kind": "area", "points": [[1, 2], [30, 4], [20, 40]]},
+    ]
+    bad = [
+        ({"kind": "circle", "points": [[1, 2]]}, "kind"),
+        ({"kind": "box", "points": [[1, 2], [3, 4]]}, "points"),
+        ({"kind": "height", "points": []}, "points"),
+        ({"kind": "area", "points": [[1, 2], [3, 4]]}, "points"),
+        ({"kind": "path", "points": [[1, 2, 3], [3, 4]]}, "points"),
+        ({"kind": "path", "points": [["a", 2], [3, 4]]}, "points"),
+        ({"kind": "path", "points": {"x": 1}}, "points"),
+        ({"kind": "path", "points": [[1, 2], [3, 4]], "on": [[1, 2]]}, "on"),
+        ({"kind": "height", "points": [[1, 2]], "on": [[1, 2], [3, 4]]}, "on"),
+        ({"kind": "height", "points": [[1, 2]], "on": [[1, None]]}, "on"),
+        ({"kind": "box"}, "points"),
+    ]
+    rows = [{"source": "rec", "frame": 0, **g} for g in good] + [{"source": "rec", "frame": 0, **b} for b, _ in bad]
+    with (tmp_path / "t.jsonl").open("w") as fh:
+        fh.writelines(json.dumps(r) + "\n" for r in rows)
+    with (tmp_path / "t.csv").open("w", newline="") as fh:
+        w = csv.DictWriter(fh, fieldnames=["source", "frame", "kind", "points", "on"])
+        w.writeheader()
+        w.writerows({**r, **{k: json.dumps(r[k]) for k in ("points", "on") if k in r}} for r in rows)
+    text = (tmp_path / "t.csv").read_text().splitlines()
+    (tmp_path / "t.csv").write_text("\n".join([*text, 'rec,0,path,"[[1, 2], [3", ', "rec,0,path,,"]) + "\n")  # no JSON; no points
+
+    def typed(r: dict) -> bool:  # what a Parquet list<list<double>> column can hold
+        pts = r.get("points", [])
+        return isinstance(pts, list) and all(len(p) == 2 and not isinstance(p[0], str) for p in pts) and "null" not in json.dumps(r.get("on", []))
+
+    parquet_bad = [f for b, f in bad if typed(b)]
+    pq.write_table(pa.Table.from_pylist([{**r, "points": r.get("points"), "on": r.get("on")} for r in rows if typed(r)]), tmp_path / "t.parquet")
+    for name in ("t.jsonl", "t.csv", "t.parquet"):
+        tasks = list(read_tasks(tmp_path / name))
+        if name != "t.parquet":
+            assert len(tasks) == len(rows) + (2 if name == "t.csv" else 0)
+        for t, g in zip(tasks, good):
+            assert t.error is None and t.kind == g["kind"].lower() and t.p1 == (None, None), (name, t)
+            assert t.points == tuple(tuple(float(v) for v in p) for p in g["points"])
+            assert t.on == (tuple(tuple(float(v) for v in p) for p in g["on"]) if g.get("on") else None)
+        expected = parquet_bad if name == "t.parquet" else [f for _, f in bad] + (["points", "points"] if name == "t.csv" else [])
+        assert [t.error_field for t in tasks[len(good):]] == expected, name
+        assert all(t.error and "TaskError" not in t.error for t in tasks[len(good):])
+    assert "at least 3" in read_tasks(tmp_path / "t.jsonl")[len(good) + 3].error
+    # a segment row in a table of shapes lacks its clicks; a table with neither kind of clicks is refused
+    (tmp_path / "s.jsonl").write_text(json.dumps({"source": "rec", "frame": 0, "points": [[1, 2]]}) + "\n")
+    (seg,) = read_tasks(tmp_path / "s.jsonl")
+    assert seg.error_field == "p1_x,p1_y,p2_x,p2_y,points" and seg.kind == "segment"
+    (tmp_path / "n.jsonl").write_text(json.dumps({"source": "rec", "frame": 0, "kind": "box"}) + "\n")
+    with pytest.raises(Exception, match="lacks the column"):
+        read_tasks(tmp_path / "n.jsonl")

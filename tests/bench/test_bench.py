@@ -139,6 +139,45 @@ def test_the_same_work_reference_finds_our_support_and_uses_our_settings():
     assert second["select"] == 1 and second["n_iter"] == _FULL_DATA_STEPS and len(second["n_trials"][0]) == _BEST_PER_SUBSAMPLE
 
 
+def test_the_same_work_reference_nests_subsamples_beyond_600_points_as_ours():
+    """On the diagonal (1280 points) our FAST-MCD splits its starts over four subsamples of 300, keeps
+    the best of each, refines them on the merged 1200 points and then on all: so does the reference
+    (before: scikit-learn's own 500 starts and 10 best per subsample, not our work)."""
+    from unittest import mock
+
+    from sklearn.covariance import _robust_covariance
+
+    from measure.dline import _BEST_PER_SUBSAMPLE, _FULL_DATA_STEPS, _STARTS
+
+    rng = np.random.default_rng(0)
+    t = np.linspace(0, 1400, 1280)
+    x = np.c_[t, 20 + 0.01 * t + rng.normal(0, 0.2, t.size)]
+    kw = dict(seed=0, n_starts=_STARTS, n_best=_BEST_PER_SUBSAMPLE, max_iter=_FULL_DATA_STEPS, support_fraction=0.5)
+    with mock.patch.object(_robust_covariance, "select_candidates", wraps=_robust_covariance.select_candidates) as spy:
+        _load("measure").sklearn_same_work(x, **kw)
+    calls = [(len(c.args[0]), c.kwargs) for c in spy.call_args_list]
+    assert [n for n, _ in calls] == [300, 300, 300, 300, 1200, 1280]
+    assert all(k["n_trials"] == _STARTS // 4 and k["select"] == _BEST_PER_SUBSAMPLE and k["n_iter"] == 2 for _, k in calls[:4])
+    assert len(calls[4][1]["n_trials"][0]) == 4 * _BEST_PER_SUBSAMPLE and calls[4][1]["select"] == _BEST_PER_SUBSAMPLE
+    assert calls[5][1]["select"] == 1 and calls[5][1]["n_iter"] == _FULL_DATA_STEPS
+
+
+def test_measure_report_tables_every_baseline_revision():
+    mod = _load("measure")
+    vs = {"abc1234": {"cpu_median_ms": 6.0, "cpu_p99_ms": 9.0, "ratio": 0.5, "same": 1.0},
+          "def5678": {"cpu_median_ms": 2.0, "cpu_p99_ms": 3.0, "ratio": 1.5, "same": 1.0}}
+    row = {"n_samples": 1280, "n_support": 800, "median_ms": 3.0, "p99_ms": 4.0, "cpu_median_ms": 3.0, "cpu_p99_ms": 4.0,
+           "sklearn_median_ms": 90.0, "sklearn_cpu_median_ms": 90.0, "speedup": 30.0, "distance_m": 4.5, "sklearn_distance_m": 4.5,
+           "baselines": vs}
+    real = {"cases": 48, "samples_median": 280.0, "samples_range": (120, 600), "cpu_median_ms": 2.0, "cpu_p99_ms": 3.0,
+            "sklearn_cpu_median_ms": 60.0, "speedup": 30.0, "same_answer": 0.7,
+            "baselines": {k: dict(v, ratio=v["ratio"] / 2) for k, v in vs.items()}}
+    text = mod.report([{"robust": row}], (0.5, 0.6), "2026-12-05 12:00 UTC", [{"robust": real}])
+    assert "| 1 | diagonal | robust | def5678 | 3.00 / 4.00 | 2.00 / 3.00 | 1.50 | 100 % |" in text
+    assert ("our median over the baseline's: abc1234: realistic clicks 0.25-0.25, diagonal 0.50-0.50; "
+            "def5678: realistic clicks 0.75-0.75, diagonal 1.50-1.50.") in text
+
+
 def test_measure_report_states_the_ratio_on_realistic_clicks_beside_the_diagonal():
     mod = _load("measure")
     row = {"n_samples": 1280, "n_support": 800, "median_ms": 3.0, "p99_ms": 4.0, "cpu_median_ms": 3.0, "cpu_p99_ms": 4.0,

@@ -324,9 +324,9 @@ def test_corners_are_exact_clicks_so_a_wrong_baseline_shows_in_the_coverage():
           f"{rep['figures']['interval_coverage']:.3f}")
     assert rep["figures"]["interval_coverage"] < 0.6
     assert any("fell inside the reported 95 % interval" in f["measured"] for f in rep["findings"]) and rep["status"] != "ok"
-    mouse = [measure_distance(wrong[0], p.p1_px, p.p2_px, MeasureOptions(click_px=1.5)) for p in run_check(wrong[:1], board).pairs[:60]]
-    assert np.mean([m.interval_m[0] <= p.pair.length_m <= m.interval_m[1]
-                    for m, p in zip(mouse, run_check(wrong[:1], board).pairs[:60])]) > 0.8
+    pairs = run_check(wrong[:1], board).pairs[:60]
+    mouse = [measure_distance(wrong[0], p.p1_px, p.p2_px, MeasureOptions(click_px=1.5)) for p in pairs]
+    assert np.mean([m.interval_m[0] <= p.pair.length_m <= m.interval_m[1] for m, p in zip(mouse, pairs)]) > 0.8
 
 
 def test_scale_advice_fits_the_kind_of_camera():
@@ -336,10 +336,12 @@ def test_scale_advice_fits_the_kind_of_camera():
     with open_source(sim_spec(1.0, board)) as src:
         frame = src.read()
     wrong = dataclasses.replace(frame, baseline_m=frame.baseline_m * 1.03)
+    # the kind is read from the frame; what is measured does not depend on it, only the words do
+    result = run_check([wrong], board)
+    assert result.source_kind == "sim"
     words = {}
     for kind in ("sim", "v4l2", "oak", "bag", "depthpng"):
-        f = dataclasses.replace(wrong, meta={**wrong.meta, "source": kind})
-        first = report(run_check([f], board))["findings"][0]
+        first = report(dataclasses.replace(result, source_kind=kind))["findings"][0]
         words[kind] = first["cause"] + " " + first["action"]
     assert "scale the calibration's T by 0.97" in words["v4l2"] and words["sim"] == words["v4l2"]
     for kind in ("oak", "bag", "depthpng"):
@@ -350,17 +352,18 @@ def test_scale_advice_fits_the_kind_of_camera():
 def test_offset_advice_fits_the_kind_of_camera():
     """A depth error that grows with distance is a disparity offset to fix in the calibration file of a pair
     processed here; an OAK, a bag or a depth folder has no such file: the words name their own fix."""
-    frames = []
+    results = []  # one check per distance: what is measured does not depend on the kind, only the words do
     for distance in (1.0, 2.0, 4.0):
         board = board_for(distance)
         with open_source(sim_spec(distance, board)) as src:
-            frames.append((dataclasses.replace(src.read(), doffs=0.3), board))
+            frame = dataclasses.replace(src.read(), doffs=0.3)
+        results.append(run_check([dataclasses.replace(frame, meta={**frame.meta, "source": "v4l2"})], board))
+    assert [r.source_kind for r in results] == ["v4l2"] * 3  # read from the frames
     last = {}
     for kind in ("v4l2", "oak", "bag", "depthpng"):
         records: list[dict] = []
-        for frame, board in frames:
-            f = dataclasses.replace(frame, meta={**frame.meta, "source": kind})
-            records.append(report(run_check([f], board), records))
+        for result in results:
+            records.append(report(dataclasses.replace(result, source_kind=kind), records))
         (grows,) = [x for x in records[-1]["findings"] if "grows with distance" in x["measured"]]
         last[kind] = grows["cause"] + " " + grows["action"]
     assert re.search(r"disparity offset of about \+0\.[23]\d px", last["v4l2"])

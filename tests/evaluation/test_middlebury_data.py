@@ -5,9 +5,6 @@ from __future__ import annotations
 
 import functools
 import http.server
-import os
-import subprocess
-import sys
 import threading
 import zipfile
 from pathlib import Path
@@ -19,6 +16,7 @@ from cli.main import app
 from evaluation.middlebury_data import ARCHIVE_DIR, ARCHIVES, FILES, SCENES, DataError, fetch, verify
 
 ROOT = Path(__file__).resolve().parents[2]
+pytest_plugins = ["pytester"]  # the skip test runs a pytest session of its own
 
 
 @pytest.fixture(scope="module")
@@ -80,10 +78,12 @@ def test_an_unreachable_server_names_the_manual_way(tmp_path):
     assert res.exit_code == 1 and "--from DIR" in res.output and "Traceback" not in res.output
 
 
-@pytest.mark.slow
-def test_tests_that_need_the_scenes_skip_with_the_fetch_command(tmp_path):
-    env = {**os.environ, "DEPTHRULER_SHARED": str(tmp_path / "nowhere")}
-    out = subprocess.run([sys.executable, "-m", "pytest", "-q", "-rs", "-p", "no:cacheprovider", "tests/device/test_middlebury_io.py"],
-                         cwd=ROOT, env=env, capture_output=True, text=True, timeout=300)
-    assert out.returncode == 0, out.stdout[-2000:]
-    assert "SKIPPED" in out.stdout and "depthruler data fetch" in out.stdout and "failed" not in out.stdout
+def test_tests_that_need_the_scenes_skip_with_the_fetch_command(pytester, monkeypatch, tmp_path):
+    # a pytest session of its own in this process (a second interpreter would import everything again);
+    # timeout=0: its tests must not set or cancel the alarm pytest-timeout holds for this one
+    monkeypatch.setenv("DEPTHRULER_SHARED", str(tmp_path / "nowhere"))
+    res = pytester.runpytest_inprocess(str(ROOT / "tests" / "device" / "test_middlebury_io.py"), "-q", "-rs", "-p", "no:cacheprovider",
+                                       "-o", "timeout=0", f"--rootdir={ROOT}", "-c", str(ROOT / "pyproject.toml"))  # fmt: skip
+    out = res.stdout.str()
+    assert res.ret == 0, out[-2000:]
+    assert "SKIPPED" in out and "depthruler data fetch" in out and "failed" not in out

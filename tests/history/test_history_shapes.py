@@ -84,7 +84,9 @@ def test_a_database_of_the_schema_before_shapes_opens_and_reads_as_segments(tmp_
         assert [r["kind"] for r in store.list_slim()] == ["area", "height", "box", "segment"]
         assert [r["id"] for r in store.list_slim(kind="box")] == [shapes["box"]["id"]]
         con = schema.open_read_only(db)
-        assert [r["id"] for r in schema.measurement_inputs(con)] == [1]  # two points do not re-measure a shape
+        inputs = schema.measurement_inputs(con)  # every kind, a shape with its stored clicks
+        assert [(r["id"], r["kind"]) for r in inputs] == [(1, "segment"), *((shapes[k]["id"], k) for k in ("box", "height", "area"))]
+        assert [json.loads(r["extra"]).get("shape", {}).get("on") for r in inputs] == [None, None, [[box.click_px[0], 170.0]], None]
         con.close()
     finally:
         store.close()

@@ -7,7 +7,7 @@ import importlib
 
 import pytest
 
-MODULES = ["measure.types", "measure.distance", "measure.sequence", "measure.dline", "measure.censored", "measure.confidence"]
+MODULES = ["measure.types", "measure.distance", "measure.sequence", "measure.dline", "measure.censored", "measure.confidence", "measure.shape"]
 
 
 @pytest.mark.parametrize("name", MODULES)

@@ -124,3 +124,28 @@ def test_default_h():
     assert default_h(100, 3, 0.5) == 52
     assert default_h(100, 3, 0.75) == 75
     assert default_h(3, 3, 0.5) == 3
+
+
+def test_h_smallest_in_single_precision_is_the_double_precision_selection():
+    """The C-step's h smallest d² chosen in single precision are the double-precision choice: on rows
+    whose values around the h-th differ only below single precision, on exact ties at the h-th, on
+    overflow to single-precision infinity and on ordinary rows; and the summed monomials are those of
+    that mask."""
+    from measure.cstep import _h_smallest, monomials
+
+    rng = np.random.default_rng(5)
+    n, h = 200, 101
+    mono = monomials(rng.normal(size=(n, 2)))[None]
+    rows = [rng.uniform(0, 10, n) for _ in range(4)]
+    near = rng.uniform(0, 10, n)
+    near[rng.choice(n, 40, replace=False)] = 5.0 + rng.integers(-3, 4, 40) * 1e-12  # joined by single rounding
+    tied = np.round(rng.uniform(0, 10, n), 1)  # exact ties at the h-th
+    huge = rng.uniform(0, 10, n)
+    huge[:150] = 1e300 * (1 + rng.uniform(0, 1e-9, 150))  # single precision: all infinite
+    d2 = np.stack(rows + [near, tied, huge])[None]
+    mask, sums = _h_smallest(d2, h, mono)
+    key = d2.view(np.int64)
+    expected = key <= np.partition(key, h - 1, axis=-1)[..., h - 1 : h]
+    assert np.array_equal(mask, expected)
+    assert (mask.sum(axis=-1) >= h).all() and (mask.sum(axis=-1)[0, 4:6] >= h).all()
+    assert np.array_equal(sums, expected.astype(np.float64) @ mono)

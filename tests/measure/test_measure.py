@@ -109,6 +109,35 @@ def test_no_gap_on_tilted_posters():
     assert gaps["paper"] >= gaps["robust"]
 
 
+@pytest.mark.parametrize("noise", [0.0, 0.1])
+def test_a_gaps_rounding_is_its_ends_whatever_lies_behind_it(noise):
+    """Integer disparity (a camera without subpixel): the wall beside a doorway at 3 m is exactly 10 px,
+    so each end surface is one level and its depth carries one rounding error, q / sqrt(12) px. The
+    gap's sigma is that, propagated to the width, and does not grow with the depth of the room behind
+    the door (it did: the rounding was the back wall's, at its depth and over its length)."""
+    from measure import robust_with_terms
+    from measure.sampling import ray
+    from measure.uncertainty import SIGMA_SCALE, endpoint_depth_sigma
+
+    p1, p2 = (99.0, 120.0), (220.0, 120.0)  # the last wall pixel each side
+    z = F * B / 10.0
+    q1, q2 = (np.array([(x - CAM.cx) / F, (y - CAM.cy) / F, 1.0]) * z for x, y in (p1, p2))
+    rounding_m = z * z / (F * B) / math.sqrt(12.0)
+    want = endpoint_depth_sigma(q1, q2, rounding_m, rounding_m)
+    sigmas = []
+    for back_z in (6.0, 12.0, 24.0):
+        zmap = np.full((H, W), z)
+        zmap[:, 100:220] = back_z
+        d = F * B / zmap + np.random.default_rng(7).normal(0.0, noise, zmap.shape)  # < 0.5 px: no level change
+        f = Frame(np.zeros((H, W, 3), np.uint8), np.round(d).astype(np.float32), CAM, B)
+        m, terms = robust_with_terms(f, p1, p2, MeasureOptions(click_px=0.0))
+        assert m.gap_detected and m.distance_m == pytest.approx(float(np.linalg.norm(q2 - q1)), rel=1e-9)
+        assert np.allclose(m.p1_m, ray(f, *p1) * z) and terms["fit"] == 0.0  # one level: no scatter
+        assert terms["quant"] == pytest.approx(want, rel=1e-6)
+        sigmas.append(m.uncertainty_m)
+    assert sigmas == pytest.approx([SIGMA_SCALE * want] * 3, rel=1e-6)
+
+
 def test_gap_detection_can_be_switched_off():
     m = measure_distance(doorway_frame(), (99.0, 120.0), (220.0, 120.0), MeasureOptions(gap_detection=False))
     assert not m.gap_detected and m.fit != "none"
@@ -234,3 +263,14 @@ def test_seed_does_not_matter_on_well_posed_data(seed, x1, x2, y):
     a = measure_distance(f, (x1, y), (x2, 240 - y), MeasureOptions(seed=0))
     b = measure_distance(f, (x1, y), (x2, 240 - y), MeasureOptions(seed=seed))
     assert abs(a.distance_m - b.distance_m) <= max(0.2 * a.uncertainty_m, 1e-4 * a.distance_m)
+
+
+@given(st.lists(st.sampled_from([-0.0, 0.0, 1.0, 1.25, 1.5, 2.0, 7.0625, 30.0, 30.25]), max_size=40))
+def test_quantum_and_levels_are_those_of_the_distinct_values(values):
+    """The disparity quantum and the count of levels from the sorted values' positive steps are
+    np.unique's (which counts -0.0 and 0.0 as one value)."""
+    from measure.uncertainty import disparity_quantum, distinct_levels
+
+    u = np.unique(np.array(values, dtype=np.float64))
+    assert distinct_levels(np.array(values, dtype=np.float32)) == u.size
+    assert disparity_quantum(np.array(values)) == (min(1.0, float(np.diff(u).min())) if u.size > 1 else 1.0)

@@ -80,3 +80,19 @@ def test_basic_on_fronto_parallel_plane():
     f = flat_frame(d=10.0)  # Z = 1 m everywhere
     m = measure_distance(f, (10, 20), (50, 20), MeasureOptions(method="basic"))
     assert m.distance_m == pytest.approx(40 / 100.0 * 1.0)
+
+
+def test_valid_disparity_is_the_sum_rule_at_its_edges():
+    """Frame.valid tests d > -doffs without the sum: the same verdict as d + doffs > 0 at -doffs and one
+    rounding step either side, on NaN, infinities and float32 values whose sum overflows."""
+    for doffs in (0.0, 2.75, -3.25, np.float64(7.1), 273.9):
+        d = np.full((48, 64), 10.0, np.float32)
+        edge = np.float32(-np.float32(doffs))
+        d[0, :8] = [np.nan, np.inf, -np.inf, 3.4e38, edge, np.nextafter(edge, np.float32(1e9)), np.nextafter(edge, np.float32(-1e9)), 65.0]
+        frame = Frame(np.zeros((48, 64, 3), np.uint8), d, PinholeCamera(60.0, 60.0, 31.5, 23.5, 64, 48), 0.1, doffs=doffs)
+        for arr in (d, d.astype(np.float64)):
+            with np.errstate(invalid="ignore", over="ignore"):
+                expected = np.isfinite(arr) & (arr + doffs > 0) & (arr <= 64)
+            assert np.array_equal(frame.valid(arr), expected), doffs
+        if type(doffs) is float:  # a Python float is rounded to float32 with d: -doffs is the edge exactly
+            assert frame.valid(d)[0, :8].tolist() == [False, False, False, False, False, True, False, False]

@@ -28,21 +28,40 @@ def test_simulated_frame_is_held_in_codes_and_comes_back_bit_for_bit():
     packed = PackedFrame.pack(frame)
     assert packed.disparity.dtype == np.uint8 and packed.confidence.dtype == np.uint8  # 1/4 px below 64 px: a byte each
     full = frame.image.nbytes + frame.disparity.nbytes + frame.confidence.nbytes
-    assert packed.nbytes == frame.image.nbytes + frame.disparity.size * 2  # 1 + 1 bytes a pixel for 4 + 4
-    assert packed.nbytes < 0.6 * full
+    assert packed.held_image is None  # the simulator makes it again: render plus a crop of its noise sheet
+    assert packed.nbytes == frame.disparity.size * 2  # 1 + 1 bytes a pixel for 4 + 4, no image
+    assert packed.nbytes < 0.25 * full
     packed._last = None  # as when the pushed frame is gone
+    assert np.array_equal(packed.image, frame.image)  # made again, bit for bit
     back = packed.unpack()
     assert back is not frame
     assert back.disparity.dtype == np.float32 and back.confidence.dtype == np.float32
+    assert np.array_equal(back.image, frame.image)
+    packed.keep_image()  # a frozen frame holds its image again
+    assert np.array_equal(packed.held_image, frame.image) and packed.nbytes == frame.image.nbytes + frame.disparity.size * 2
     assert np.array_equal(back.disparity.view(np.uint32), frame.disparity.view(np.uint32))  # NaN bits too
     assert np.array_equal(back.confidence.view(np.uint32), frame.confidence.view(np.uint32))
     assert (back.camera, back.baseline_m, back.meta) == (frame.camera, frame.baseline_m, frame.meta)
     assert packed.unpack() is back  # the same frame while anyone holds it
 
 
+def test_simulated_images_are_made_again_bit_for_bit_under_every_lighting():
+    """Each frame's noise is its own crop of the sheet: made again from the recipe, every image equals
+    the one the source read (a recipe that ignored the crop would give one frame's image for all)."""
+    for lighting in ("indoor", "mixed", "outdoor"):
+        with SimSource(SimConfig(width=96, height=64, fps=0, lighting=lighting)) as src:
+            frames = [src.read() for _ in range(4)]
+        packs = [PackedFrame.pack(f) for f in frames]
+        for f, p in zip(frames, packs):
+            p._last = None
+            assert p.held_image is None and np.array_equal(p.image, f.image), lighting
+        assert len({f.image.tobytes() for f in frames}) > 1, lighting  # fresh noise per frame
+
+
 def test_unquantized_disparity_is_held_as_it_is():
     frame = plane_frame((0.0, 0.0, 1.0), 3.0, noise=0.3)  # float disparity, no 1/64 px steps
     packed = PackedFrame.pack(frame)
+    assert packed.held_image is frame.image  # no recipe: the image is held
     assert packed.disparity is frame.disparity
     packed._last = None
     assert np.array_equal(packed.unpack().disparity, frame.disparity, equal_nan=True)

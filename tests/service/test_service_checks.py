@@ -10,6 +10,7 @@ from fastapi.testclient import TestClient
 
 from history.checks import checks_path, read_checks
 from service.app import create_app
+from service.board_check import frames_note
 from service.schemas import CheckOut
 
 SPEC = "sim:charuco?distance=1.2&width=640&height=360&fps=10"
@@ -54,6 +55,24 @@ def test_more_frames_and_an_explicit_board(client):
     board = {"squares_x": 7, "squares_y": 5, "square_mm": 40, "marker_mm": 30, "dictionary": "DICT_5X5_100"}
     rec = client.post("/api/checks", json={"frame_id": fid, "frames": 3, "board": board}).json()
     assert len(rec["frame_ids"]) == 3 and rec["frame_ids"][-1] == fid and rec["figures"]["frames_with_board"] == 3
+    assert rec["frames_requested"] == 3 and "frames_note" not in rec
+
+
+def test_fewer_frames_than_asked_are_used_and_said(tmp_path):
+    """The first frame of a stream has none before it: a 3-frame check on it checks that one and says so,
+    in its answer and in the checks log the page's history reads."""
+    db = tmp_path / "h.db"
+    with TestClient(create_app(SPEC.replace("fps=10", "fps=2"), db_path=db, ring_size=64), base_url="http://127.0.0.1") as c:
+        assert c.get("/api/frames/latest", params={"wait": 10}).status_code == 200
+        assert c.post("/api/frames/1/freeze", headers=JSON).status_code == 200  # 32 s in the ring at 2 fps, frozen now
+        r = c.post("/api/checks", json={"frame_id": 1, "frames": 3})
+    assert r.status_code == 200, r.text
+    rec = CheckOut.model_validate(r.json())
+    assert rec.frame_ids == [1] and rec.frames_requested == 3 and rec.figures["frames_with_board"] == 1
+    assert rec.frames_note == "used 1 of 3 frames: the ring held no earlier frame of this camera before frame 1"
+    assert read_checks(checks_path(db))[0]["frames_note"] == rec.frames_note
+    assert frames_note(2, 3, 17) == "used 2 of 3 frames: the ring held only 1 earlier frame of this camera before frame 17"
+    assert frames_note(4, 5, 9).startswith("used 4 of 5 frames: the ring held only 3 earlier frames") and frames_note(3, 3, 9) is None
 
 
 def test_refusals_say_what_to_change(client):

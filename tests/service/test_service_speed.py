@@ -209,3 +209,60 @@ def test_checkpoints_run_beside_the_commits(tmp_path, monkeypatch):
         time.sleep(0.02)
     assert (tmp_path / "h2.db").stat().st_size >= 512 * 1024  # the checkpoint thread copied the rows
     store.close()
+
+
+def test_capture_makes_the_live_jpeg_ahead_only_while_a_page_follows_every_frame():
+    from device import SourceInfo
+    from service.capture import Capture
+    from service.frames import FrameRing
+    from service.render import LIVE_JPEG, encode_jpeg
+
+    ring = FrameRing(capacity=8)
+    cap = Capture(lambda: None, ring, fps=10, backoff_initial_s=1, backoff_max_s=1)
+    info = SourceInfo(kind="test", name="test")
+    cap._deliver(wall_frame(0), info)  # nobody has looked yet
+    assert ring.latest().cached(LIVE_JPEG) is None
+    ring.mark_viewed(ring.latest().id)  # a page shows frame 1 ...
+    cap._deliver(wall_frame(1), info)  # ... so frame 2's JPEG is made with it
+    entry = ring.latest()
+    assert entry.cached(LIVE_JPEG) == encode_jpeg(entry.frame.image)
+    cap._deliver(wall_frame(2), info)  # the page did not ask for frame 2: nothing made ahead
+    assert ring.latest().cached(LIVE_JPEG) is None
+
+
+def test_writes_in_one_turn_of_the_loop_reach_the_socket_as_one():
+    import asyncio
+
+    from service.connections import CoalescingTransport
+
+    class Recorder:
+        def __init__(self):
+            self.writes, self.closed = [], False
+
+        def write(self, data):
+            self.writes.append(data)
+
+        def is_closing(self):
+            return self.closed
+
+        def close(self):
+            self.closed = True
+
+        def get_write_buffer_size(self):
+            return 0
+
+    async def run():
+        raw = Recorder()
+        t = CoalescingTransport(raw)
+        t.write(b"HTTP/1.1 200 OK\r\n\r\n")
+        t.write(memoryview(b"body"))
+        assert raw.writes == [] and t.get_write_buffer_size() == 23
+        await asyncio.sleep(0)
+        assert raw.writes == [b"HTTP/1.1 200 OK\r\n\r\nbody"]
+        t.write(b"last")
+        t.close()  # what is held goes out before the close
+        assert raw.writes[-1] == b"last" and raw.closed
+        await asyncio.sleep(0)
+        assert len(raw.writes) == 2
+
+    asyncio.run(run())

@@ -53,3 +53,19 @@ def test_near_gaps_are_good_and_right(answers):
     good = [(g, m) for g, m in near if m.quality == "good"]
     assert len(good) >= 0.8 * len(near), [m.reasons for _, m in near]
     assert all(m.gap_detected and abs(m.distance_m - g) <= 0.05 * g for g, m in good)
+
+
+def test_sigma_falls_as_the_camera_comes_closer_on_integer_disparity():
+    """A camera without subpixel disparity and little noise (1-px steps, 0.15 px): the ends' rounding is
+    most of a doorway's sigma, and it is the ends' own, so it shrinks with their depth (it was the room's
+    behind the door: 39-54 mm at 1.5-3 m, flat)."""
+    sig = {}
+    for dist in (1.5, 2.0, 3.0):
+        for seed in SEEDS:
+            frame, truth, _ = sim.scenario("doorway", target="doorway", distance_m=dist, seed=seed, quantization=1.0, noise_px=0.15,
+                                           contention=0.1)
+            m = measure_distance(frame, truth.p1_px, truth.p2_px, MeasureOptions(click_px=0.0))
+            assert m.gap_detected and abs(m.distance_m - truth.length_m) <= 0.01 * truth.length_m
+            sig.setdefault(dist, []).append(m.uncertainty_m)
+    assert max(sig[1.5]) < min(sig[2.0]) and max(sig[2.0]) < min(sig[3.0]), sig
+    assert max(sig[1.5]) < 0.01 * 0.9, sig  # under 1 % of the door's width at 1.5 m

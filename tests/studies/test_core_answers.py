@@ -17,9 +17,9 @@ STORED = Path(__file__).resolve().parents[1] / "fixtures" / "core_answers.json"
 TOLERANCE_A = 0.05
 
 
-def _compare(protocols: set[str], middlebury_dir: Path | None) -> None:
+def _compare(protocols: set[str], middlebury_dir: Path | None, sim_cases: list | None = None) -> None:
     stored = {(r["protocol"], r["key"]): r for r in json.loads(STORED.read_text()) if r["protocol"] in protocols}
-    now = [_row(*c) for c in _cases(middlebury_dir) if c[0] in protocols]
+    now = [_row(*c) for c in _cases(middlebury_dir, sim_cases) if c[0] in protocols]
     assert {(r["protocol"], r["key"]) for r in now} == set(stored)
     worst = 0.0
     for r in now:
@@ -35,8 +35,8 @@ def _compare(protocols: set[str], middlebury_dir: Path | None) -> None:
     print(f"{sorted(protocols)}: {len(now)} answers, largest change {worst:.4f} A points")
 
 
-def test_simulated_stress_and_rooms_keep_their_answers():
-    _compare({"stress-sim", "rooms"}, None)
+def test_simulated_stress_and_rooms_keep_their_answers(stress_sim_frames):
+    _compare({"stress-sim", "rooms"}, None, stress_sim_frames)
 
 
 @pytest.mark.slow

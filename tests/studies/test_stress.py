@@ -6,9 +6,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from evaluation.stress import by_scene, figures, worst_scene
+from evaluation.stress import by_scene, figures, measure_case, worst_scene
 from evaluation.stress_middlebury import DEV_SCENES, run_stress_middlebury
-from evaluation.stress_sim import run_stress_sim
 from factories import boxes_frame
 from measure import MeasureOptions, measure_distance
 
@@ -22,8 +21,9 @@ def middlebury_stress(middlebury_dir):
 
 
 @pytest.fixture(scope="module")
-def sim_stress():
-    return run_stress_sim((0, 1), (3.0, 5.0))
+def sim_stress(stress_sim_frames):
+    """evaluation.stress_sim.run_stress_sim((0, 1), (3.0, 5.0)), on the frames test_core_answers answers too."""
+    return [measure_case(f, c, "sim") for f, cases in stress_sim_frames for c in cases]
 
 
 @pytest.mark.parametrize("disparity", ["sgbm", "gt_out50"])

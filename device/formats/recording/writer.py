@@ -17,7 +17,7 @@ import numpy as np
 
 from measure import Frame
 
-from device.base import SourceInfo
+from device.base import REBUILD_IMAGE, SourceInfo
 from device.errors import RecordingError
 from device.formats.recording.format import (
     _MANIFEST_INTERVAL_S,
@@ -149,7 +149,7 @@ class RecordingWriter:
         meta_dropped: list[str] = []
         arrays: dict[str, np.ndarray] = {}
         for key, value in dict(frame.meta).items():
-            if key in RAW_KEYS:
+            if key in RAW_KEYS or key == REBUILD_IMAGE:
                 continue
             try:
                 meta[str(key)] = jsonable(value)

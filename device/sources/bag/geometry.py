@@ -16,6 +16,7 @@ import numpy as np
 from measure import PinholeCamera
 
 from device.sources.bag.errors import BagError
+from device.sources.bag.messages import pixels_to_metres
 
 MAX_SPLAT_PX = 8  # a depth pixel covers at most this many colour pixels per axis (grazing surfaces)
 
@@ -68,7 +69,8 @@ class Rigid:
         return bool(np.allclose(self.rotation, np.eye(3), atol=tol) and np.allclose(self.translation, 0.0, atol=tol))
 
 
-def align_depth_to_color(depth_m: np.ndarray, depth_cam: PinholeCamera, color_cam: PinholeCamera, depth_to_color: Rigid) -> np.ndarray:
+def align_depth_to_color(depth_m: np.ndarray, depth_cam: PinholeCamera, color_cam: PinholeCamera, depth_to_color: Rigid, *,
+                         disparity_k: float = 0.0, depth_unit_m: float = 0.0) -> np.ndarray:  # fmt: skip
     """Depth (m, depth camera pixels; 0 or NaN = none) -> depth (float32 m) at the colour camera's pixels, NaN = none.
 
     ``depth_to_color`` maps depth-camera points to colour-camera points (``p_c = R p_d + t``). Each valid
@@ -76,72 +78,28 @@ def align_depth_to_color(depth_m: np.ndarray, depth_cam: PinholeCamera, color_ca
     camera and projected; it fills the colour pixels whose centres lie inside it (so a lower-resolution
     depth leaves no pinholes), at most ``MAX_SPLAT_PX`` per axis; one holding no centre fills the pixel
     under its centre if no other footprint holds that pixel's centre. Where several fall on one colour
-    pixel the nearest wins. The value stored is Z in the colour camera. Pinhole model both sides.
+    pixel the nearest wins. The value stored is Z in the colour camera, or the disparity ``disparity_k / Z``
+    (float32, px; ``disparity_k = fx * B``) when ``disparity_k`` > 0. Pinhole model both sides. With
+    ``depth_unit_m`` > 0, ``depth_m`` is integer depth units as recorded (uint16), each taken as
+    ``float32(d) * float32(depth_unit_m)`` metres, as ``messages.pixels_to_metres`` makes them.
     """
-    z_d = np.asarray(depth_m, dtype=np.float64)
+    z_d = np.asarray(depth_m)
+    if depth_unit_m > 0 and z_d.dtype != np.uint16:
+        raise BagError(f"depth in units ({depth_unit_m} m) must be uint16 as recorded (16UC1/mono16), got {z_d.dtype}; give other depth in metres")
+    z_d = np.ascontiguousarray(z_d, dtype=z_d.dtype if z_d.dtype in (np.uint16, np.float32, np.float64) else np.float64)
     if z_d.shape != (depth_cam.height, depth_cam.width):
         raise BagError(f"depth image is {z_d.shape[1]}x{z_d.shape[0]} but its camera_info says {depth_cam.width}x{depth_cam.height}")
     if depth_cam == color_cam and depth_to_color.is_identity():
-        return np.where(np.isfinite(z_d) & (z_d > 0), z_d, np.nan).astype(np.float32)
-    v, u = np.nonzero(np.isfinite(z_d) & (z_d > 0))
-    z = z_d[v, u]
-    R, t = depth_to_color.rotation, depth_to_color.translation
-    u = u.astype(np.float64)
-    v = v.astype(np.float64)
+        z = pixels_to_metres(z_d, depth_unit_m) if depth_unit_m > 0 else np.where(np.isfinite(z_d) & (z_d > 0), z_d, np.nan).astype(np.float32)
+        return np.divide(np.float32(disparity_k), z) if disparity_k > 0 else z
+    from device.sources.bag.kernels import splat_nearest  # numba compiles on first use: `import device` stays fast
 
-    def to_color(du: float, dv: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        x = (u + du - depth_cam.cx) / depth_cam.fx * z
-        y = (v + dv - depth_cam.cy) / depth_cam.fy * z
-        X = R[0, 0] * x + R[0, 1] * y + R[0, 2] * z + t[0]
-        Y = R[1, 0] * x + R[1, 1] * y + R[1, 2] * z + t[1]
-        Z = R[2, 0] * x + R[2, 1] * y + R[2, 2] * z + t[2]
-        with np.errstate(divide="ignore", invalid="ignore"):
-            return color_cam.fx * X / Z + color_cam.cx, color_cam.fy * Y / Z + color_cam.cy, Z
-
-    xa, ya, _ = to_color(-0.5, -0.5)
-    xb, yb, _ = to_color(0.5, 0.5)
-    xc, yc, zc = to_color(0.0, 0.0)
-    with np.errstate(invalid="ignore"):
-        # The colour pixels whose centres lie in the footprint [min, max): neighbouring footprints of one
-        # surface tile the image without overlap, so noise is not min-filtered by the z-buffer (librealsense
-        # rounds both corners and covers one pixel more per axis, biasing noisy depth towards the camera).
-        x0 = np.ceil(np.minimum(xa, xb))
-        x1 = np.ceil(np.maximum(xa, xb)) - 1
-        y0 = np.ceil(np.minimum(ya, yb))
-        y1 = np.ceil(np.maximum(ya, yb)) - 1
-        # A footprint smaller than a pixel that holds no centre (depth finer than colour) fills the pixel
-        # under its centre, but only where no footprint holding that pixel's centre did: the one that
-        # covers the centre is the sample, the others would again be min-filtered.
-        primary = (x1 >= x0) & (y1 >= y0)
-        x0, x1 = np.where(x1 < x0, np.floor(xc + 0.5), x0), np.where(x1 < x0, np.floor(xc + 0.5), x1)
-        y0, y1 = np.where(y1 < y0, np.floor(yc + 0.5), y0), np.where(y1 < y0, np.floor(yc + 0.5), y1)
-        keep = (zc > 0) & np.isfinite(x0 + x1 + y0 + y1)
-        keep &= (x1 >= 0) & (x0 <= color_cam.width - 1) & (y1 >= 0) & (y0 <= color_cam.height - 1)
-    x0, x1, y0, y1, zc, primary = (a[keep] for a in (x0, x1, y0, y1, zc, primary))
-    x0 = x0.astype(np.int64)
-    y0 = y0.astype(np.int64)
-    nx = np.minimum(x1.astype(np.int64) - x0 + 1, MAX_SPLAT_PX)
-    ny = np.minimum(y1.astype(np.int64) - y0 + 1, MAX_SPLAT_PX)
-    n_px = color_cam.width * color_cam.height
-    # float32 buffers: rounding to float32 keeps order, so the nearest is the same as in float64
-    zc32 = zc.astype(np.float32)
-    zbuf = np.full(n_px, np.inf, np.float32)
-    fallback = np.full(n_px, np.inf, np.float32)
-    # A loop over the footprint's offsets (at most MAX_SPLAT_PX**2, usually 1-4), each over only the
-    # footprints that reach it (most are 1-2 px a side, a few up to 8).
-    for dy in range(int(ny.max(initial=0))):
-        rows = np.flatnonzero(ny > dy)
-        for dx in range(int(nx[rows].max(initial=0))):
-            k = rows[nx[rows] > dx]
-            xs, ys = x0[k] + dx, y0[k] + dy
-            m = (xs >= 0) & (xs < color_cam.width) & (ys >= 0) & (ys < color_cam.height)
-            k, spot = k[m], ys[m] * color_cam.width + xs[m]
-            first = primary[k]
-            np.minimum.at(zbuf, spot[first], zc32[k[first]])
-            np.minimum.at(fallback, spot[~first], zc32[k[~first]])
-    np.copyto(zbuf, fallback, where=np.isinf(zbuf))
-    zbuf[np.isinf(zbuf)] = np.nan
-    return zbuf.reshape(color_cam.height, color_cam.width)
+    offsets = np.array([[-0.5], [0.5], [0.0]])  # footprint corners and centre
+    xn = (np.arange(depth_cam.width, dtype=np.float64) + offsets - depth_cam.cx) / depth_cam.fx
+    yn = (np.arange(depth_cam.height, dtype=np.float64) + offsets - depth_cam.cy) / depth_cam.fy
+    c = np.array([color_cam.fx, color_cam.fy, color_cam.cx, color_cam.cy], np.float64)
+    return splat_nearest(z_d, xn, yn, depth_to_color.rotation, depth_to_color.translation, c, color_cam.width, color_cam.height,
+                         MAX_SPLAT_PX, float(disparity_k), float(depth_unit_m))  # fmt: skip
 
 
 def pair_by_time(color_ns: np.ndarray, depth_ns: np.ndarray, max_skew_ns: int) -> tuple[np.ndarray, np.ndarray]:

@@ -25,8 +25,9 @@ def _stamp_ns(msg: Any) -> int:
     return int(h.stamp.sec) * 1_000_000_000 + int(h.stamp.nanosec)
 
 
-def _raw_pixels(msg: Any, topic: str) -> np.ndarray:
-    """A sensor_msgs/Image as an H x W (x C) array of its encoding's dtype."""
+def _raw_pixels(msg: Any, topic: str, *, copy: bool = True) -> np.ndarray:
+    """A sensor_msgs/Image as an H x W (x C) array of its encoding's dtype: a copy, or with ``copy=False``
+    a read-only view of the message's bytes where their byte order is native."""
     enc = str(msg.encoding).lower()
     formats = {"rgb8": (3, "u1"), "bgr8": (3, "u1"), "rgba8": (4, "u1"), "bgra8": (4, "u1"), "mono8": (1, "u1"),
                "8uc1": (1, "u1"), "8uc3": (3, "u1"), "mono16": (1, "u2"), "16uc1": (1, "u2"), "32fc1": (1, "f4"),
@@ -40,7 +41,8 @@ def _raw_pixels(msg: Any, topic: str) -> np.ndarray:
     row = w * ch * dtype.itemsize
     if h < 1 or w < 1 or step < row or data.size < h * step:
         raise BagError(f"{topic}: a {w}x{h} {msg.encoding} image holds {data.size} bytes with step {step}; the message is damaged")
-    px = np.array(data[: h * step].reshape(h, step)[:, :row]).view(dtype)  # the one copy: the message's bytes are read-only
+    px = data[: h * step].reshape(h, step)[:, :row]
+    px = (np.array(px) if copy else px).view(dtype)  # the message's bytes are read-only
     if not dtype.isnative:
         px = px.byteswap().view(dtype.newbyteorder("="))
     return px.reshape(h, w, ch) if ch > 1 else px.reshape(h, w)
@@ -55,11 +57,11 @@ def decode_color(msg: Any, topic: str) -> np.ndarray:
         if img is None:
             raise BagError(f"{topic}: a compressed image ({msg.format}) cannot be decoded")
         return img
-    px = _raw_pixels(msg, topic)
     enc = str(msg.encoding).lower()
     conversions = {"rgb8": cv2.COLOR_RGB2BGR, "rgba8": cv2.COLOR_RGBA2BGR, "bgra8": cv2.COLOR_BGRA2BGR,
                    "mono8": cv2.COLOR_GRAY2BGR, "8uc1": cv2.COLOR_GRAY2BGR, "yuv422": cv2.COLOR_YUV2BGR_UYVY,
                    "uyvy": cv2.COLOR_YUV2BGR_UYVY, "yuv422_yuy2": cv2.COLOR_YUV2BGR_YUY2, "yuyv": cv2.COLOR_YUV2BGR_YUY2}
+    px = _raw_pixels(msg, topic, copy=enc not in conversions)  # a conversion makes the one copy
     if enc in conversions:
         try:
             return np.ascontiguousarray(cv2.cvtColor(px, conversions[enc]))
@@ -71,14 +73,14 @@ def decode_color(msg: Any, topic: str) -> np.ndarray:
 
 
 def depth_pixels(msg: Any, topic: str) -> np.ndarray:
-    """A depth Image's pixels as they are: uint16 depth units (``16UC1``/``mono16``) or float32 metres
-    (``32FC1``); 0, NaN and negatives are no depth."""
+    """A depth Image's pixels as they are, read-only: uint16 depth units (``16UC1``/``mono16``) or float32
+    metres (``32FC1``); 0, NaN and negatives are no depth."""
     if not hasattr(msg, "encoding"):
         raise BagError(f"{topic}: compressed depth is not supported; record the raw depth topic (16UC1 or 32FC1)")
     enc = str(msg.encoding).lower()
     if enc not in ("16uc1", "mono16", "32fc1"):
         raise BagError(f"{topic}: depth encoding {msg.encoding!r} is not supported; depth must be 16UC1/mono16 (depth units) or 32FC1 (metres)")
-    return _raw_pixels(msg, topic)
+    return _raw_pixels(msg, topic, copy=False)
 
 
 def decode_depth(msg: Any, topic: str, unit_m: float) -> np.ndarray:
@@ -87,24 +89,25 @@ def decode_depth(msg: Any, topic: str, unit_m: float) -> np.ndarray:
 
 
 def pixels_to_metres(px: np.ndarray, unit_m: float) -> np.ndarray:
-    """:func:`depth_pixels` -> metres (float32), NaN where no depth."""
+    """:func:`depth_pixels` -> metres (float32), NaN where no depth: in place, ``(z * q) / q`` with
+    ``q = (px > 0)`` as 1 or 0 is ``z`` exactly where ``q`` is 1 and ``0 / 0`` (NaN) where it is 0, in
+    whole-array passes (a masked assignment over scattered holes runs several times slower)."""
     z = px.astype(np.float32)
     if px.dtype != np.float32:
         z *= np.float32(unit_m)
-    with np.errstate(invalid="ignore"):
-        z[~(px > 0)] = np.nan  # 0, NaN and negative depth
-    return z
+    q = (px > 0).view(np.uint8)  # NaN compares false
+    with np.errstate(invalid="ignore", divide="ignore"):
+        np.multiply(z, q, out=z)
+        return np.divide(z, q, out=z)
 
 
 def pixels_to_disparity(px: np.ndarray, unit_m: float, fx: float, baseline_m: float) -> np.ndarray:
-    """:func:`depth_pixels` -> disparity ``d = fx * B / Z`` (float32 px), NaN where no depth: a conversion,
-    one division and one masked fill (a masked division runs several times slower)."""
-    k = np.float32(fx * baseline_m / (1.0 if px.dtype == np.float32 else unit_m))
-    with np.errstate(invalid="ignore", divide="ignore", over="ignore"):
-        d = px.astype(np.float32)
-        np.divide(k, d, out=d)
-        d[~(px > 0)] = np.nan  # 0, NaN and negative depth: no disparity
-    return d
+    """:func:`depth_pixels` -> disparity ``d = fx * B / Z`` (float32 px), NaN where no depth: one
+    compiled pass, the float32 division ``k / depth`` with ``k = fx * B / unit``."""
+    from device.sources.bag.kernels import disparity_from_pixels  # numba compiles on first use: `import device` stays fast
+
+    k = fx * baseline_m / (1.0 if px.dtype == np.float32 else unit_m)
+    return disparity_from_pixels(np.ascontiguousarray(px, dtype=px.dtype.newbyteorder("=")), k)
 
 
 def camera_from_info(msg: Any, topic: str) -> PinholeCamera:

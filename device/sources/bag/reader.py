@@ -82,10 +82,12 @@ class BagReader:
         self.path = Path(self.config.path)
         self.options = self.config.options
         self._undistort: dict[tuple[PinholeCamera, Distortion], tuple[np.ndarray, np.ndarray] | None] = {}
+        self._topic_conns: dict[str, list[Any]] = {}
         self._reader = _open_reader(self.path)
         try:
             self.contents = self._index()
             self._identity = self.contents.depth_to_color.is_identity()
+            self._registered = self.contents.registered
         except BaseException:
             self.close()
             raise
@@ -104,7 +106,9 @@ class BagReader:
     # -- static messages -------------------------------------------------------------------
 
     def _conns(self, topic: str) -> list[Any]:
-        return [c for c in self._reader.connections if c.topic == topic]
+        if topic not in self._topic_conns:
+            self._topic_conns[topic] = [c for c in self._reader.connections if c.topic == topic]
+        return self._topic_conns[topic]
 
     def _first(self, topic: str | None, *, damaged_ok: bool = False) -> Any | None:
         """The first message of ``topic`` (None without one); ``damaged_ok``: the first that decodes, None if
@@ -375,8 +379,10 @@ class BagReader:
         if depth_maps is None and dcam == cam and self._identity:
             disparity = pixels_to_disparity(depth, unit, cam.fx, c.baseline_m)  # registered: one pass from the pixels
         else:
-            z = align_depth_to_color(remap(pixels_to_metres(depth, unit), depth_maps, nearest=True), dcam, cam, c.depth_to_color)
-            disparity = pixels_to_disparity(z, 1.0, cam.fx, c.baseline_m)
+            if depth_maps is not None:  # resampled in metres
+                depth = remap(pixels_to_metres(depth, unit), depth_maps, nearest=True)
+            units = unit if depth.dtype == np.uint16 else 0.0  # 16-bit units go to the registration as they are
+            disparity = align_depth_to_color(depth, dcam, cam, c.depth_to_color, disparity_k=cam.fx * c.baseline_m, depth_unit_m=units)
         skew = (sd - sc) / 1e9 if c.stamps_comparable else (depth_t - color_t) / 1e9
         meta = {
             "source": "bag",
@@ -388,7 +394,7 @@ class BagReader:
             "color_message": ci,
             "depth_message": di,
             "skew_s": skew,
-            "registered_in_bag": c.registered,
+            "registered_in_bag": self._registered,
             "extrinsics": c.extrinsics_from,
             "depth_unit_m": None if str(depth_msg.encoding).lower() == "32fc1" else c.depth_unit_m,
             "depth_encoding": str(depth_msg.encoding),
