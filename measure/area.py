@@ -18,7 +18,7 @@ from collections.abc import Sequence
 import numpy as np
 
 from measure.height import region_plane
-from measure.planes import INLIER_SIGMAS, MIN_SIGMA_PX, Plane, sigma_of
+from measure.planes import INLIER_SIGMAS, MIN_SIGMA_PX, Plane, offset_plane, sigma_of
 from measure.shape_types import ShapeMeasurement
 from measure.support import check_options, check_points, cross2, polygon_mask, verdict
 from measure.types import Frame, MeasureError, MeasureOptions
@@ -85,7 +85,9 @@ def area_on(plane: Plane, verts: np.ndarray, click_px: float) -> tuple[float, fl
     moved = verts[None] + shifts
     am = polygon_area(plane.points_at(moved[..., 0], moved[..., 1]), n).reshape(k, 2, 2)
     s_click = math.sqrt(float((((am[:, :, 0] - am[:, :, 1]) / 2) ** 2).sum()))
-    return area, math.hypot(float(sigma_of(samples)), s_click), corners
+    moved_plane = offset_plane(plane)
+    s_offset = abs(float(polygon_area(moved_plane.points_at(verts[:, 0], verts[:, 1]), moved_plane.metric()[0])) - area)
+    return area, math.sqrt(float(sigma_of(samples)) ** 2 + s_click**2 + s_offset**2), corners
 
 
 def measure_area(frame: Frame, vertices: Sequence[tuple[float, float]], options: MeasureOptions | None = None) -> ShapeMeasurement:

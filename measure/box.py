@@ -21,7 +21,7 @@ Steps (docs/method.md Eq. 9-15):
    (docs/decisions/box-edges.md). The verdict says "check" for a box cut by the image border, a side
    that shows no step in the colour image, a face partly hidden by something in front, a top that is
    not rectangular or not parallel to its floor, or a grown top whose plane is not the click window's
-   own (``MERGED_SIGMAS``: a neighbouring box's top joined it).
+   own (``measure.planes.joined_another``: a neighbouring box's top joined it).
 """
 
 from __future__ import annotations
@@ -33,7 +33,7 @@ import numpy as np
 
 from measure.box_edges import AXES, CORRELATED_PX, FATTEN_REACH_PX, MIN_SIDE_POINTS, SIDE_SPAN, RectFrame, find_side
 from measure.height import height_above, window_plane
-from measure.planes import INLIER_SIGMAS, GrownPlane, Plane, fit_plane, grow_plane, sigma_of
+from measure.planes import INLIER_SIGMAS, GrownPlane, Plane, fit_plane, grow_plane, joined_another, offset_plane, sigma_of
 from measure.sampling import check_point
 from measure.shape_types import BoxMeasurement
 from measure.support import angle_deg, check_options, cross2, parallel_levels, shrunk_pixels, verdict
@@ -49,7 +49,6 @@ FILL_MIN = 0.88
 HIDDEN_SHARE = 0.25
 OUTSIDE_PX = 6.0
 TILT_DEG = 5.0
-MERGED_SIGMAS = 4.0
 
 
 def _outline(mask: np.ndarray) -> np.ndarray:
@@ -231,15 +230,6 @@ def _face_plane(frame: Frame, grown: GrownPlane, rect: dict) -> Plane:
         return grown.plane
 
 
-def _not_the_clicked_plane(own: Plane, top: Plane, x: float, y: float) -> bool:
-    """Whether the plane of the click's own window ``own`` differs from the grown top's at the click by more
-    than ``MERGED_SIGMAS`` of their combined disparity one-sigma (Eq. 11 covariances): a neighbour's top
-    a few centimetres higher or lower joined the grown face and tilted or shifted its plane."""
-    g = np.array([x, y, 1.0])
-    diff = float(own.disparity_at(x, y) - top.disparity_at(x, y))
-    return abs(diff) > MERGED_SIGMAS * math.sqrt(float(g @ own.cov @ g + g @ top.cov @ g))
-
-
 def _on_face(face: Plane, floor: Plane, cpx: np.ndarray, sig: np.ndarray) -> tuple[np.ndarray, np.ndarray, list[float], tuple[float, float]]:
     """Step 4-5: the corners (4 x 3, m) where the found rectangle's corner pixels ``cpx`` meet the face
     plane, the two lengths (m) and their one-sigmas from the sides' ``sig`` (m) and the plane's sigma
@@ -248,7 +238,9 @@ def _on_face(face: Plane, floor: Plane, cpx: np.ndarray, sig: np.ndarray) -> tup
     dims = _lengths(corners)
     # The plane's uncertainty moves the corners along their rays: its sigma points give the lengths' spread.
     spread = sigma_of(np.array([_lengths(face.points_at(cpx[:, 0], cpx[:, 1], c)) for c in face.coefficient_samples()]))
-    sig_dims = [math.sqrt(sig[0] ** 2 + sig[1] ** 2 + spread[0] ** 2), math.sqrt(sig[2] ** 2 + sig[3] ** 2 + spread[1] ** 2)]
+    offset = np.abs(_lengths(offset_plane(face).points_at(cpx[:, 0], cpx[:, 1])) - dims)
+    sig_dims = [math.sqrt(sig[0] ** 2 + sig[1] ** 2 + spread[0] ** 2 + offset[0] ** 2),
+                math.sqrt(sig[2] ** 2 + sig[3] ** 2 + spread[1] ** 2 + offset[1] ** 2)]
     cx, cy = (float(v) for v in cpx.mean(axis=0))
     height, s_h, _, _ = height_above(face, floor, cx, cy, 0.0)
     return corners, dims, sig_dims, (height, s_h)
@@ -301,7 +293,7 @@ def measure_box(frame: Frame, click_px: tuple[float, float], options: MeasureOpt
     cpx = rect["rf"].to_px(top, _corners(rect["pos"]))
     face = _face_plane(frame, grown, rect)
     corners, dims, sig_dims, (height, s_h) = _on_face(face, floor, cpx, rect["sig"])
-    reasons = _reasons(frame, grown, rect, between, _not_the_clicked_plane(window, top, x, y))
+    reasons = _reasons(frame, grown, rect, between, joined_another(window, top, x, y))
     fn, fo = floor.metric()
     base = corners - (corners @ fn + fo)[:, None] * fn
 

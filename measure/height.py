@@ -17,7 +17,7 @@ from collections.abc import Sequence
 
 import numpy as np
 
-from measure.planes import SEED_HALF_PX, Plane, fit_plane, grow_plane, sigma_of, window_pixels
+from measure.planes import SEED_HALF_PX, Plane, fit_plane, grow_plane, joined_another, offset_plane, sigma_of, window_pixels
 from measure.sampling import check_point
 from measure.shape_types import ShapeMeasurement
 from measure.support import check_options, check_points, parallel_support, shrunk_pixels, support_plane, verdict
@@ -49,13 +49,15 @@ def height_above(top: Plane, base: Plane, x: float, y: float, click_px: float) -
     n, o = base.metric()
     p = top.points_at(x, y)
     h = float(n @ p + o)
+    n_off, o_off = offset_plane(base).metric()
+    s_offset = abs(float(n_off @ offset_plane(top).points_at(x, y) + o_off) - h)
     tops = top.points_at(x, y, top.coefficient_samples())
     s_top = float(sigma_of(tops @ n + o))
     s_base = float(sigma_of(np.array([(lambda m: m[0] @ p + m[1])(base.metric(c)) for c in base.coefficient_samples()])))
     c = click_px
     moved = top.points_at(np.array([x + c, x - c, x, x]), np.array([y, y, y + c, y - c])) @ n + o
     s_click = math.hypot((moved[0] - moved[1]) / 2, (moved[2] - moved[3]) / 2)
-    return h, math.sqrt(s_top**2 + s_base**2 + s_click**2), p, p - h * n
+    return h, math.sqrt(s_top**2 + s_base**2 + s_click**2 + s_offset**2), p, p - h * n
 
 
 def measure_height(frame: Frame, point: tuple[float, float], base: Sequence[tuple[float, float]] | None = None,
@@ -104,6 +106,10 @@ def measure_height(frame: Frame, point: tuple[float, float], base: Sequence[tupl
             raise MeasureError("no plane found under the point; click three or more points around a region of "
                                "the floor or table to measure from")
         clicks = ((x, y),)
+        # The point on the surface grown from it where that is the window's own plane: a plane over a
+        # whole box top averages the rounding of many disparity levels, a 15 px window's sees one or two.
+        if not joined_another(top, grown.plane, x, y):
+            top = grown.plane
     h, sigma, p, foot = height_above(top, floor, x, y, opts.click_px)
     if h <= 0:
         raise MeasureError("the point is not above the base plane (it is on it or behind it); click the object's top "

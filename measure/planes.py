@@ -48,6 +48,12 @@ CLEAN_SHARE = 0.95
 START_CONFIDENCE = 0.999
 MIN_STARTS = 50
 MAX_STARTS = 200
+# One-sigma disparity offset common to a whole frame (px): the stereo calibration's drift with
+# temperature and flex, a few tenths of a pixel on a consumer device. No fit over one frame sees it
+# (every plane moves together), and it scales every length by about its share of the disparity
+# (docs/decisions/shape-calibration-offset.md).
+CALIBRATION_PX = 0.3
+MERGED_SIGMAS = 4.0
 
 
 @dataclass(frozen=True)
@@ -114,6 +120,23 @@ def parallel_plane(plane: Plane, offset_m: float) -> Plane:
     k = plane.fb / offset_m
     a, b = -k * n[0] / plane.fx, -k * n[1] / plane.fy
     return replace(plane, coeffs=(float(a), float(b), float(-k * n[2] - a * plane.cx - b * plane.cy - plane.doffs)))
+
+
+def offset_plane(plane: Plane, delta_px: float = CALIBRATION_PX) -> Plane:
+    """``plane`` as a disparity offset of ``delta_px`` common to the frame would show it (gamma + delta):
+    a shape measured on offset planes, less the one measured, is that offset's share of its error."""
+    a, b, g = plane.coeffs
+    return replace(plane, coeffs=(a, b, g + delta_px))
+
+
+def joined_another(own: Plane, grown: Plane, x: float, y: float) -> bool:
+    """Whether the plane of a click's own window ``own`` differs from the plane grown from it at the
+    click (x, y px) by more than ``MERGED_SIGMAS`` of their combined disparity one-sigma (Eq. 11
+    covariances): a neighbour's top a few centimetres higher or lower joined the grown face and
+    tilted or shifted its plane."""
+    g = np.array([x, y, 1.0])
+    diff = float(own.disparity_at(x, y) - grown.disparity_at(x, y))
+    return abs(diff) > MERGED_SIGMAS * math.sqrt(float(g @ own.cov @ g + g @ grown.cov @ g))
 
 
 def sigma_of(samples: np.ndarray) -> np.ndarray:

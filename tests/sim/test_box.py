@@ -119,3 +119,30 @@ def test_the_floor_under_a_box_is_not_lifted_by_its_side_faces():
         offsets.append(1000 * ((n @ p + o) - (truth[:3] @ p + truth[3])))  # mm, + = the floor found lower
     assert len(offsets) >= 8
     assert abs(np.median(offsets)) <= 0.6, np.round(offsets, 1)
+
+
+def test_box_and_height_sigmas_hold_a_calibration_offset():
+    """A disparity offset common to the frame (the calibration's drift, ``CALIBRATION_PX``) moves every
+    plane together, so no fit sees it; at 20 px of disparity (1.5 m at 640 px) it moves a box's
+    dimensions by 1.5-3 %, several times the fit's own sigma on the stress profile's frames (0.2-0.6 %).
+    Each one-sigma is at least what that offset moves the answer by."""
+    from dataclasses import replace
+
+    from measure.height import measure_height
+    from measure.planes import CALIBRATION_PX
+
+    held = 0
+    for seed in range(4):
+        case = box_case(seed, range_m=1.5, variant="plain", width=W, height=H)
+        moved = replace(case.frame, disparity=case.frame.disparity + np.float32(CALIBRATION_PX))
+        try:
+            a, b = measure_box(case.frame, case.click_px), measure_box(moved, case.click_px)
+            ha, hb = measure_height(case.frame, case.click_px), measure_height(moved, case.click_px)
+        except MeasureError:
+            continue
+        shift = np.abs(np.array(b.dimensions_m) - np.array(a.dimensions_m))
+        assert np.all(shift > 0.01 * np.array(a.dimensions_m)), shift  # the offset does move the answer
+        assert np.all(np.array(a.uncertainty_m) >= 0.8 * shift), (a.uncertainty_m, shift)
+        assert ha.uncertainty >= 0.8 * abs(hb.value - ha.value), (ha.uncertainty, hb.value - ha.value)
+        held += 1
+    assert held >= 3
