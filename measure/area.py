@@ -3,8 +3,9 @@
 Steps: the robust plane of the pixels inside the polygon, shrunk by ``ERODE_PX`` away from its
 edges (``measure.height.region_plane``, Eq. 9-10); each corner where its click's viewing ray meets
 that plane; the area of the 3D polygon, A = |sum_i (P_i x P_i+1) . n| / 2 (Eq. 13). One-sigma: the
-plane's covariance through its sigma points and each corner moved ``click_px`` along x and y, in
-quadrature, times ``AREA_SIGMA_SCALE``. The answer is "unreliable" when fewer than ``ONE_PLANE_SHARE``
+plane's covariance through its sigma points, each corner moved ``click_px`` along x and y and a
+disparity offset common to the frame (``measure.planes.CALIBRATION_PX``), in quadrature, times
+``AREA_SIGMA_SCALE``. The answer is "unreliable" when fewer than ``ONE_PLANE_SHARE``
 of the polygon's pixels lie on the plane within the sensor's noise (``one_plane_share``): the polygon
 does not lie on one surface.
 """

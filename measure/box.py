@@ -17,7 +17,8 @@ Steps (docs/method.md Eq. 9-15):
    are the means of opposite sides. The height: the rectangle's centre on that plane above the
    supporting plane (``measure.height.height_above``, Eq. 12).
 5. One-sigma per length: both sides' (the image edge's, or the depth's with the fattening reach) and
-   the face plane's covariance through its sigma points, in quadrature; times ``BOX_SIGMA_SCALE``
+   the face plane's covariance through its sigma points and a disparity offset common to the frame
+   (``measure.planes.CALIBRATION_PX``), in quadrature; times ``BOX_SIGMA_SCALE``
    (docs/decisions/box-edges.md). The verdict says "check" for a box cut by the image border, a side
    that shows no step in the colour image, a face partly hidden by something in front, a top that is
    not rectangular or not parallel to its floor, or a grown top whose plane is not the click window's

@@ -1,12 +1,14 @@
 """Height of a clicked point above a plane: the floor or a table, clicked as a region or found under the point.
 
 Steps (metres, px): the point is where the click's viewing ray meets the robust plane of the window
-around it (``measure.planes.fit_plane``, Eq. 9-10); the base is the robust plane of a clicked polygon or grown from one click,
-or the plane the clicked surface stands on: the dense level parallel to it below it
-(``measure.support.parallel_support``), else the dominant plane around it (``support_plane``); the height is the
-signed distance n . P + o of the point from the base (Eq. 12). Its one-sigma adds in quadrature the
-two planes' covariances (propagated with their sigma points) and the click's ``click_px`` along x and
-y, times ``HEIGHT_SIGMA_SCALE`` (docs/decisions/shape-uncertainty.md).
+around it (``measure.planes.fit_plane``, Eq. 9-10), or, with no base clicked, of the surface grown from
+it where that is the window's own plane (``measure.planes.joined_another``); the base is the robust
+plane of a clicked polygon or grown from one click, or the plane the clicked surface stands on: the
+dense level parallel to it below it (``measure.support.parallel_support``), else the dominant plane
+around it (``support_plane``); the height is the signed distance n . P + o of the point from the base
+(Eq. 12). Its one-sigma adds in quadrature the two planes' covariances (propagated with their sigma
+points), the click's ``click_px`` along x and y and a disparity offset common to the frame
+(``measure.planes.CALIBRATION_PX``), times ``HEIGHT_SIGMA_SCALE`` (docs/decisions/shape-uncertainty.md).
 """
 
 from __future__ import annotations
@@ -17,7 +19,7 @@ from collections.abc import Sequence
 
 import numpy as np
 
-from measure.planes import SEED_HALF_PX, Plane, fit_plane, grow_plane, joined_another, offset_plane, sigma_of, window_pixels
+from measure.planes import SEED_HALF_PX, GrownPlane, Plane, fit_plane, grow_plane, joined_another, offset_plane, sigma_of, window_pixels
 from measure.sampling import check_point
 from measure.shape_types import ShapeMeasurement
 from measure.support import check_options, check_points, parallel_support, shrunk_pixels, support_plane, verdict
@@ -26,6 +28,9 @@ from measure.types import Frame, MeasureError, MeasureOptions
 HEIGHT_SIGMA_SCALE = 1.0
 MIN_DROP_M = 0.02  # a level this close below the top is the top's own noise, not a base
 EDGE_SHARE = 0.6  # a click window with fewer of its pixels on its plane straddles an edge
+INNER_PX = 8  # the grown surface's plane refit this far inside its outline (a box_edges.FATTEN_REACH_PX)
+MIN_INNER_PX = 60
+FEW_LEVELS = 3  # a click window on this many disparity levels or fewer: its plane is the rounding's
 
 
 def window_plane(frame: Frame, x: float, y: float, seed: int) -> Plane:
@@ -34,6 +39,28 @@ def window_plane(frame: Frame, x: float, y: float, seed: int) -> Plane:
         return fit_plane(frame, *window_pixels(frame, x, y), seed)
     except MeasureError as err:
         raise MeasureError(f"the click ({x:g}, {y:g}) is not on a surface with depth: {err}") from None
+
+
+def _levels(frame: Frame, x: float, y: float) -> int:
+    """Distinct valid disparities in the click window around pixel (x, y)."""
+    d = frame.disparity[window_pixels(frame, x, y)[::-1]]
+    return int(np.unique(d[frame.valid(d)]).size)
+
+
+def inner_plane(frame: Frame, grown: GrownPlane, seed: int) -> Plane:
+    """The grown surface's plane refit on its pixels at least ``INNER_PX`` inside its outline: next to
+    a crease the grown surface holds side-face pixels within its tolerance (two levels on integer
+    disparity), which tilt its plane. With fewer than ``MIN_INNER_PX`` such pixels the grown plane stays."""
+    import cv2
+
+    inner = cv2.erode(grown.mask.astype(np.uint8), np.ones((2 * INNER_PX + 1,) * 2, np.uint8))
+    ys, xs = np.nonzero(inner)
+    if len(xs) < MIN_INNER_PX:
+        return grown.plane
+    try:
+        return fit_plane(frame, xs, ys, seed, start=grown.plane)
+    except MeasureError:
+        return grown.plane
 
 
 def region_plane(frame: Frame, vertices: np.ndarray, seed: int, erode_px: int = 0) -> Plane:
@@ -106,10 +133,10 @@ def measure_height(frame: Frame, point: tuple[float, float], base: Sequence[tupl
             raise MeasureError("no plane found under the point; click three or more points around a region of "
                                "the floor or table to measure from")
         clicks = ((x, y),)
-        # The point on the surface grown from it where that is the window's own plane: a plane over a
-        # whole box top averages the rounding of many disparity levels, a 15 px window's sees one or two.
-        if not joined_another(top, grown.plane, x, y):
-            top = grown.plane
+        # A window on a few quantized levels puts the point up to half a level off; a plane over the
+        # whole surface grown from it (where that is the window's own) averages many levels.
+        if _levels(frame, x, y) <= FEW_LEVELS and not joined_another(top, grown.plane, x, y):
+            top = inner_plane(frame, grown, opts.seed)
     h, sigma, p, foot = height_above(top, floor, x, y, opts.click_px)
     if h <= 0:
         raise MeasureError("the point is not above the base plane (it is on it or behind it); click the object's top "
