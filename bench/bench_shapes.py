@@ -3,7 +3,7 @@
 Times ``measure_box`` (a click on the top face), ``measure_height`` (the same click, above the plane
 found under it) and ``measure_area`` (a polygon inside the top face), each against the segment
 along the top face's diagonal (``measure_distance``) timed alongside in blocks, so the ratio to a
-segment is the steadier figure on this shared host. CPU time of this process, one BLAS thread.
+segment is the steadier figure on this shared host. CPU time of this process, one BLAS and one OpenCV thread.
 Run: ``python -m bench.bench_shapes`` or ``depthruler bench shapes``; ``--runs 3 --write`` records
 the table in bench/RESULTS.md.
 """
@@ -56,25 +56,39 @@ def calls(seed: int) -> dict:
 
 def run(repeats: int = 15) -> list[dict]:
     """Per seed and shape: CPU and wall ms of ``repeats`` calls, interleaved with the segment's."""
+    import cv2
     from threadpoolctl import threadpool_limits
 
     rows = []
-    with threadpool_limits(1):
-        for seed in SEEDS:
-            fns = calls(seed)
-            for fn in fns.values():  # warm-up
-                fn()
-            times = {k: [] for k in fns}
-            for _ in range(repeats):
-                for k, fn in fns.items():
-                    times[k].append(_cpu_wall(fn))
-            seg = np.array(times["segment"])
-            for k in ("box", "height", "area"):
-                t = np.array(times[k])
-                rows.append({"seed": seed, "shape": k, "cpu_median_ms": float(np.median(t[:, 0])),
-                             "cpu_p90_ms": float(np.percentile(t[:, 0], 90)), "wall_median_ms": float(np.median(t[:, 1])),
-                             "segment_cpu_ms": float(np.median(seg[:, 0])),
-                             "ratio": float(np.median(t[:, 0]) / np.median(seg[:, 0]))})
+    threads = cv2.getNumThreads()
+    # One OpenCV thread too: its pool's threads add their CPU time to the process's (more than the wall
+    # time they save on this 2-core host), which would count the same work more than once.
+    cv2.setNumThreads(1)
+    try:
+        with threadpool_limits(1):
+            for seed in SEEDS:
+                rows += _seed_rows(seed, repeats)
+    finally:
+        cv2.setNumThreads(threads)
+    return rows
+
+
+def _seed_rows(seed: int, repeats: int) -> list[dict]:
+    fns = calls(seed)
+    for fn in fns.values():  # warm-up
+        fn()
+    times = {k: [] for k in fns}
+    for _ in range(repeats):
+        for k, fn in fns.items():
+            times[k].append(_cpu_wall(fn))
+    seg = np.array(times["segment"])
+    rows = []
+    for k in ("box", "height", "area"):
+        t = np.array(times[k])
+        rows.append({"seed": seed, "shape": k, "cpu_median_ms": float(np.median(t[:, 0])),
+                     "cpu_p90_ms": float(np.percentile(t[:, 0], 90)), "wall_median_ms": float(np.median(t[:, 1])),
+                     "segment_cpu_ms": float(np.median(seg[:, 0])),
+                     "ratio": float(np.median(t[:, 0]) / np.median(seg[:, 0]))})
     return rows
 
 
@@ -91,7 +105,7 @@ def report(runs: list[list[dict]], load: tuple[float, float], date: str) -> str:
              f"(`sim.shapes.box_case`, stress profile, seeds {', '.join(map(str, SEEDS))}), 1280x720; `measure_box` at the click on "
              "its top face, `measure_height` at the same click, `measure_area` of a polygon at 70 % of the top face; "
              "each call interleaved with the segment along the polygon's diagonal (`measure_distance`), whose time is the "
-             "reference (x segment). CPU time of this process, one BLAS thread, median of the timed calls after a warm-up. "
+             "reference (x segment). CPU time of this process, one BLAS and one OpenCV thread, median of the timed calls after a warm-up. "
              "Targets (issue \"Measure shapes\"): box <= 50 ms, height and area <= 10 ms.", "", HEADER,
              *(_row(i + 1, r) for i, rows in enumerate(runs) for r in rows), "",
              f"Machine: {machine()}, numpy {np.__version__}; {date}; 1-minute load average {load[0]:.2f} before, {load[1]:.2f} after.",

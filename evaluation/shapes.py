@@ -106,8 +106,14 @@ def _panel_record(job: ShapeJob) -> dict[str, Any]:
 
 
 def run_job(job: ShapeJob) -> dict[str, Any]:
-    """The record of one job (module docstring)."""
-    return _box_record(job) if job.kind == "box" else _panel_record(job)
+    """The record of one job (module docstring); the simulator's view caches are emptied after it (no
+    two jobs share a view)."""
+    from sim.sensor import clear_static_maps
+
+    try:
+        return _box_record(job) if job.kind == "box" else _panel_record(job)
+    finally:
+        clear_static_maps()
 
 
 def run(jobs: Sequence[ShapeJob], workers: int = 1, on_result: Callable[[dict], None] | None = None) -> list[dict[str, Any]]:

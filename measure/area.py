@@ -3,8 +3,9 @@
 Steps: the robust plane of the pixels inside the polygon, shrunk by ``ERODE_PX`` away from its
 edges (``measure.height.region_plane``, Eq. 9-10); each corner where its click's viewing ray meets
 that plane; the area of the 3D polygon, A = |sum_i (P_i x P_i+1) . n| / 2 (Eq. 13). One-sigma: the
-plane's covariance through its sigma points and each corner moved ``click_px`` along x and y, in
-quadrature, times ``AREA_SIGMA_SCALE``. The answer is "unreliable" when fewer than ``ONE_PLANE_SHARE``
+plane's covariance through its sigma points, each corner moved ``click_px`` along x and y and a
+disparity offset common to the frame (``measure.planes.CALIBRATION_PX``), in quadrature, times
+``AREA_SIGMA_SCALE``. The answer is "unreliable" when fewer than ``ONE_PLANE_SHARE``
 of the polygon's pixels lie on the plane within the sensor's noise (``one_plane_share``): the polygon
 does not lie on one surface.
 """
@@ -18,7 +19,7 @@ from collections.abc import Sequence
 import numpy as np
 
 from measure.height import region_plane
-from measure.planes import INLIER_SIGMAS, MIN_SIGMA_PX, Plane, sigma_of
+from measure.planes import INLIER_SIGMAS, MIN_SIGMA_PX, Plane, offset_plane, sigma_of
 from measure.shape_types import ShapeMeasurement
 from measure.support import check_options, check_points, cross2, polygon_mask, verdict
 from measure.types import Frame, MeasureError, MeasureOptions
@@ -44,21 +45,22 @@ def _crosses(v: np.ndarray) -> bool:
     return bool(((o1 * o2 < 0) & (o3 * o4 < 0)).any())
 
 
-def one_plane_share(frame: Frame, plane: Plane, mask: np.ndarray) -> float:
-    """Share of the pixels with depth in ``mask`` within ``INLIER_SIGMAS`` noise scales of ``plane``.
+def one_plane_share(frame: Frame, plane: Plane, vertices: np.ndarray) -> float:
+    """Share of the pixels with depth inside the polygon ``vertices`` within ``INLIER_SIGMAS`` noise scales of ``plane``.
 
     The noise scale comes from differences of horizontally neighbouring pixels (1.4826 MAD / sqrt(2),
     floored at 0.75 of the disparity quantum), not from the plane's own residuals: a plane fit across two
     surfaces inflates its residual scale until most pixels look like inliers; neighbour differences
     cancel the surfaces and keep the sensor's noise."""
-    d = frame.disparity
+    mask, x0, y0 = polygon_mask(frame.shape, vertices)
+    d = frame.disparity[y0:y0 + mask.shape[0], x0:x0 + mask.shape[1]]
     pair = mask[:, 1:] & mask[:, :-1]
     diff = (d[:, 1:] - d[:, :-1])[pair]
     diff = diff[np.isfinite(diff)]
     noise = 1.4826 * float(np.median(np.abs(diff))) / math.sqrt(2.0) if diff.size else 0.0
     noise = max(noise, 0.75 * plane.quantum, MIN_SIGMA_PX)
     ys, xs = np.nonzero(mask)
-    r = d[ys, xs] - plane.disparity_at(xs, ys)
+    r = d[ys, xs] - plane.disparity_at(xs + x0, ys + y0)
     r = r[np.isfinite(r)]
     return float(np.mean(np.abs(r) <= INLIER_SIGMAS * noise)) if r.size else 0.0
 
@@ -84,7 +86,9 @@ def area_on(plane: Plane, verts: np.ndarray, click_px: float) -> tuple[float, fl
     moved = verts[None] + shifts
     am = polygon_area(plane.points_at(moved[..., 0], moved[..., 1]), n).reshape(k, 2, 2)
     s_click = math.sqrt(float((((am[:, :, 0] - am[:, :, 1]) / 2) ** 2).sum()))
-    return area, math.hypot(float(sigma_of(samples)), s_click), corners
+    moved_plane = offset_plane(plane)
+    s_offset = abs(float(polygon_area(moved_plane.points_at(verts[:, 0], verts[:, 1]), moved_plane.metric()[0])) - area)
+    return area, math.sqrt(float(sigma_of(samples)) ** 2 + s_click**2 + s_offset**2), corners
 
 
 def measure_area(frame: Frame, vertices: Sequence[tuple[float, float]], options: MeasureOptions | None = None) -> ShapeMeasurement:
@@ -105,7 +109,7 @@ def measure_area(frame: Frame, vertices: Sequence[tuple[float, float]], options:
     area, sigma, corners = area_on(plane, verts, opts.click_px)
     sigma *= AREA_SIGMA_SCALE
     reasons: list[str] = []
-    share = one_plane_share(frame, plane, polygon_mask(frame.shape, verts))
+    share = one_plane_share(frame, plane, verts)
     off_plane = share < ONE_PLANE_SHARE
     if off_plane:
         reasons.append(f"polygon does not lie on one plane ({100 * share:.0f} % of its pixels do)")

@@ -5,23 +5,24 @@ Steps (docs/method.md Eq. 9-15):
 1. The top face: the robust plane grown from the click over its connected surface
    (``measure.planes.grow_plane``); its outline is where the disparity leaves that plane (a depth
    step to the floor, or the crease to a side face), not a bounding box of noisy points.
-2. The supporting plane: the robust plane around the top face, parallel to it and below it
-   (``measure.support.support_plane``). None found: the click is not on a box top (MeasureError).
+2. The supporting plane: the densest level parallel to the top and below it in a ring around the
+   face (``measure.support.parallel_levels``). None found: the click is not on a box top (MeasureError).
 3. The rectangle: the outline's pixels are put on the top plane (Eq. 2, 9); a minimum-area rectangle
-   gives the orientation, refined from the sides' own directions; each side lies at the median
+   gives the orientation, refined from the sides' own directions; each side first lies at the median
    offset of its outline pixels plus half a pixel's footprint outward (Eq. 15), from the middle
-   ``SIDE_SPAN`` of its length (corners are where outliers gather). Image-border pixels are no edge.
-4. The height: the top's centre above the supporting plane (``measure.height.height_above``, Eq. 12),
-   the top's plane refit on its interior, ``CREASE_BAND_PX`` inside the outline (side-face pixels near
-   a crease lie within the grown plane's tolerance and pull it down).
-5. One-sigma per dimension: both sides' median errors (MAD / sqrt(n / ``CORRELATED_PX``)), a
-   pixel's footprint over sqrt(3) each, ``BLEED_PX`` footprints for a side against the background
-   (edge fattening of unknown width), the plane's depth scale, and half the difference between the
-   outline's and the creases' sides (two models of one edge); times ``BOX_SIGMA_SCALE``
-   (docs/decisions/box-edges.md). The verdict says "check" for a box cut by the image border, a face
-   partly hidden by something in front, a top that is not rectangular or not parallel to its floor,
-   edge models that differ by more than ``EDGE_DISAGREE`` of a side, or a grown top whose plane is not
-   the click window's own (``MERGED_SIGMAS``: a neighbouring box's top joined it).
+   ``SIDE_SPAN`` of its length. Then each side goes where the colour image steps within the depth's
+   window (``measure.box_edges``), and the rectangle turns by those sides' mean tilt.
+4. The face's own plane: refit on the pixels inside the found rectangle, clear of its sides
+   (``_face_plane``); the rectangle's corners, lines in the image, are put on it, and the lengths
+   are the means of opposite sides. The height: the rectangle's centre on that plane above the
+   supporting plane (``measure.height.height_above``, Eq. 12).
+5. One-sigma per length: both sides' (the image edge's, or the depth's with the fattening reach) and
+   the face plane's covariance through its sigma points and a disparity offset common to the frame
+   (``measure.planes.CALIBRATION_PX``), in quadrature; times ``BOX_SIGMA_SCALE``
+   (docs/decisions/box-edges.md). The verdict says "check" for a box cut by the image border, a side
+   that shows no step in the colour image, a face partly hidden by something in front, a top that is
+   not rectangular or not parallel to its floor, or a grown top whose plane is not the click window's
+   own (``measure.planes.joined_another``: a neighbouring box's top joined it).
 """
 
 from __future__ import annotations
@@ -31,31 +32,24 @@ import time
 
 import numpy as np
 
+from measure.box_edges import AXES, CORRELATED_PX, FATTEN_REACH_PX, MIN_SIDE_POINTS, SIDE_SPAN, RectFrame, find_side
 from measure.height import height_above, window_plane
-from measure.planes import INLIER_SIGMAS, GrownPlane, Plane, fit_plane, grow_plane, sigma_of
+from measure.planes import INLIER_SIGMAS, GrownPlane, Plane, fit_plane, grow_plane, joined_another, offset_plane, sigma_of
 from measure.sampling import check_point
 from measure.shape_types import BoxMeasurement
-from measure.support import angle_deg, check_options, cross2, parallel_levels, verdict
+from measure.support import angle_deg, check_options, cross2, parallel_levels, shrunk_pixels, verdict
 from measure.types import Frame, MeasureError, MeasureOptions
 
 BOX_SIGMA_SCALE = 1.0
 MIN_TOP_PX = 60
+FACE_SHARE = 0.25
+EDGE_MARGIN_PX = 2.0
 FEW_TOP_PX = 300
 MIN_HEIGHT_M = 0.02
-SIDE_SPAN = 0.8
-CORRELATED_PX = 4.0
-BLEED_PX = 1.0
 FILL_MIN = 0.88
 HIDDEN_SHARE = 0.25
 OUTSIDE_PX = 6.0
 TILT_DEG = 5.0
-MIN_SIDE_POINTS = 8
-CREASE_BAND_PX = 14
-CREASE_RESIDUAL = 4.0
-CREASE_GAIN = 25.0
-CREASE_BINS = 5
-EDGE_DISAGREE = 0.05
-MERGED_SIGMAS = 4.0
 
 
 def _outline(mask: np.ndarray) -> np.ndarray:
@@ -126,7 +120,7 @@ def _rectangle(top: Plane, grown: GrownPlane, frame: Frame) -> dict:
     e = np.array([[math.cos(theta), math.sin(theta)], [-math.sin(theta), math.cos(theta)]])
     pos, sig, seen, outward = np.zeros(4), np.zeros(4), np.zeros(4, bool), []
     for k in range(4):
-        along, across, sign = (1, 0, 1.0) if k == 0 else (1, 0, -1.0) if k == 1 else (0, 1, 1.0) if k == 2 else (0, 1, -1.0)
+        along, across, sign = AXES[k]
         m3 = sign * (e[across, 0] * u + e[across, 1] * v)
         outward.append(m3)
         sel = inner & (side == k) & (np.abs(s[:, along]) <= SIDE_SPAN * half[along])
@@ -143,59 +137,40 @@ def _rectangle(top: Plane, grown: GrownPlane, frame: Frame) -> dict:
             pos[k] = half[across]
             f = float(np.median(foot)) if len(foot) else 0.0
             sig[k] = max(float(half[across]) * 0.1, f)
-        sig[k] = math.hypot(sig[k], BLEED_PX * float(np.median(foot[side == k])) if (side == k).any() else 0.0)
-    creases = _creases(frame, top, grown.mask, pc, u, v, np.array([ra, rb]), e, pos, half, seen)
-    outline_pos = pos.copy()
-    pos = np.where(np.isfinite(creases), creases, pos)
-    return {"pc": pc, "u": u, "v": v, "e": e, "pos": pos, "outline_pos": outline_pos, "sig": sig, "seen": seen, "outward": outward,
-            "line": line, "side": side, "inner": inner, "centre_px": centre_px, "ra_rb": np.array([ra, rb])}
+    rf = RectFrame(pc, u, v, np.array([ra, rb]), e)
+    # The face's pixels against the outline's own rectangle: a top that is no rectangle fills it poorly.
+    cpx = rf.to_px(top, _corners(pos))
+    area_px = 0.5 * abs(float(cross2(cpx[1] - cpx[0], cpx[2] - cpx[0]) + cross2(cpx[2] - cpx[0], cpx[3] - cpx[0])))
+    sides = [find_side(frame, top, rf, pos, k, float(sig[k])) if seen[k] else None for k in range(4)]
+    rf, pos, sig = _placed(rf, pos, sig, sides)
+    return {"rf": rf, "pos": pos, "sig": sig, "seen": seen, "outward": outward, "sides": sides,
+            "fill": float(grown.mask.sum()) / area_px if area_px > 0 else 0.0,
+            "line": line, "side": side, "inner": inner, "centre_px": centre_px}
 
 
-def _creases(frame: Frame, top: Plane, mask: np.ndarray, pc: np.ndarray, u: np.ndarray, v: np.ndarray,
-             centre: np.ndarray, e: np.ndarray, pos: np.ndarray, half: np.ndarray, seen: np.ndarray) -> np.ndarray:
-    """Eq. 16: each side's crease with the face beyond it, where the disparity residual to the top plane
-    starts a linear trend: a hinge fit to the residual's medians in one-pixel bins across the band of
-    ``CREASE_BAND_PX`` either side of the side. The trend must be significant, reach the inlier
-    tolerance within the band and be seen in ``CREASE_BINS`` bins beyond the hinge (a face, not the
-    thin fattened halo beyond a depth step). NaN for a side without: its outline stands."""
-    import cv2
+def _corners(pos: np.ndarray) -> np.ndarray:
+    """Rectangle coordinates (4 x 2, m) of the corners of the rectangle whose sides lie at ``pos``, in order around it."""
+    return np.array([[-pos[1], -pos[3]], [pos[0], -pos[3]], [pos[0], pos[2]], [-pos[1], pos[2]]])
 
-    ys, xs = np.nonzero(cv2.dilate(mask.astype(np.uint8), np.ones((2 * CREASE_BAND_PX + 1,) * 2, np.uint8)))
-    r = frame.disparity[ys, xs] - top.disparity_at(xs, ys)
-    tol = INLIER_SIGMAS * max(top.sigma_px, top.quantum * 0.75)
-    keep = np.abs(r) <= CREASE_RESIDUAL * tol  # outliers and the background beyond a depth step drop out
-    xs, ys, r = xs[keep], ys[keep], r[keep]
-    p3 = top.points_at(xs, ys)
-    s = (np.stack([(p3 - pc) @ u, (p3 - pc) @ v], axis=1) - centre) @ e.T
-    foot = float(np.median(np.linalg.norm(top.points_at(xs + 1.0, ys) - p3, axis=1))) if len(xs) else 0.0
-    out = np.full(4, np.nan)
-    noise2 = (1.2533 * max(top.sigma_px, top.quantum / math.sqrt(12.0))) ** 2 * CORRELATED_PX
-    nb = 2 * CREASE_BAND_PX
-    centres = (np.arange(nb) - CREASE_BAND_PX + 0.5) * foot
+
+def _placed(rf: RectFrame, pos: np.ndarray, sig: np.ndarray, sides: list) -> tuple[RectFrame, np.ndarray, np.ndarray]:
+    """The rectangle turned by the image-found sides' weighted mean tilt, and every side's position
+    (m) measured again across the turned axes from its own middle."""
+    tilts = [(-sd.tilt if k < 2 else sd.tilt, sd.tilt_weight) for k, sd in enumerate(sides) if sd is not None and sd.tilt_weight > 0]
+    turn = float(np.average([t for t, _ in tilts], weights=[wt for _, wt in tilts])) if tilts else 0.0
+    c, sn = math.cos(turn), math.sin(turn)
+    e2 = np.array([[c, sn], [-sn, c]]) @ rf.e
+    new_pos, new_sig = pos.copy(), sig.copy()
     for k in range(4):
-        if not seen[k] or foot <= 0:
-            continue
-        along, across, sign = (1, 0, 1.0) if k == 0 else (1, 0, -1.0) if k == 1 else (0, 1, 1.0) if k == 2 else (0, 1, -1.0)
-        t = sign * s[:, across] - pos[k]
-        sel = (np.abs(s[:, along]) <= SIDE_SPAN * half[along]) & (np.abs(t) < CREASE_BAND_PX * foot)
-        b = np.floor(t[sel] / foot).astype(int) + CREASE_BAND_PX
-        rk = r[sel]
-        counts = np.bincount(b, minlength=nb)[:nb]
-        order = np.argsort(b, kind="stable")
-        groups = np.split(rk[order], np.cumsum(counts)[:-1])
-        med = np.array([float(np.median(g)) if len(g) else 0.0 for g in groups])
-        w = counts.astype(float)
-        grid = np.arange(-CREASE_BAND_PX, 0.25, 0.25) * foot
-        hinge = np.maximum(centres[None, :] - grid[:, None], 0.0)
-        su, sru = (w * hinge**2).sum(axis=1), (w * hinge * med).sum(axis=1)
-        gain = np.where(su > 0, sru**2 / np.maximum(su, 1e-30), 0.0)
-        best = int(np.argmax(gain))
-        slope = sru[best] / su[best] if su[best] > 0 else 0.0
-        reach = abs(slope) * (CREASE_BAND_PX * foot - grid[best])
-        beyond = int(((centres > grid[best]) & (counts >= MIN_SIDE_POINTS)).sum())
-        if gain[best] > CREASE_GAIN * noise2 and reach >= tol and beyond >= CREASE_BINS:
-            out[k] = pos[k] + grid[best]
-    return out
+        along, across, sign = AXES[k]
+        p = sides[k].pos if sides[k] is not None else pos[k]
+        lo, hi = (-pos[3], pos[2]) if along == 1 else (-pos[1], pos[0])
+        mid = np.zeros(2)
+        mid[along], mid[across] = (lo + hi) / 2.0, sign * p
+        new_pos[k] = sign * float((mid @ rf.e) @ e2[across])
+        if sides[k] is not None:
+            new_sig[k] = sides[k].sigma
+    return RectFrame(rf.pc, rf.u, rf.v, rf.centre, e2), new_pos, new_sig
 
 
 def _hidden_sides(frame: Frame, top: Plane, rect: dict) -> list[int]:
@@ -228,42 +203,66 @@ def _hidden_sides(frame: Frame, top: Plane, rect: dict) -> list[int]:
     return out
 
 
-def _interior_plane(frame: Frame, grown: GrownPlane, seed: int) -> Plane:
-    """The grown top's plane refit on the pixels at least ``CREASE_BAND_PX`` inside its outline, for the
-    height at the top's centre.
+def _lengths(c: np.ndarray) -> np.ndarray:
+    """The two side lengths (m) of a quadrilateral of corners ``c`` (4 x 3, in order): each the mean of its pair."""
+    side = np.linalg.norm(np.roll(c, -1, axis=0) - c, axis=1)
+    return np.array([(side[0] + side[2]) / 2.0, (side[1] + side[3]) / 2.0])
 
-    Near a crease the side face stays within the top's inlier tolerance for a few pixels (the more
-    noise, the wider the tolerance): grown over, they pull the plane down towards the sides and the
-    height at the centre with it. The crease band is where a side face can hide in the top's tolerance,
-    so the height's plane comes from inside it. The rectangle keeps the grown plane: at range the
-    interior is few pixels, and the outline's pixels are projected best by the plane fit over them
-    all (measured: docs/decisions/shape-uncertainty.md). With fewer than ``MIN_TOP_PX`` interior
-    pixels (a small or far top) the grown plane stays.
-    """
-    import cv2
 
-    k = 2 * CREASE_BAND_PX + 1
-    inner = cv2.erode(grown.mask.astype(np.uint8), np.ones((k, k), np.uint8), borderType=cv2.BORDER_REPLICATE).astype(bool)
-    if int(inner.sum()) < MIN_TOP_PX:
+def _face_plane(frame: Frame, grown: GrownPlane, rect: dict) -> Plane:
+    """The top's plane refit on the pixels of its found rectangle clear of its sides: ``FATTEN_REACH_PX``
+    inside a crease, ``EDGE_MARGIN_PX`` inside a depth step, and at most ``FACE_SHARE`` of the
+    rectangle's width from each side. The grown face also holds side-face pixels beyond its creases
+    (within its tolerance for a few to tens of pixels), and the face's own pixels next to a crease
+    take the ridge's disparity where the matcher flattens it: both tilt its plane, which shortens the
+    foreshortened side and lowers the height at the centre (docs/decisions/box-edges.md). With fewer
+    than ``MIN_TOP_PX`` such pixels the grown plane stays."""
+    pos, sides = rect["pos"].copy(), rect["sides"]
+    for k, sd in enumerate(sides):
+        if sd is not None:
+            margin = (FATTEN_REACH_PX if sd.crease else EDGE_MARGIN_PX) * sd.foot
+            pos[k] -= min(margin, FACE_SHARE * (pos[k] + pos[k ^ 1]))
+    xs, ys = shrunk_pixels(frame.shape, rect["rf"].to_px(grown.plane, _corners(pos)), 0)
+    if len(xs) < MIN_TOP_PX:
         return grown.plane
-    ys, xs = np.nonzero(inner)
     try:
-        return fit_plane(frame, xs, ys, seed, start=grown.plane)
+        return fit_plane(frame, xs, ys, seed=0, start=grown.plane)
     except MeasureError:
         return grown.plane
 
 
-def _not_the_clicked_plane(frame: Frame, top: Plane, x: float, y: float, seed: int) -> bool:
-    """Whether the plane of the click's own window differs from the grown top's at the click by more
-    than ``MERGED_SIGMAS`` of their combined disparity one-sigma (Eq. 11 covariances): a neighbour's top
-    a few centimetres higher or lower joined the grown face and tilted or shifted its plane."""
-    try:
-        own = window_plane(frame, x, y, seed)
-    except MeasureError:
-        return False
-    g = np.array([x, y, 1.0])
-    diff = float(own.disparity_at(x, y) - top.disparity_at(x, y))
-    return abs(diff) > MERGED_SIGMAS * math.sqrt(float(g @ own.cov @ g + g @ top.cov @ g))
+def _on_face(face: Plane, floor: Plane, cpx: np.ndarray, sig: np.ndarray) -> tuple[np.ndarray, np.ndarray, list[float], tuple[float, float]]:
+    """Step 4-5: the corners (4 x 3, m) where the found rectangle's corner pixels ``cpx`` meet the face
+    plane, the two lengths (m) and their one-sigmas from the sides' ``sig`` (m) and the plane's sigma
+    points, and the height (m) of the rectangle's centre above ``floor`` with its one-sigma."""
+    corners = face.points_at(cpx[:, 0], cpx[:, 1])
+    dims = _lengths(corners)
+    # The plane's uncertainty moves the corners along their rays: its sigma points give the lengths' spread.
+    spread = sigma_of(np.array([_lengths(face.points_at(cpx[:, 0], cpx[:, 1], c)) for c in face.coefficient_samples()]))
+    offset = np.abs(_lengths(offset_plane(face).points_at(cpx[:, 0], cpx[:, 1])) - dims)
+    sig_dims = [math.sqrt(sig[0] ** 2 + sig[1] ** 2 + spread[0] ** 2 + offset[0] ** 2),
+                math.sqrt(sig[2] ** 2 + sig[3] ** 2 + spread[1] ** 2 + offset[1] ** 2)]
+    cx, cy = (float(v) for v in cpx.mean(axis=0))
+    height, s_h, _, _ = height_above(face, floor, cx, cy, 0.0)
+    return corners, dims, sig_dims, (height, s_h)
+
+
+def _reasons(frame: Frame, grown: GrownPlane, rect: dict, between: bool, merged: bool) -> list[str]:
+    """Why the answer is one to check, from what the face, its sides and its surroundings showed."""
+    reasons: list[str] = []
+    if grown.touches_border or not rect["seen"].all():
+        reasons.append("box cut by the image border" if grown.touches_border else "an edge of the top face is not seen")
+    if any(sd is not None and sd.source != "image" for sd in rect["sides"]):
+        reasons.append("an edge of the top face shows no step in the colour image (placed from the depth alone)")
+    if between:
+        reasons.append("another level lies between the top and the plane it is measured from (a table or a neighbouring box)")
+    if merged:
+        reasons.append("the grown top is not the clicked face's plane (another surface joined it)")
+    if _hidden_sides(frame, grown.plane, rect):
+        reasons.append("top face partly hidden by something in front")
+    if rect["fill"] < FILL_MIN:
+        reasons.append(f"top face not rectangular ({100 * rect['fill']:.0f} % of its rectangle)")
+    return reasons
 
 
 def measure_box(frame: Frame, click_px: tuple[float, float], options: MeasureOptions | None = None) -> BoxMeasurement:
@@ -280,63 +279,29 @@ def measure_box(frame: Frame, click_px: tuple[float, float], options: MeasureOpt
     t0 = time.perf_counter()
     opts = check_options(options)
     x, y = check_point(frame, click_px, "click_px")
-    grown = grow_plane(frame, (x, y), opts.seed)
+    window = window_plane(frame, x, y, opts.seed)
+    grown = grow_plane(frame, (x, y), opts.seed, window=window)
     n_top = int(grown.mask.sum())
     if n_top < MIN_TOP_PX:
         raise MeasureError(f"the clicked face has only {n_top} pixels with depth; click the top face of a box nearer the camera")
     top, mask = grown.plane, grown.mask
-    ys, xs = np.nonzero(mask)
-    cx, cy = float(xs.mean()), float(ys.mean())
-    merged = _not_the_clicked_plane(frame, top, x, y, opts.seed)
     floor, between = parallel_levels(frame, mask, top, seed=opts.seed, min_drop_m=MIN_HEIGHT_M)
     if floor is None:
         raise MeasureError("no plane parallel to the clicked surface lies below it: this is not the top face of a box "
                            "standing on a floor or table (a click on the floor itself, a wall or a side face); "
                            "click the box's top face")
     rect = _rectangle(top, grown, frame)
-    pos, sig = rect["pos"], rect["sig"]
-    # Depth scale: every in-plane length scales with the plane's distance from the camera.
-    n, o = top.metric()
-    offs = np.array([top.metric(c)[1] for c in top.coefficient_samples()])
-    rel_scale = float(sigma_of(offs)) / o
-    dims = [pos[0] + pos[1], pos[2] + pos[3]]
-    sig_dims = [math.sqrt(sig[0] ** 2 + sig[1] ** 2 + (dims[0] * rel_scale) ** 2),
-                math.sqrt(sig[2] ** 2 + sig[3] ** 2 + (dims[1] * rel_scale) ** 2)]
-    # The two edge models, the outline's depth step and the crease's hinge, bracket each side: their
-    # difference is an uncertainty of the model, and a large one a reason to check the answer.
-    outline = rect["outline_pos"]
-    spread = [abs(dims[0] - outline[0] - outline[1]), abs(dims[1] - outline[2] - outline[3])]
-    sig_dims = [math.hypot(s, d / 2.0) for s, d in zip(sig_dims, spread)]
-    height, s_h, _, _ = height_above(_interior_plane(frame, grown, opts.seed), floor, cx, cy, 0.0)
-    reasons: list[str] = []
-    worst = max(d / v for d, v in zip(spread, dims)) if min(dims) > 0 else math.inf
-    if worst > EDGE_DISAGREE:
-        reasons.append(f"top face's edges uncertain (outline and creases differ by {100 * worst:.0f} %)")
-    if grown.touches_border or not rect["seen"].all():
-        reasons.append("box cut by the image border" if grown.touches_border else "an edge of the top face is not seen")
-    if between:
-        reasons.append("another level lies between the top and the plane it is measured from (a table or a neighbouring box)")
-    if merged:
-        reasons.append("the grown top is not the clicked face's plane (another surface joined it)")
-    hidden = _hidden_sides(frame, top, rect)
-    if hidden:
-        reasons.append("top face partly hidden by something in front")
-    e, pc, u, v = rect["e"], rect["pc"], rect["u"], rect["v"]
-    centre2 = rect["ra_rb"] + e[0] * (pos[0] - pos[1]) / 2 + e[1] * (pos[2] - pos[3]) / 2
-    corners2 = [centre2 + a * e[0] * dims[0] / 2 + b * e[1] * dims[1] / 2 for a, b in ((-1, -1), (1, -1), (1, 1), (-1, 1))]
-    corners = np.array([pc + c[0] * u + c[1] * v for c in corners2])
+    cpx = rect["rf"].to_px(top, _corners(rect["pos"]))
+    face = _face_plane(frame, grown, rect)
+    corners, dims, sig_dims, (height, s_h) = _on_face(face, floor, cpx, rect["sig"])
+    reasons = _reasons(frame, grown, rect, between, joined_another(window, top, x, y))
     fn, fo = floor.metric()
     base = corners - (corners @ fn + fo)[:, None] * fn
 
     def to_px(p: np.ndarray) -> np.ndarray:
         return np.stack([top.fx * p[:, 0] / p[:, 2] + top.cx, top.fy * p[:, 1] / p[:, 2] + top.cy], 1)
 
-    cpx = to_px(corners)
-    rect_px_area = 0.5 * abs(float(cross2(cpx[1] - cpx[0], cpx[2] - cpx[0]) + cross2(cpx[2] - cpx[0], cpx[3] - cpx[0])))
-    fill = n_top / rect_px_area if rect_px_area > 0 else 0.0
-    if fill < FILL_MIN:
-        reasons.append(f"top face not rectangular ({100 * fill:.0f} % of its rectangle)")
-    tilt = angle_deg(top, floor)
+    tilt = angle_deg(face, floor)
     if tilt > TILT_DEG:
         reasons.append(f"top face not parallel to the floor ({tilt:.0f} degrees)")
     few = n_top < FEW_TOP_PX

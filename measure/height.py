@@ -1,12 +1,14 @@
 """Height of a clicked point above a plane: the floor or a table, clicked as a region or found under the point.
 
 Steps (metres, px): the point is where the click's viewing ray meets the robust plane of the window
-around it (``measure.planes.fit_plane``, Eq. 9-10); the base is the robust plane of a clicked polygon or grown from one click,
-or the plane the clicked surface stands on: the dense level parallel to it below it
-(``measure.support.parallel_support``), else the dominant plane around it (``support_plane``); the height is the
-signed distance n . P + o of the point from the base (Eq. 12). Its one-sigma adds in quadrature the
-two planes' covariances (propagated with their sigma points) and the click's ``click_px`` along x and
-y, times ``HEIGHT_SIGMA_SCALE`` (docs/decisions/shape-uncertainty.md).
+around it (``measure.planes.fit_plane``, Eq. 9-10), or, with no base clicked, of the surface grown from
+it where that is the window's own plane (``measure.planes.joined_another``); the base is the robust
+plane of a clicked polygon or grown from one click, or the plane the clicked surface stands on: the
+dense level parallel to it below it (``measure.support.parallel_support``), else the dominant plane
+around it (``support_plane``); the height is the signed distance n . P + o of the point from the base
+(Eq. 12). Its one-sigma adds in quadrature the two planes' covariances (propagated with their sigma
+points), the click's ``click_px`` along x and y and a disparity offset common to the frame
+(``measure.planes.CALIBRATION_PX``), times ``HEIGHT_SIGMA_SCALE`` (docs/decisions/shape-uncertainty.md).
 """
 
 from __future__ import annotations
@@ -17,38 +19,55 @@ from collections.abc import Sequence
 
 import numpy as np
 
-from measure.planes import SEED_HALF_PX, Plane, fit_plane, grow_plane, sigma_of
+from measure.planes import SEED_HALF_PX, GrownPlane, Plane, fit_plane, grow_plane, joined_another, offset_plane, sigma_of, window_pixels
 from measure.sampling import check_point
 from measure.shape_types import ShapeMeasurement
-from measure.support import check_options, check_points, parallel_support, polygon_mask, support_plane, verdict
+from measure.support import check_options, check_points, parallel_support, shrunk_pixels, support_plane, verdict
 from measure.types import Frame, MeasureError, MeasureOptions
 
 HEIGHT_SIGMA_SCALE = 1.0
 MIN_DROP_M = 0.02  # a level this close below the top is the top's own noise, not a base
 EDGE_SHARE = 0.6  # a click window with fewer of its pixels on its plane straddles an edge
+INNER_PX = 8  # the grown surface's plane refit this far inside its outline (a box_edges.FATTEN_REACH_PX)
+MIN_INNER_PX = 60
+FEW_LEVELS = 3  # a click window on this many disparity levels or fewer: its plane is the rounding's
 
 
 def window_plane(frame: Frame, x: float, y: float, seed: int) -> Plane:
     """The robust plane of the (2 SEED_HALF_PX + 1)² window around pixel (x, y)."""
-    h, w = frame.shape
-    cx, cy, r = int(round(x)), int(round(y)), SEED_HALF_PX
-    yy, xx = np.mgrid[max(0, cy - r):min(h, cy + r + 1), max(0, cx - r):min(w, cx + r + 1)]
     try:
-        return fit_plane(frame, xx, yy, seed)
+        return fit_plane(frame, *window_pixels(frame, x, y), seed)
     except MeasureError as err:
         raise MeasureError(f"the click ({x:g}, {y:g}) is not on a surface with depth: {err}") from None
 
 
-def region_plane(frame: Frame, vertices: np.ndarray, seed: int, erode_px: int = 0) -> Plane:
-    """The robust plane of the pixels inside a clicked polygon (shrunk by ``erode_px`` when that leaves enough)."""
+def _levels(frame: Frame, x: float, y: float) -> int:
+    """Distinct valid disparities in the click window around pixel (x, y)."""
+    d = frame.disparity[window_pixels(frame, x, y)[::-1]]
+    return int(np.unique(d[frame.valid(d)]).size)
+
+
+def inner_plane(frame: Frame, grown: GrownPlane, seed: int) -> Plane:
+    """The grown surface's plane refit on its pixels at least ``INNER_PX`` inside its outline: next to
+    a crease the grown surface holds side-face pixels within its tolerance (two levels on integer
+    disparity), which tilt its plane. With fewer than ``MIN_INNER_PX`` such pixels the grown plane stays."""
     import cv2
 
-    mask = polygon_mask(frame.shape, vertices)
-    if erode_px:
-        shrunk = cv2.erode(mask.astype(np.uint8), np.ones((2 * erode_px + 1,) * 2, np.uint8)).astype(bool)
-        if shrunk.sum() >= 100:
-            mask = shrunk
-    ys, xs = np.nonzero(mask)
+    inner = cv2.erode(grown.mask.astype(np.uint8), np.ones((2 * INNER_PX + 1,) * 2, np.uint8))
+    ys, xs = np.nonzero(inner)
+    if len(xs) < MIN_INNER_PX:
+        return grown.plane
+    try:
+        return fit_plane(frame, xs, ys, seed, start=grown.plane)
+    except MeasureError:
+        return grown.plane
+
+
+def region_plane(frame: Frame, vertices: np.ndarray, seed: int, erode_px: int = 0) -> Plane:
+    """The robust plane of the pixels inside a clicked polygon (shrunk by ``erode_px`` when that leaves enough)."""
+    xs, ys = shrunk_pixels(frame.shape, vertices, erode_px)
+    if erode_px and len(xs) < 100:
+        xs, ys = shrunk_pixels(frame.shape, vertices, 0)
     return fit_plane(frame, xs, ys, seed)
 
 
@@ -57,13 +76,15 @@ def height_above(top: Plane, base: Plane, x: float, y: float, click_px: float) -
     n, o = base.metric()
     p = top.points_at(x, y)
     h = float(n @ p + o)
+    n_off, o_off = offset_plane(base).metric()
+    s_offset = abs(float(n_off @ offset_plane(top).points_at(x, y) + o_off) - h)
     tops = top.points_at(x, y, top.coefficient_samples())
     s_top = float(sigma_of(tops @ n + o))
     s_base = float(sigma_of(np.array([(lambda m: m[0] @ p + m[1])(base.metric(c)) for c in base.coefficient_samples()])))
     c = click_px
     moved = top.points_at(np.array([x + c, x - c, x, x]), np.array([y, y, y + c, y - c])) @ n + o
     s_click = math.hypot((moved[0] - moved[1]) / 2, (moved[2] - moved[3]) / 2)
-    return h, math.sqrt(s_top**2 + s_base**2 + s_click**2), p, p - h * n
+    return h, math.sqrt(s_top**2 + s_base**2 + s_click**2 + s_offset**2), p, p - h * n
 
 
 def measure_height(frame: Frame, point: tuple[float, float], base: Sequence[tuple[float, float]] | None = None,
@@ -101,7 +122,7 @@ def measure_height(frame: Frame, point: tuple[float, float], base: Sequence[tupl
             floor = region_plane(frame, verts, opts.seed, erode_px=3)
         clicks = ((x, y), *(tuple(v) for v in verts))
     else:
-        grown = grow_plane(frame, (x, y), opts.seed)
+        grown = grow_plane(frame, (x, y), opts.seed, window=top)
         # A level top (a box, a table) stands on a parallel level: the ring's dense level below it is the
         # floor or table alone, where a plane fit on the whole ring can tilt across side faces and a
         # second level (a box on a table). Other tops take the ring's dominant plane.
@@ -112,6 +133,10 @@ def measure_height(frame: Frame, point: tuple[float, float], base: Sequence[tupl
             raise MeasureError("no plane found under the point; click three or more points around a region of "
                                "the floor or table to measure from")
         clicks = ((x, y),)
+        # A window on a few quantized levels puts the point up to half a level off; a plane over the
+        # whole surface grown from it (where that is the window's own) averages many levels.
+        if _levels(frame, x, y) <= FEW_LEVELS and not joined_another(top, grown.plane, x, y):
+            top = inner_plane(frame, grown, opts.seed)
     h, sigma, p, foot = height_above(top, floor, x, y, opts.click_px)
     if h <= 0:
         raise MeasureError("the point is not above the base plane (it is on it or behind it); click the object's top "

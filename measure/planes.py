@@ -25,7 +25,7 @@ disparity; metric outputs in metres (camera frame).
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 
@@ -42,6 +42,18 @@ TUKEY_C = 4.685
 SEED_HALF_PX = 7
 MAX_LAG = 6
 CLOSE_PX = 7
+GROW_FIT_PIXELS = 1000
+CONVERGED_PX = 0.01
+CLEAN_SHARE = 0.95
+START_CONFIDENCE = 0.999
+MIN_STARTS = 50
+MAX_STARTS = 200
+# One-sigma disparity offset common to a whole frame (px): the stereo calibration's drift with
+# temperature and flex, a few tenths of a pixel on a consumer device. No fit over one frame sees it
+# (every plane moves together), and it scales every length by about its share of the disparity
+# (docs/decisions/shape-calibration-offset.md).
+CALIBRATION_PX = 0.3
+MERGED_SIGMAS = 4.0
 
 
 @dataclass(frozen=True)
@@ -101,6 +113,32 @@ class Plane:
         return np.vstack([c, c + axes.T, c - axes.T])
 
 
+def parallel_plane(plane: Plane, offset_m: float) -> Plane:
+    """``plane`` moved along its normal to the metric offset ``offset_m`` (Eq. 10 solved for Eq. 9's
+    coefficients; the covariance stays): a start for fitting a parallel surface."""
+    n = plane.metric()[0]
+    k = plane.fb / offset_m
+    a, b = -k * n[0] / plane.fx, -k * n[1] / plane.fy
+    return replace(plane, coeffs=(float(a), float(b), float(-k * n[2] - a * plane.cx - b * plane.cy - plane.doffs)))
+
+
+def offset_plane(plane: Plane, delta_px: float = CALIBRATION_PX) -> Plane:
+    """``plane`` as a disparity offset of ``delta_px`` common to the frame would show it (gamma + delta):
+    a shape measured on offset planes, less the one measured, is that offset's share of its error."""
+    a, b, g = plane.coeffs
+    return replace(plane, coeffs=(a, b, g + delta_px))
+
+
+def joined_another(own: Plane, grown: Plane, x: float, y: float) -> bool:
+    """Whether the plane of a click's own window ``own`` differs from the plane grown from it at the
+    click (x, y px) by more than ``MERGED_SIGMAS`` of their combined disparity one-sigma (Eq. 11
+    covariances): a neighbour's top a few centimetres higher or lower joined the grown face and
+    tilted or shifted its plane."""
+    g = np.array([x, y, 1.0])
+    diff = float(own.disparity_at(x, y) - grown.disparity_at(x, y))
+    return abs(diff) > MERGED_SIGMAS * math.sqrt(float(g @ own.cov @ g + g @ grown.cov @ g))
+
+
 def sigma_of(samples: np.ndarray) -> np.ndarray:
     """One-sigma of a quantity evaluated at :meth:`Plane.coefficient_samples` (first axis: the 7 points)."""
     s = np.asarray(samples, float)
@@ -121,14 +159,26 @@ def _weighted_fit(x: np.ndarray, y: np.ndarray, d: np.ndarray, w: np.ndarray) ->
     return np.linalg.solve(aw.T @ ax + 1e-12 * np.eye(3), aw.T @ d)
 
 
-def _start(x: np.ndarray, y: np.ndarray, d: np.ndarray, seed: int) -> tuple[np.ndarray, bool]:
-    """Step 1: FAST-MCD on (x, y, d) of at most MCD_POINTS pixels; the plane as Eq. 9 coefficients."""
+def _start(x: np.ndarray, y: np.ndarray, d: np.ndarray, seed: int, floor: float) -> tuple[np.ndarray, bool]:
+    """Step 1: the least-squares plane when ``CLEAN_SHARE`` of the pixels lie within ``INLIER_SIGMAS``
+    robust scales (floored at ``floor``) of it (a window inside one face), else FAST-MCD on (x, y, d)
+    of at most MCD_POINTS pixels; the plane as Eq. 9 coefficients and whether it is an exact fit."""
+    ls = _weighted_fit(x, y, d, np.ones(len(x)))
+    r = d - (ls[0] * x + ls[1] * y + ls[2])
+    scale = max(floor, 1.4826 * float(median(np.abs(r - median(r)))))
+    share = float(np.mean(np.abs(r) <= INLIER_SIGMAS * scale))
+    if share >= CLEAN_SHARE:
+        return ls, False
+    # Random starts for a clean 4-point subset with probability START_CONFIDENCE at twice the
+    # contamination the least-squares plane shows (it hides some), at most half.
+    bad = min(0.5, 2.0 * (1.0 - share))
+    starts = math.ceil(math.log(1.0 - START_CONFIDENCE) / math.log(1.0 - (1.0 - bad) ** 4))
     idx = np.arange(len(x))
     if len(idx) > MCD_POINTS:
         idx = np.sort(np.random.default_rng(seed).choice(len(x), MCD_POINTS, replace=False))
     x0, y0 = float(x[idx].mean()), float(y[idx].mean())
     pts = np.stack([x[idx] - x0, y[idx] - y0, d[idx]], axis=1)
-    res = fast_mcd(pts, seed=seed, n_starts=200)
+    res = fast_mcd(pts, seed=seed, n_starts=int(np.clip(starts, MIN_STARTS, MAX_STARTS)))
     if res.exact_fit and res.fit_kind == "hyperplane":
         nx, ny, nd, off = res.plane
     else:
@@ -144,28 +194,38 @@ def _start(x: np.ndarray, y: np.ndarray, d: np.ndarray, seed: int) -> tuple[np.n
 def _correlation_inflation(x: np.ndarray, y: np.ndarray, r: np.ndarray) -> float:
     """Eq. 11: (1 + 2 sum_l rho_x(l)) (1 + 2 sum_l rho_y(l)) of the residuals on their pixel grid."""
     x0, y0 = int(x.min()), int(y.min())
-    grid = np.full((int(y.max()) - y0 + 1, int(x.max()) - x0 + 1), np.nan)
+    shape = (int(y.max()) - y0 + 1, int(x.max()) - x0 + 1)
+    grid, have = np.zeros(shape), np.zeros(shape, bool)  # zeros where no residual: they add nothing to a sum
     grid[y.astype(int) - y0, x.astype(int) - x0] = r
-    var = float(np.nanmean(grid**2))
+    have[y.astype(int) - y0, x.astype(int) - x0] = True
+    var = float(np.mean(r**2)) if r.size else 0.0
     if not var > 0:
         return 1.0
     out = 1.0
     for axis in (0, 1):
         total = 0.0
         for lag in range(1, MAX_LAG + 1):
-            if grid.shape[axis] <= lag:
+            if shape[axis] <= lag:
                 break
-            a = grid[lag:] if axis == 0 else grid[:, lag:]
-            b = grid[:-lag] if axis == 0 else grid[:, :-lag]
-            prod = a * b
-            if np.isfinite(prod).sum() < 10:
+            a, b = (grid[lag:], grid[:-lag]) if axis == 0 else (grid[:, lag:], grid[:, :-lag])
+            pairs = int(np.count_nonzero(have[lag:] & have[:-lag] if axis == 0 else have[:, lag:] & have[:, :-lag]))
+            if pairs < 10:
                 break
-            rho = float(np.nanmean(prod)) / var
+            rho = float(np.einsum("ij,ij->", a, b)) / pairs / var
             if rho <= 0.05:
                 break
             total += rho
         out *= 1.0 + 2.0 * total
     return out
+
+
+def _grid_pixels(mask: np.ndarray, x0: int, y0: int, most: int = MAX_FIT_PIXELS) -> tuple[np.ndarray, np.ndarray]:
+    """The pixels (xs, ys) of ``mask`` (placed at x0, y0 in the frame) as :func:`fit_plane` thins them:
+    every k-th row and column of the frame for at most ``most``, without listing them all first."""
+    n = int(np.count_nonzero(mask))
+    k = int(math.ceil(math.sqrt(n / most))) if n > most else 1
+    ys, xs = np.nonzero(mask[(-y0) % k::k, (-x0) % k::k])
+    return xs * k + (-x0) % k + x0, ys * k + (-y0) % k + y0
 
 
 def fit_plane(frame: Frame, xs: np.ndarray, ys: np.ndarray, seed: int = 0, start: Plane | None = None) -> Plane:
@@ -191,10 +251,11 @@ def fit_plane(frame: Frame, xs: np.ndarray, ys: np.ndarray, seed: int = 0, start
             "click where the depth map has data"
         )
     x, y, d = xs[ok].astype(float), ys[ok].astype(float), d_all[ok].astype(float)
-    coeffs, exact = (np.array(start.coeffs), start.exact_fit) if start is not None else _start(x, y, d, seed)
     q = _quantum(d)
     floor = max(MIN_SIGMA_PX, q / math.sqrt(12.0))
+    coeffs, exact = (np.array(start.coeffs), start.exact_fit) if start is not None else _start(x, y, d, seed, floor)
     inl = np.ones(len(x), bool)
+    reach = np.array([np.abs(x).max(), np.abs(y).max(), 1.0])
     for _ in range(6):
         r = d - (coeffs[0] * x + coeffs[1] * y + coeffs[2])
         near = np.abs(r[np.abs(r) <= INLIER_SIGMAS * 4 * floor + 1.0])
@@ -205,7 +266,11 @@ def fit_plane(frame: Frame, xs: np.ndarray, ys: np.ndarray, seed: int = 0, start
         inl = np.abs(r) <= INLIER_SIGMAS * s
         if inl.sum() < MIN_PLANE_PIXELS:
             break
-        coeffs = _weighted_fit(x, y, d, w)
+        new = _weighted_fit(x, y, d, w)
+        moved = float(np.abs(new - coeffs) @ reach)  # the plane's largest change over the pixels (px)
+        coeffs = new
+        if moved < CONVERGED_PX:
+            break
     r = d - (coeffs[0] * x + coeffs[1] * y + coeffs[2])
     inl = np.abs(r) <= INLIER_SIGMAS * s
     if inl.sum() < MIN_PLANE_PIXELS:
@@ -213,7 +278,10 @@ def fit_plane(frame: Frame, xs: np.ndarray, ys: np.ndarray, seed: int = 0, start
     xi, yi, ri = x[inl], y[inl], r[inl]
     sigma = max(floor, float(np.sqrt(np.mean(ri**2))))
     ax = np.stack([xi, yi, np.ones_like(xi)], axis=1)
-    cov = sigma * sigma * np.linalg.inv(ax.T @ ax) * _correlation_inflation(xi // k, yi // k, ri)
+    # The pixels' grid step (thinned here or by the caller, as ``_grid_pixels`` does): the residuals'
+    # correlation is measured between neighbours on that grid.
+    step = max(1, int(np.gcd.reduce(np.concatenate([xs - xs.min(), ys - ys.min()]))))
+    cov = sigma * sigma * np.linalg.inv(ax.T @ ax) * _correlation_inflation(xi // step, yi // step, ri)
     if q > 0:  # the rounding shared by each level's pixels does not average out over them
         levels = max(1, np.unique(d[inl]).size)
         s2 = max(0.0, sigma * sigma - q * q / 12.0)
@@ -245,27 +313,33 @@ class GrownPlane:
 def inlier_mask(frame: Frame, plane: Plane, box: tuple[int, int, int, int]) -> np.ndarray:
     """Pixels of ``box`` (x0, y0, x1, y1, exclusive ends) whose disparity lies on ``plane`` (bool)."""
     x0, y0, x1, y1 = box
-    yy, xx = np.mgrid[y0:y1, x0:x1]
+    a, b, g = plane.coeffs
     d = frame.disparity[y0:y1, x0:x1]
     tol = INLIER_SIGMAS * max(plane.sigma_px, plane.quantum * 0.75)
     with np.errstate(invalid="ignore"):
-        return np.abs(d - plane.disparity_at(xx, yy)) <= tol
+        return np.abs(d - (a * np.arange(x0, x1)[None, :] + (b * np.arange(y0, y1) + g)[:, None])) <= tol
 
 
-def grow_plane(frame: Frame, click: tuple[float, float], seed: int = 0, max_rounds: int = 6) -> GrownPlane:
-    """The surface under ``click`` (x, y px): a robust plane of the window around it, grown over the
-    connected pixels on that plane, refit and regrown in a region of interest that doubles while the
-    surface reaches its edge. Raises MeasureError when the click has no surface with depth."""
+def window_pixels(frame: Frame, x: float, y: float) -> tuple[np.ndarray, np.ndarray]:
+    """The pixels (xs, ys) of the (2 ``SEED_HALF_PX`` + 1)² window around pixel (x, y), cut by the image."""
+    h, w = frame.shape
+    cx, cy, r = int(round(x)), int(round(y)), SEED_HALF_PX
+    yy, xx = np.mgrid[max(0, cy - r):min(h, cy + r + 1), max(0, cx - r):min(w, cx + r + 1)]
+    return xx, yy
+
+
+def grow_plane(frame: Frame, click: tuple[float, float], seed: int = 0, max_rounds: int = 6, window: Plane | None = None) -> GrownPlane:
+    """The surface under ``click`` (x, y px): a robust plane of the window around it (``window``, when
+    the caller has fit it already), grown over the connected pixels on that plane, refit and regrown in
+    a region of interest that doubles while the surface reaches its edge. Raises MeasureError when the
+    click has no surface with depth."""
     import cv2
 
     h, w = frame.shape
     cx, cy = int(round(click[0])), int(round(click[1]))
     r = SEED_HALF_PX
-    x0, x1, y0, y1 = max(0, cx - r), min(w, cx + r + 1), max(0, cy - r), min(h, cy + r + 1)
-    yy, xx = np.mgrid[y0:y1, x0:x1]
-    plane = fit_plane(frame, xx, yy, seed)
+    plane = window if window is not None else fit_plane(frame, *window_pixels(frame, *click), seed)
     half = 4 * r
-    mask = np.zeros((h, w), bool)
     touches = False
     for _ in range(max_rounds):
         box = (max(0, cx - half), max(0, cy - half), min(w, cx + half + 1), min(h, cy + half + 1))
@@ -278,20 +352,20 @@ def grow_plane(frame: Frame, click: tuple[float, float], seed: int = 0, max_roun
             raise MeasureError("the click is not on a surface with depth; click inside a face where the depth map has data")
         lab = int(np.bincount(near[near > 0]).argmax())
         comp = labels == lab
-        ys_, xs_ = np.nonzero(comp)
-        plane = fit_plane(frame, xs_ + bx0, ys_ + by0, seed, start=plane)
-        # Closing the component alone fills its outlier dents and holes without joining another surface.
-        closed = cv2.morphologyEx(comp.astype(np.uint8), cv2.MORPH_CLOSE, np.ones((CLOSE_PX, CLOSE_PX), np.uint8))
-        contours, _ = cv2.findContours(closed, cv2.RETR_EXTERNAL, cv2.CHAIN_APPROX_NONE)
-        filled = np.zeros(comp.shape, np.uint8)
-        cv2.drawContours(filled, contours, -1, 1, thickness=-1)  # the face with its outlier holes filled
-        comp = filled.astype(bool)
-        mask = np.zeros((h, w), bool)
-        mask[by0:by1, bx0:bx1] = comp
         edges = ((comp[0].any(), by0 == 0), (comp[-1].any(), by1 == h), (comp[:, 0].any(), bx0 == 0),
                  (comp[:, -1].any(), bx1 == w))
         touches = any(hit and border for hit, border in edges)
-        if not any(hit and not border for hit, border in edges):
+        grown = not any(hit and not border for hit, border in edges)
+        # While the region still grows its plane only steers the growth: a coarser grid of it will do.
+        plane = fit_plane(frame, *_grid_pixels(comp, bx0, by0, MAX_FIT_PIXELS if grown else GROW_FIT_PIXELS), seed, start=plane)
+        if grown:
             break
         half *= 2
+    # Closing the component alone fills its outlier dents and holes without joining another surface.
+    closed = cv2.morphologyEx(comp.astype(np.uint8), cv2.MORPH_CLOSE, np.ones((CLOSE_PX, CLOSE_PX), np.uint8))
+    contours, _ = cv2.findContours(closed, cv2.RETR_EXTERNAL, cv2.CHAIN_APPROX_NONE)
+    filled = np.zeros(comp.shape, np.uint8)
+    cv2.drawContours(filled, contours, -1, 1, thickness=-1)  # the face with its outlier holes filled
+    mask = np.zeros((h, w), bool)
+    mask[by0:by1, bx0:bx1] = filled.astype(bool)
     return GrownPlane(plane, mask, touches)

@@ -14,29 +14,46 @@ import math
 
 import numpy as np
 
-from measure.planes import INLIER_SIGMAS, MIN_PLANE_PIXELS, Plane, fit_plane
+from measure.planes import INLIER_SIGMAS, MIN_PLANE_PIXELS, Plane, fit_plane, parallel_plane
+from measure.robust_range import median
 from measure.sampling import check_point
 from measure.types import Frame, MeasureError, MeasureOptions
 from measure.verdict import judge
 
 RING_GAP_PX = 8
 RING_MIN_PX = 25
+RING_PIXELS = 3000
 PARALLEL_DEG = 12.0
 MAX_CANDIDATES = 4
 INTERVAL_Z = 1.96
 LEVEL_BIN_M = 0.01
 LEVEL_SHARE = 0.08
+MAX_LEVEL_BINS = 4096
+LEVEL_FIT_PIXELS = 500
 
 
 def ring_pixels(mask: np.ndarray, gap_px: int, width_px: int) -> tuple[np.ndarray, np.ndarray]:
     """Pixels (xs, ys) between ``gap_px`` and ``gap_px + width_px`` px around ``mask`` (H x W bool)."""
     import cv2
 
-    m = mask.astype(np.uint8)
+    rows, cols = np.flatnonzero(mask.any(axis=1)), np.flatnonzero(mask.any(axis=0))
+    if rows.size == 0:
+        return np.zeros(0, np.int64), np.zeros(0, np.int64)
+    reach = gap_px + width_px
+    h, w = mask.shape
+    y0, y1 = max(0, rows[0] - reach), min(h, rows[-1] + reach + 1)
+    x0, x1 = max(0, cols[0] - reach), min(w, cols[-1] + reach + 1)
+    m = mask[y0:y1, x0:x1].astype(np.uint8)
     inner = cv2.dilate(m, np.ones((2 * gap_px + 1,) * 2, np.uint8))
-    outer = cv2.dilate(m, np.ones((2 * (gap_px + width_px) + 1,) * 2, np.uint8))
-    ys, xs = np.nonzero(outer.astype(bool) & ~inner.astype(bool))
-    return xs, ys
+    # A regular grid of at most about RING_PIXELS ring pixels (every k-th row and column of the image):
+    # the planes fit on them thin to fewer anyway. The gap is kept exactly (it keeps the contended band
+    # at the edge out); the ring's outer reach only to the grid's step.
+    k = int(math.ceil(math.sqrt(max(1, m.size - int(np.count_nonzero(inner))) / RING_PIXELS)))
+    oy, ox = (-y0) % k, (-x0) % k
+    reach_k = int(math.ceil(reach / k))
+    outer = cv2.dilate(m[oy::k, ox::k], np.ones((2 * reach_k + 1,) * 2, np.uint8))
+    ys, xs = np.nonzero(outer > inner[oy::k, ox::k])
+    return xs * k + ox + x0, ys * k + oy + y0
 
 
 def angle_deg(a: Plane, b: Plane) -> float:
@@ -71,35 +88,65 @@ def parallel_levels(frame: Frame, mask: np.ndarray, top: Plane, seed: int = 0,
         return None, False
     # A level's spread along the normal is the ring's depth noise, Z² / fB times the disparity noise the
     # top shows (or the quantum's rounding): a coarse sensor's floor spans several centimetres.
-    z_med = float(np.median(z))
+    z_med = float(median(z))
     bin_m = max(LEVEL_BIN_M, 2.0 * z_med * z_med / top.fb * max(top.sigma_px, top.quantum / math.sqrt(12.0)))
-    bins = np.arange(lo, float(below[sel].max()) + 2 * bin_m, bin_m)
-    hist, edges = np.histogram(below[sel], bins=bins)
+    idx = ((below[sel] - lo) / bin_m).astype(np.int64)
+    hist = np.bincount(idx[idx < MAX_LEVEL_BINS])  # stray matches tens of metres away make no level
     # Two neighbouring bins together: a level straddling a bin edge still counts once.
     pair = hist[:-1] + hist[1:] if len(hist) > 1 else hist
     dense = np.flatnonzero(pair >= LEVEL_SHARE * len(xs))
 
     def level_plane(k: int) -> Plane | None:
-        level = (below >= edges[k] - bin_m) & (below <= edges[k] + 3 * bin_m)
+        # The level's pixels, from the top moved down to them (its two bins' middle), then the whole ring
+        # from there: inliers chosen by their residual to the plane, not by their noisy level, which
+        # would truncate the noise on one side and bias the plane; a slab of side faces cut out by its
+        # level fits a plane parallel to the top, but on the whole ring it turns away.
+        level = np.flatnonzero((below >= lo + (k - 1) * bin_m) & (below <= lo + (k + 3) * bin_m))
+        level = level[::max(1, len(level) // LEVEL_FIT_PIXELS)]  # it only steers the fit on the ring
         try:
-            plane = fit_plane(frame, xs[level], ys[level], seed)
-            # Refit on the whole ring from there: inliers chosen by their residual to the plane, not by
-            # their noisy level, which would truncate the noise on one side and bias the plane.
+            plane = fit_plane(frame, xs[level], ys[level], seed, start=parallel_plane(top, o + lo + (k + 1) * bin_m))
             plane = fit_plane(frame, xs, ys, seed, start=plane)
         except MeasureError:
             return None
         return plane if angle_deg(plane, top) <= PARALLEL_DEG and plane.n_support >= MIN_PLANE_PIXELS * 4 else None
 
-    for k in dense[np.argsort(-pair[dense], kind="stable")][:MAX_CANDIDATES]:  # densest level first
-        plane = level_plane(int(k))
+    # Runs of neighbouring dense bins: a level is a run of two or three, side faces a long one.
+    runs = np.split(dense, np.flatnonzero(np.diff(dense) > 1) + 1) if dense.size else []
+    peaks = [int(r[np.argmax(pair[r])]) for r in runs]  # each run's densest bin
+    for i in np.argsort([-pair[p] for p in peaks], kind="stable")[:MAX_CANDIDATES]:  # densest level first
+        plane = level_plane(peaks[i])
         if plane is None:
             continue
         # A parallel level nearer below the top than the one chosen: a table under the box, or a
         # neighbour's top; which one the box stands on is not known from the ring alone.
-        nearer = [j for j in dense if j < k - 2]
-        between = any(level_plane(int(j)) is not None for j in nearer[:MAX_CANDIDATES])
-        return plane, between
+        between = any(level_plane(peaks[j]) is not None for j in range(i))
+        return _clear_of_sides(frame, xs, ys, plane, seed), between
     return None, False
+
+
+def _clear_of_sides(frame: Frame, xs: np.ndarray, ys: np.ndarray, plane: Plane, seed: int) -> Plane:
+    """``plane`` refit on the ring pixels (xs, ys, a regular grid) farther than ``RING_GAP_PX`` from any
+    that stand clearly above it: where an object's side face meets its floor, the face's first
+    pixels lie within the floor's tolerance and lift the plane (a box's height comes out short)."""
+    import cv2
+
+    tol = INLIER_SIGMAS * max(plane.sigma_px, plane.quantum * 0.75)
+    with np.errstate(invalid="ignore"):
+        above = frame.disparity[ys, xs] - plane.disparity_at(xs, ys) > tol
+    keep = np.ones(len(xs), bool)
+    if above.any():
+        step = max(1, int(np.gcd.reduce(np.concatenate([xs - xs.min(), ys - ys.min()]))))
+        gx, gy = (xs - xs.min()) // step, (ys - ys.min()) // step
+        grid = np.zeros((int(gy.max()) + 1, int(gx.max()) + 1), np.uint8)
+        grid[gy[above], gx[above]] = 1
+        reach = int(math.ceil(RING_GAP_PX / step))
+        keep = ~cv2.dilate(grid, np.ones((2 * reach + 1,) * 2, np.uint8))[gy, gx].astype(bool)
+        if np.count_nonzero(keep) < MIN_PLANE_PIXELS * 4:
+            keep[:] = True
+    try:
+        return fit_plane(frame, xs[keep], ys[keep], seed, start=plane)
+    except MeasureError:
+        return plane
 
 
 def parallel_support(frame: Frame, mask: np.ndarray, top: Plane, seed: int = 0, min_drop_m: float = 0.0) -> Plane | None:
@@ -139,13 +186,30 @@ def cross2(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     return a[..., 0] * b[..., 1] - a[..., 1] * b[..., 0]
 
 
-def polygon_mask(shape: tuple[int, int], vertices: np.ndarray) -> np.ndarray:
-    """Pixels inside the polygon of ``vertices`` (n x 2, x y px) (H x W bool)."""
+def polygon_mask(shape: tuple[int, int], vertices: np.ndarray, pad: int = 0) -> tuple[np.ndarray, int, int]:
+    """Pixels inside the polygon of ``vertices`` (n x 2, x y px) as a bool mask of its bounding box
+    widened by ``pad`` px (cut by the image of ``shape`` H x W), and that box's corner (x0, y0) in the image."""
     import cv2
 
-    m = np.zeros(shape, np.uint8)
-    cv2.fillPoly(m, [np.round(vertices).astype(np.int32).reshape(-1, 1, 2)], 1)
-    return m.astype(bool)
+    h, w = shape
+    v = np.round(np.asarray(vertices, float)).astype(np.int64)
+    x0, y0 = int(np.clip(v[:, 0].min() - pad, 0, w - 1)), int(np.clip(v[:, 1].min() - pad, 0, h - 1))
+    x1, y1 = int(np.clip(v[:, 0].max() + pad + 1, x0 + 1, w)), int(np.clip(v[:, 1].max() + pad + 1, y0 + 1, h))
+    m = np.zeros((y1 - y0, x1 - x0), np.uint8)
+    cv2.fillPoly(m, [(v - [x0, y0]).astype(np.int32).reshape(-1, 1, 2)], 1)
+    return m.astype(bool), x0, y0
+
+
+def shrunk_pixels(shape: tuple[int, int], vertices: np.ndarray, erode_px: int) -> tuple[np.ndarray, np.ndarray]:
+    """The pixels (xs, ys) inside the polygon of ``vertices`` at least ``erode_px`` px from its edges
+    (the image border is no edge)."""
+    import cv2
+
+    mask, x0, y0 = polygon_mask(shape, vertices, pad=erode_px + 1)
+    if erode_px:
+        mask = cv2.erode(mask.astype(np.uint8), np.ones((2 * erode_px + 1,) * 2, np.uint8)).astype(bool)
+    ys, xs = np.nonzero(mask)
+    return xs + x0, ys + y0
 
 
 def check_points(frame: Frame, points: object, least: int, what: str) -> np.ndarray:

@@ -323,6 +323,13 @@ def static_maps(view: View, model: SensorModel) -> StaticMaps:
                       geo.narrow_idx, geo.d_max, geo.d_other)
 
 
+def clear_static_maps() -> None:
+    """Empty the caches of static maps: a study whose every frame is a new view (``sim.shapes``) only
+    fills them (about 100 MB per 1280x720 view, up to several GB)."""
+    static_maps.cache_clear()
+    _geometry_maps.cache_clear()
+
+
 def _blocks(a: np.ndarray, block: int, shape: tuple[int, int]) -> np.ndarray:
     """Nearest-neighbour upsampling of a coarse field by ``block``, cropped to ``shape``."""
     import cv2

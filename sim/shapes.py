@@ -42,6 +42,7 @@ class BoxCase:
     support: str  # "floor" | "table"
     range_m: float
     base_px: tuple[tuple[float, float], ...]  # a region of the supporting surface in front of the box
+    support_plane: tuple[float, float, float, float]  # the surface it stands on, camera frame: n . P + o = 0, n to the camera
 
 
 @dataclass(frozen=True)
@@ -128,8 +129,10 @@ def box_case(seed: int, profile: str = "stress", lighting: str = "indoor", range
     front = near + np.array([0.0, h, -0.12])
     sq = np.array([front + np.array([dx, 0.0, dz]) for dx, dz in ((-0.05, -0.05), (0.05, -0.05), (0.05, 0.05), (-0.05, 0.05))])
     base_px = tuple(tuple(map(float, p)) for p in _project(pose, frame, sq))
+    up = pose.R.T @ np.array([0.0, -1.0, 0.0])  # world Y points down
+    offset = -float(up @ pose.to_camera(np.array([0.0, base_y, 0.0])))
     return BoxCase(frame, click, max(edge), min(edge), h, tuple(tuple(map(float, p)) for p in cpx), visible, var,
-                   support, r, base_px)
+                   support, r, base_px, (*map(float, up), offset))
 
 
 def _visible_share(view, cpx: np.ndarray, width: int, height: int) -> float:

@@ -307,7 +307,7 @@ function legRows(res) {
 
 // What a shape verdict's reason means for the person, and what to do (the core's phrases in measure/).
 const SHAPE_ADVICE = [
-  [/edges uncertain|crease/i, "The top's edges are unclear: move so the top face stands out against what is behind it, and light it."],
+  [/colour image/i, "A side of the top does not show in the image: light the box so its top stands out from its sides and the floor."],
   [/top face|not a box|box top/i, "Click the middle of the box's top face, with the whole top in view."],
   [/border|cut|outside/i, "Step back or turn so the whole object is inside the image."],
   [/hidden|occlu|in front/i, "Move so nothing stands in front of the box's faces."],

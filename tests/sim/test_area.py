@@ -33,6 +33,20 @@ def test_panel_area_matches_the_scene(areas):
         assert m.quality in ("good", "check")
 
 
+def test_panel_area_sigma_holds_a_calibration_offset(areas):
+    """A disparity offset common to the frame (``CALIBRATION_PX``) scales the panel's corners along
+    their rays together with its plane; the one-sigma is at least the area it moves."""
+    from dataclasses import replace
+
+    from measure.planes import CALIBRATION_PX
+
+    for case, m in areas[:4]:
+        moved = replace(case.frame, disparity=case.frame.disparity + np.float32(CALIBRATION_PX))
+        shift = abs(measure_area(moved, case.clicks_px).value - m.value)
+        assert shift > 0.005 * m.value, shift  # the offset does move the answer
+        assert m.uncertainty >= 0.8 * shift, (m.uncertainty, shift)
+
+
 def test_polygon_over_a_box_and_the_floor_is_unreliable():
     case = box_case(1, range_m=1.0, variant="plain", width=W, height=H)
     x, y = case.click_px
