@@ -4,7 +4,8 @@ A ``.frame`` file is an uncompressed zip of
 - ``disparity.png``: 16-bit PNG, code = round(d * 64), 0 = invalid (``device.formats.recording``'s
   encoding; exact to the 1/64 px step, within 1/128 px otherwise); ``disparity.npy`` (float32,
   lossless) instead for disparity of 1024 px or more, which 16 bits cannot hold;
-- ``color.jpg``: JPEG quality 92 (the colour image is only looked at; measuring uses disparity);
+- ``color.jpg``: JPEG quality 92; a measurement that reads the colour image (a box's sides) is made on
+  the image as this file holds it (:func:`as_stored`), so re-measuring the file gives its answer;
 - ``confidence.png``: optional, 8-bit;
 - ``frame.json``: camera, baseline, doffs, timestamp and the frame's JSON-able meta.
 Its size against the earlier ``.npz`` is in docs/decisions/frame-file.md.
@@ -13,6 +14,7 @@ Its size against the earlier ``.npz`` is in docs/decisions/frame-file.md.
 
 from __future__ import annotations
 
+import dataclasses
 import io
 import json
 import os
@@ -64,6 +66,20 @@ def disparity_code(disparity: np.ndarray) -> np.ndarray | None:
     return scaled.astype(np.uint16)
 
 
+def _jpeg(image: np.ndarray) -> bytes:
+    ok, jpg = cv2.imencode(".jpg", np.ascontiguousarray(image), [cv2.IMWRITE_JPEG_QUALITY, JPEG_QUALITY])
+    if not ok:
+        raise ValueError(f"JPEG encoding of a {image.shape} image failed")
+    return jpg.tobytes()
+
+
+def as_stored(frame: Frame) -> Frame:
+    """``frame`` with its colour image as its ``.frame`` file will hold it (the JPEG decoded): what a
+    measurement that reads the image is made on, so that the stored frame re-measures to its answer."""
+    image = cv2.imdecode(np.frombuffer(_jpeg(frame.image), np.uint8), cv2.IMREAD_COLOR)
+    return dataclasses.replace(frame, image=image)
+
+
 def encode_frame(frame: Frame) -> bytes:
     """The ``.frame`` bytes of ``frame`` (see the module docstring)."""
     cam = frame.camera
@@ -75,10 +91,7 @@ def encode_frame(frame: Frame) -> bytes:
         buf = io.BytesIO()
         np.save(buf, np.asarray(frame.disparity, np.float32), allow_pickle=False)
         members["disparity.npy"] = buf.getvalue()
-    ok, jpg = cv2.imencode(".jpg", np.ascontiguousarray(frame.image), [cv2.IMWRITE_JPEG_QUALITY, JPEG_QUALITY])
-    if not ok:
-        raise ValueError(f"JPEG encoding of a {frame.image.shape} image failed")
-    members["color.jpg"] = jpg.tobytes()
+    members["color.jpg"] = _jpeg(frame.image)
     if frame.confidence is not None:
         members["confidence.png"] = _png(encode_confidence(frame.confidence))
     info = {

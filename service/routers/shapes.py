@@ -6,6 +6,7 @@ from __future__ import annotations
 from fastapi import APIRouter
 from fastapi.responses import Response
 
+from history.frame_file import as_stored
 from measure import measure_shape
 
 from service.deps import State
@@ -30,7 +31,10 @@ async def shapes(state: State, body: ShapeIn) -> Response:
 def _shape(state: ServiceState, body: ShapeIn) -> Response:
     entry = state.ring.get(body.frame_id)
     frame = entry.frame
-    result = measure_shape(frame, body.kind, body.points, body.on, body.options.to_options())
+    # a box's sides are found in the colour image: measured on it as the history keeps it (JPEG), so
+    # that re-measuring the stored frame (batch --from-history) gives this answer
+    measured = as_stored(frame) if body.kind == "box" else frame
+    result = measure_shape(measured, body.kind, body.points, body.on, body.options.to_options())
     record = state.store.add_shape(
         **stored_frame(state, entry), kind=body.kind, points=body.points, on=body.on, options=body.options.model_dump(),
         result=result.to_dict(), draw_px=draw_px(result, frame.camera),

@@ -10,6 +10,7 @@ import io
 import numpy as np
 import pytest
 
+from history.frame_file import as_stored
 from measure import Frame, MeasureOptions, measure_area, measure_box, measure_distance, measure_height
 from service_client import JSON, latest, make_client
 from sim.shapes import box_case, panel_case
@@ -49,7 +50,7 @@ def test_box_is_the_cores_answer_within_the_truth_and_reads_back(client, box):
     r = _shape(client, fid, "box", [box.click_px])
     assert r.status_code == 200, r.text
     m = r.json()
-    core = measure_box(box.frame, box.click_px, MeasureOptions())
+    core = measure_box(as_stored(box.frame), box.click_px, MeasureOptions())  # on the image as its frame file keeps it
     assert m["kind"] == "box" and m["frame_id"] == fid and m["points"] == [list(box.click_px)] and m["on"] is None
     assert m["dimensions_m"] == list(core.dimensions_m)
     assert m["dimension_sigmas_m"] == list(core.uncertainty_m)
