@@ -53,6 +53,7 @@ from batch.tasks import TaskError, parse_row
 from batch.tasktable import TaskGroup, TaskTable
 
 POLL_S = 0.5  # how often the driver reads the progress actor
+TASK_BYTES = 200  # about the bytes of a task's row in a block (batch.taskblocks.to_block; mostly its pickle)
 
 
 class TaskTableSource(Datasource):
@@ -63,12 +64,14 @@ class TaskTableSource(Datasource):
     range of row groups each; a CSV or JSONL table (whose rows cannot be found without reading the
     ones before them) or a table at a URL by one."""
 
-    def __init__(self, location: str, base: Path | str, done: Any) -> None:
+    def __init__(self, location: str, base: Path | str, done: Any, tasks: int) -> None:
         super().__init__()
-        self.location, self.base, self.done = location, base, done
+        self.location, self.base, self.done, self.tasks = location, base, done, tasks
 
     def estimate_inmemory_data_size(self) -> int | None:
-        return None
+        # From the scan's count: Ray Data then cuts the read into blocks of about its target size
+        # (at least 2 per CPU), not into 200 blocks of a few tasks each.
+        return self.tasks * TASK_BYTES
 
     def get_name(self) -> str:
         return "TaskTable"
@@ -267,7 +270,7 @@ def run_on_ray(
             cause = _cause(exc)
             raise (cause if isinstance(cause, BatchError) else TaskError(f"{tasks} cannot be read: {cause}")) from None
         done_ids = ray.remote(_sorted_ids).options(num_cpus=0).remote(done)
-        dataset = ray.data.read_datasource(TaskTableSource(tasks, base, done_ids))
+        dataset = ray.data.read_datasource(TaskTableSource(tasks, base, done_ids, plan.todo))
     if plan.changed:
         first, count = plan.changed
         raise ResultsError(
@@ -299,7 +302,10 @@ def run_on_ray(
 def _measure(dataset: Any, plan: Plan, store: ResultStore, executor: Any, defaults: dict[str, Any], run: str, schema: Any,
              on_group: Callable[[GroupResult], None] | None) -> None:  # fmt: skip
     """Steps 3-5 of the module docstring (``on_group`` told of the rows written as the workers write them)."""
-    grouped = dataset.sort("key", boundaries=plan.boundaries or None).materialize() if plan.boundaries else dataset.materialize()
+    # Grouped in an execution of its own: in one with the measuring, Ray Data fuses the measuring into
+    # the sort's reduce tasks or gives it a share of the CPUs, and one worker measures nearly every
+    # partition. One partition when every task has the same key (one frame, or one source read in order).
+    grouped = (dataset.sort("key", boundaries=plan.boundaries) if plan.boundaries else dataset.repartition(1)).materialize()
     progress = progress_actor()
     stop = threading.Event()
     seen = [0, 0]
@@ -320,7 +326,7 @@ def _measure(dataset: Any, plan: Plan, store: ResultStore, executor: Any, defaul
         grouped.map_batches(
             measure_block, fn_kwargs={"defaults": defaults, "run": run, "schema": schema}, batch_size=None,
             batch_format="pyarrow", num_cpus=executor.task_cpus,
-        ).write_datasink(PartsSink(str(store.parts), progress, run), ray_remote_args={"num_cpus": 0})  # fmt: skip
+        ).write_datasink(PartsSink(str(store.parts), progress, run), ray_remote_args={"num_cpus": executor.task_cpus})  # fmt: skip
     except Exception as exc:
         cause = _cause(exc)
         if isinstance(cause, OSError):
