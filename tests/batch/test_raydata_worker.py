@@ -5,15 +5,11 @@ from __future__ import annotations
 
 import shutil
 
-import pytest
-
-pytest.importorskip("ray")
-
-from batch.raydata import measure_block  # noqa: E402
-from batch.run import close_readers  # noqa: E402
-from batch.schema import result_schema  # noqa: E402
-from batch.taskblocks import to_block  # noqa: E402
-from batch.tasks import parse_row  # noqa: E402
+from batch.raydata import measure_block
+from batch.run import close_readers
+from batch.schema import result_schema
+from batch.taskblocks import to_block
+from batch.tasks import parse_row
 
 
 def test_a_new_run_reopens_the_recordings_a_worker_kept_open(archive, tmp_path):
