@@ -12,10 +12,10 @@ the driver holds references, counts and the commit.
    frame (:func:`batch.taskblocks.sort_key`) into partitions of whole frames, kept in the object
    store (the driver holds their references) before any measuring worker starts, so the workers'
    reserved CPUs never starve the sort;
-4. ``map_batches`` with :class:`Measurer`, a class whose instances (one actor per worker, kept for
-   the whole run) keep the recordings they opened open (:mod:`batch.readers`), measures each
-   partition with :func:`batch.rows.measure_group`, the local executors' per-group function, into
-   rows of the run's one schema;
+4. ``map_batches`` with :func:`measure_block`, a Ray task per partition in Ray's pooled worker
+   processes (kept, with their imports, from one run to the next; each keeps the recordings it
+   opened open, :mod:`batch.readers`), measures each partition with :func:`batch.rows.measure_group`,
+   the local executors' per-group function, into rows of the run's one schema;
 5. ``write_datasink`` with :class:`PartsSink`: each worker writes its blocks of rows as parts beside
    the results file (under a temporary name, fsync'd, renamed; named by their first task, so a
    write Ray retries replaces its own part); a progress actor counts rows for the driver's bar;
@@ -39,10 +39,11 @@ from typing import Any
 
 import numpy as np
 import ray
-from ray.data import ActorPoolStrategy, DataContext, Datasink, Datasource, ReadTask
+from ray.data import DataContext, Datasink, Datasource, ReadTask
 from ray.data.block import BlockAccessor, BlockMetadata
 
 from batch.errors import BatchError
+from batch.readers import close_readers
 from batch.results import ResultsError, ResultStore, done_tasks, merge_file, write_part
 from batch.rows import GroupResult, extras, measure_group, project_version
 from batch.scan import Plan, is_done, scan_table
@@ -52,6 +53,7 @@ from batch.tasks import TaskError, parse_row
 from batch.tasktable import TaskGroup, TaskTable
 
 POLL_S = 0.5  # how often the driver reads the progress actor
+TASK_BYTES = 200  # about the bytes of a task's row in a block (batch.taskblocks.to_block; mostly its pickle)
 
 
 class TaskTableSource(Datasource):
@@ -62,12 +64,14 @@ class TaskTableSource(Datasource):
     range of row groups each; a CSV or JSONL table (whose rows cannot be found without reading the
     ones before them) or a table at a URL by one."""
 
-    def __init__(self, location: str, base: Path | str, done: Any) -> None:
+    def __init__(self, location: str, base: Path | str, done: Any, tasks: int) -> None:
         super().__init__()
-        self.location, self.base, self.done = location, base, done
+        self.location, self.base, self.done, self.tasks = location, base, done, tasks
 
     def estimate_inmemory_data_size(self) -> int | None:
-        return None
+        # From the scan's count: Ray Data then cuts the read into blocks of about its target size
+        # (at least 2 per CPU), not into 200 blocks of a few tasks each.
+        return self.tasks * TASK_BYTES
 
     def get_name(self) -> str:
         return "TaskTable"
@@ -107,44 +111,71 @@ class TaskTableSource(Datasource):
             yield to_block(tasks)
 
 
-class Measurer:
-    """The measuring class of ``map_batches``: Ray Data makes one per worker (an actor) and keeps it for
-    the whole run, so the recordings it opens stay open across partitions (:mod:`batch.readers`).
-    Each call measures one partition's tasks (:func:`batch.rows.measure_group` for each run of one
-    source, a frame's tasks together) into a block of result rows in the run's schema."""
+_measured_run = [""]  # the run whose tasks this worker process measured last
 
-    def __init__(self, defaults: dict[str, Any], run: str, schema: Any) -> None:
-        self.defaults, self.run, self.schema = defaults, run, schema
 
-    def __call__(self, block: Any) -> Any:
-        rows: list[dict[str, Any]] = []
-        ordered = measuring_order(from_block(block))
-        for source, same in itertools.groupby(ordered, key=lambda t: "" if t.error else t.source):
-            rows += measure_group(TaskGroup(source, list(same), self.defaults, self.run, self.schema))
-        return rows_table(rows, self.schema)
+def measure_block(block: Any, defaults: dict[str, Any], run: str, schema: Any) -> Any:
+    """The measuring function of ``map_batches``, a Ray task per partition: its tasks (a block made by
+    :func:`batch.taskblocks.to_block`) measured by :func:`batch.rows.measure_group` for each run of one
+    source (a frame's tasks together) into a block of result rows in the run's schema. Ray runs it in
+    its pooled worker processes, kept from one partition and one run to the next with their imports;
+    a worker keeps the recordings it opened open across partitions (:mod:`batch.readers`) and closes
+    them when a new run starts, so a run sees the archive as it is then."""
+    if _measured_run[0] != run:
+        close_readers()
+        _measured_run[0] = run
+    rows: list[dict[str, Any]] = []
+    ordered = measuring_order(from_block(block))
+    for source, same in itertools.groupby(ordered, key=lambda t: "" if t.error else t.source):
+        rows += measure_group(TaskGroup(source, list(same), defaults, run, schema))
+    return rows_table(rows, schema)
 
 
 @ray.remote(num_cpus=0)
 class Progress:
-    """Rows and error rows written so far, told by the writers, read by the driver's progress bar."""
+    """Rows and error rows each run has written so far, told by the writers, read by the driver's
+    progress bar. One per driver and Ray session (:func:`progress_actor`): made for every run, its
+    process start and imports cost about as much CPU as measuring 60 tasks."""
 
     def __init__(self) -> None:
-        self.rows = self.errors = 0
+        self.counts: dict[str, list[int]] = {}
 
-    def add(self, rows: int, errors: int) -> None:
-        self.rows += rows
-        self.errors += errors
+    def add(self, run: str, rows: int, errors: int) -> None:
+        counts = self.counts.setdefault(run, [0, 0])
+        counts[0] += rows
+        counts[1] += errors
 
-    def get(self) -> tuple[int, int]:
-        return self.rows, self.errors
+    def get(self, run: str) -> tuple[int, int]:
+        rows, errors = self.counts.get(run, (0, 0))
+        return rows, errors
+
+    def forget(self, run: str) -> None:
+        self.counts.pop(run, None)
+
+
+_progress: dict[tuple[str, str], Any] = {}  # the actor's handle by Ray session (job and node ids)
+
+
+def progress_actor() -> Any:
+    """This driver's :class:`Progress` actor, made on its first run in a Ray session and kept (its
+    handle held here: Ray ends an actor when its maker's handle goes) until the driver ends or Ray is
+    shut down; on this driver's node, not on one that may be lost."""
+    from ray.util.scheduling_strategies import NodeAffinitySchedulingStrategy
+
+    context = ray.get_runtime_context()
+    session = (context.get_job_id(), context.get_node_id())
+    if session not in _progress:
+        _progress.clear()
+        _progress[session] = Progress.options(scheduling_strategy=NodeAffinitySchedulingStrategy(session[1], soft=True)).remote()
+    return _progress[session]
 
 
 class PartsSink(Datasink):
     """Ray Data's writer of result parts: a write task stores the rows it is given as one part in
     ``folder`` (:func:`batch.results.write_part`), named by its first task, and tells ``progress``."""
 
-    def __init__(self, folder: str, progress: Any) -> None:
-        self.folder, self.progress = folder, progress
+    def __init__(self, folder: str, progress: Any, run: str) -> None:
+        self.folder, self.progress, self.run = folder, progress, run
 
     def get_name(self) -> str:
         return "ResultParts"
@@ -160,7 +191,7 @@ class PartsSink(Datasink):
         first = pc.min(table.column("task")).as_py()
         write_part(Path(self.folder) / f"part-t{first:012d}.parquet", parquet_bytes(table))
         errors = table.num_rows - table.column("error").null_count
-        self.progress.add.remote(table.num_rows, errors)
+        self.progress.add.remote(self.run, table.num_rows, errors)
         return table.num_rows, errors
 
 
@@ -239,7 +270,7 @@ def run_on_ray(
             cause = _cause(exc)
             raise (cause if isinstance(cause, BatchError) else TaskError(f"{tasks} cannot be read: {cause}")) from None
         done_ids = ray.remote(_sorted_ids).options(num_cpus=0).remote(done)
-        dataset = ray.data.read_datasource(TaskTableSource(tasks, base, done_ids))
+        dataset = ray.data.read_datasource(TaskTableSource(tasks, base, done_ids, plan.todo))
     if plan.changed:
         first, count = plan.changed
         raise ResultsError(
@@ -271,15 +302,18 @@ def run_on_ray(
 def _measure(dataset: Any, plan: Plan, store: ResultStore, executor: Any, defaults: dict[str, Any], run: str, schema: Any,
              on_group: Callable[[GroupResult], None] | None) -> None:  # fmt: skip
     """Steps 3-5 of the module docstring (``on_group`` told of the rows written as the workers write them)."""
-    grouped = dataset.sort("key", boundaries=plan.boundaries or None).materialize() if plan.boundaries else dataset.materialize()
-    progress = Progress.remote()
+    # Grouped in an execution of its own: in one with the measuring, Ray Data fuses the measuring into
+    # the sort's reduce tasks or gives it a share of the CPUs, and one worker measures nearly every
+    # partition. One partition when every task has the same key (one frame, or one source read in order).
+    grouped = (dataset.sort("key", boundaries=plan.boundaries) if plan.boundaries else dataset.repartition(1)).materialize()
+    progress = progress_actor()
     stop = threading.Event()
     seen = [0, 0]
 
     def poll() -> None:
         while True:
             finished = stop.wait(POLL_S)
-            rows, errors = ray.get(progress.get.remote())
+            rows, errors = ray.get(progress.get.remote(run))
             if on_group and rows > seen[0]:
                 on_group(GroupResult(rows - seen[0], errors - seen[1], b""))
             seen[:] = [rows, errors]
@@ -290,9 +324,9 @@ def _measure(dataset: Any, plan: Plan, store: ResultStore, executor: Any, defaul
     watcher.start()
     try:
         grouped.map_batches(
-            Measurer, fn_constructor_kwargs={"defaults": defaults, "run": run, "schema": schema}, batch_size=None,
-            batch_format="pyarrow", compute=ActorPoolStrategy(size=executor.workers), num_cpus=executor.task_cpus,
-        ).write_datasink(PartsSink(str(store.parts), progress), ray_remote_args={"num_cpus": 0})  # fmt: skip
+            measure_block, fn_kwargs={"defaults": defaults, "run": run, "schema": schema}, batch_size=None,
+            batch_format="pyarrow", num_cpus=executor.task_cpus,
+        ).write_datasink(PartsSink(str(store.parts), progress, run), ray_remote_args={"num_cpus": executor.task_cpus})  # fmt: skip
     except Exception as exc:
         cause = _cause(exc)
         if isinstance(cause, OSError):
@@ -304,3 +338,4 @@ def _measure(dataset: Any, plan: Plan, store: ResultStore, executor: Any, defaul
     finally:
         stop.set()
         watcher.join()
+        progress.forget.remote(run)
