@@ -165,11 +165,16 @@ def rooms_command(out: Path = typer.Option(..., "--out", help="Output folder for
 @app.command("gaps")
 def gaps_command(out: Path = typer.Option(..., "--out", help="Output folder for report.md, results.json and plots.")) -> None:
     """The doorway and the gap between boxes clicked at their true edges, 1.5-5 m (evaluation/gap_edges.py)."""
-    from evaluation.gap_edges import DEV_SEEDS, HELD_OUT_SEEDS, run_gap_edges
+    from evaluation.gap_edges import DEV_SEEDS, HELD_OUT_SEEDS, notes, run_gap_edges
 
+    dev, held = run_gap_edges(DEV_SEEDS), run_gap_edges(HELD_OUT_SEEDS)
+    lines = notes("dev", dev) + notes("held-out", held)
     _two_splits(out, "Gaps at their true edges", "Doorway and box gap, true edge clicks, 1.5-5 m (evaluation/gap_edges.py); "
-                "sim = the default click sigma (1.5 px), sim-exact-clicks = the clicks stated exact (click_px=0).",
-                run_gap_edges(DEV_SEEDS), run_gap_edges(HELD_OUT_SEEDS))
+                "sim = the default click sigma (1.5 px), sim-exact-clicks = the clicks stated exact (click_px=0), "
+                "sim-jittered-clicks = clicks moved by 1.5 px (one sigma per axis) with the default click sigma. "
+                + " ".join(f"{line}." for line in lines), dev, held)
+    for line in lines:
+        print(line)
 
 
 @app.command("middlebury")

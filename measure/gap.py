@@ -64,6 +64,10 @@ def is_gap(ext: tuple[ExtensionDepth, ExtensionDepth], z_refined: tuple[float, f
 MIN_EXTENSION_SAMPLES = 10  # samples each end's surface needs before it may show a gap
 GAP_STEP_REL = 0.15  # each end's surface at least this much nearer (relative disparity = depth) than the segment's
 GAP_SIGMAS = 2.0  # ... and by this many correlation-inflated standard errors of the two estimates
+# A gap answer's one-sigma is its end surfaces' and clicks' model sigma as it is: the segment's SIGMA_SCALE
+# corrects the line model's ends on real stereo, which a gap's end surfaces do not use; measured unscaled,
+# their 2-sigma covers the truth as often as it says (docs/decisions/gap-sigma.md).
+GAP_SIGMA_SCALE = 1.0
 
 
 @dataclass(frozen=True)

@@ -38,7 +38,7 @@ from measure.censored import censored_line, few_levels
 from measure.confidence import LOW_CONFIDENCE_REASON, low_confidence, support_inflation
 from measure.dline import DisparityLine, fit_disparity_line
 from measure.edges import on_edge, on_surface_edge
-from measure.gap import clear_gap_ends, leading_run
+from measure.gap import GAP_SIGMA_SCALE, clear_gap_ends, leading_run
 from measure.neighbourhood import end_plane
 from measure.request import BEYOND_RANGE, MIN_FIT_SAMPLES, NO_DEPTH, Request, fit_samples, focal_baseline, resolved, validate_request
 from measure.sampling import SegmentSamples, ray, sample_segment, valid_disparity
@@ -170,7 +170,7 @@ def _robust(request: Request, samples: SegmentSamples, terms: dict[str, float] |
             # doorway it is metres behind the ends (docs/decisions/gap-sigma.md).
             quant_g = endpoint_depth_sigma(g1, g2, zg1 * zg1 / fb * ends_s[0].rounding, zg2 * zg2 / fb * ends_s[1].rounding)
             click_g = _click_term(frame, xy1, xy2, np.array([e.disparity for e in ends_s]), np.zeros(2), gd, options.click_px)
-            sigma = calibrated_sigma(math.sqrt(ext_sigma**2 + quant_g**2 + click_g**2), gd)
+            sigma = calibrated_sigma(math.sqrt(ext_sigma**2 + quant_g**2 + click_g**2), gd, GAP_SIGMA_SCALE)
             parts = {"fit": ext_sigma, "click": click_g, "quant": quant_g, "model": 0.0, "structure": 0.0}
             warnings.append("gap detected: both ends' surfaces are in front of the segment's; measured at their depths")
             reasons = [r for r in reasons if r != "segment crosses several surfaces"] + ["gap detected"]

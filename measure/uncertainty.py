@@ -179,9 +179,10 @@ def click_sigma(ray_at: Callable[[float, float], np.ndarray], xy1, xy2, d_end: n
     return click_px * math.hypot(g1, g2)
 
 
-def calibrated_sigma(model_sigma: float, distance: float) -> float:
-    """Reported one-sigma (m): the model's times SIGMA_SCALE, at least MIN_RELATIVE_SIGMA of the distance."""
-    s = SIGMA_SCALE * model_sigma if math.isfinite(model_sigma) else math.inf
+def calibrated_sigma(model_sigma: float, distance: float, scale: float = SIGMA_SCALE) -> float:
+    """Reported one-sigma (m): the model's times ``scale`` (SIGMA_SCALE unless a model has a calibration
+    of its own), at least MIN_RELATIVE_SIGMA of the distance."""
+    s = scale * model_sigma if math.isfinite(model_sigma) else math.inf
     return max(s, MIN_RELATIVE_SIGMA * abs(distance))
 
 

@@ -10,8 +10,8 @@ import pytest
 import sim
 from measure import MeasureOptions, measure_distance
 
-DISTANCES = (1.5, 2.0, 3.0, 5.0)
-SEEDS = (3, 4)
+DISTANCES = (1.5, 2.0, 2.5, 3.0, 4.0, 5.0)
+SEEDS = tuple(range(12))  # 144 answers: a coverage of 95 % is then known to about +-4 % (Wilson)
 CASES = (("doorway", "doorway"), ("boxes", "box-gap"))
 
 
@@ -30,16 +30,19 @@ def answers():
     return out
 
 
-@pytest.mark.slow  # a coverage study over 16 rendered scenes: the full suite's, not the fast loop's
+@pytest.mark.slow  # a coverage study over 144 rendered scenes: the full suite's, not the fast loop's
 def test_two_sigma_covers_gaps_as_claimed(answers):
+    """With the clicks stated exact (they are: the true edge pixels) the sigma is the end surfaces'. Its 2σ
+    covers 85-98 % of the truths and its 1σ at most 80 % (nominal 68 %): the sigma scaled for real stereo's
+    line ends (SIGMA_SCALE) covered 99 % / 82 % here, 85 % at 1σ on seeds 1000-1011."""
     ratio = np.array([abs(e.distance_m - g) / e.uncertainty_m for _, _, g, _, e in answers])
-    assert np.mean(ratio <= 2.0) >= 0.85, ratio
-    # ... and not by far more: a tenth of the errors reach at least half a sigma.
-    assert np.quantile(ratio, 0.9) >= 0.5, ratio
+    assert 0.85 <= np.mean(ratio <= 2.0) <= 0.98, np.sort(ratio)[-12:]
+    assert np.mean(ratio <= 1.0) <= 0.80, np.quantile(ratio, [0.5, 0.68, 0.8])
+    # With a person's click sigma on these exact clicks, every gap answer is covered.
     assert all(abs(m.distance_m - g) <= 2 * m.uncertainty_m for _, _, g, m, _ in answers if m.gap_detected)
 
 
-@pytest.mark.slow  # a coverage study over 16 rendered scenes: the full suite's, not the fast loop's
+@pytest.mark.slow  # a coverage study over 144 rendered scenes: the full suite's, not the fast loop's
 def test_sigma_falls_as_the_camera_comes_closer(answers):
     # Medians over distance bands, with the clicks' error a person's (1.5 px): both the click term and
     # the end surfaces' depth errors shrink with the depth.
@@ -50,7 +53,7 @@ def test_sigma_falls_as_the_camera_comes_closer(answers):
         assert sig(1.5, 2.0) < sig(3.0, 3.0) < sig(5.0, 5.0), scene
 
 
-@pytest.mark.slow  # a coverage study over 16 rendered scenes: the full suite's, not the fast loop's
+@pytest.mark.slow  # a coverage study over 144 rendered scenes: the full suite's, not the fast loop's
 def test_near_gaps_are_good_and_right(answers):
     near = [(g, m) for _, d, g, m, _ in answers if d <= 3.0]
     good = [(g, m) for g, m in near if m.quality == "good"]
@@ -64,7 +67,7 @@ def test_sigma_falls_as_the_camera_comes_closer_on_integer_disparity():
     behind the door: 39-54 mm at 1.5-3 m, flat)."""
     sig = {}
     for dist in (1.5, 2.0, 3.0):
-        for seed in SEEDS:
+        for seed in (3, 4):
             frame, truth, _ = sim.scenario("doorway", target="doorway", distance_m=dist, seed=seed, quantization=1.0, noise_px=0.15,
                                            contention=0.1)
             m = measure_distance(frame, truth.p1_px, truth.p2_px, MeasureOptions(click_px=0.0))
