@@ -24,7 +24,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from measure.robust_range import TUKEY_C, tukey_location, tukey_scale
+from measure.robust_range import TUKEY_C, median, tukey_location, tukey_scale
 from measure.sampling import depth_of, extension_pixels, valid_disparity
 from measure.types import Frame
 from measure.uncertainty import correlation_inflation, rounding_sigma
@@ -81,13 +81,20 @@ class EndSurface:
     rounding: float = 0.0  # the disparity rounding error its samples share (px, one sigma)
 
 
-def _end_run(frame: Frame, start: tuple[float, float], other: tuple[float, float], length: int, leading: np.ndarray) -> np.ndarray:
-    """The samples of one end's surface (px): its extension's valid pixels and ``leading``."""
+def _end_run(frame: Frame, start: tuple[float, float], other: tuple[float, float], length: int, leading: np.ndarray, quantum: float = 0.0) -> np.ndarray:
+    """The samples of one end's surface (px): its extension's valid pixels and the first of ``leading``
+    (nearest the end first) up to the first that the extension's own bisquare would not weigh (farther
+    from its median than ``TUKEY_C`` of its scale, that at least the rounding's ``quantum / sqrt(12)``):
+    past the edge the segment runs on onto another surface (a box's side face receding from the camera)."""
     px = extension_pixels(frame, start, other, length)
     d = frame.disparity[px[:, 1], px[:, 0]]
     d = d[valid_disparity(frame, d)].astype(np.float64)
+    lead = np.asarray(leading, dtype=np.float64)
+    if d.size and lead.size:
+        reach = TUKEY_C * max(tukey_scale(d), quantum / math.sqrt(12.0))
+        lead = lead[: int(np.argmin(np.abs(lead - median(d)) <= reach)) if (np.abs(lead - median(d)) > reach).any() else lead.size]
     # Nearest to the end first on both sides: the run is in image order through the click.
-    return np.concatenate([d[::-1], np.asarray(leading, dtype=np.float64)])
+    return np.concatenate([d[::-1], lead])
 
 
 def _surface_of(run: np.ndarray, quantum: float) -> EndSurface:
@@ -133,7 +140,7 @@ def clear_gap_ends(frame: Frame, xy1: tuple[float, float], xy2: tuple[float, flo
     ``quantum`` is the disparity step (px) for each surface's rounding error (0: none)."""
     ends = []
     for (a, b), lead, d, s in zip(((xy1, xy2), (xy2, xy1)), leading, d_segment, se_segment):
-        run = _end_run(frame, a, b, length, lead)
+        run = _end_run(frame, a, b, length, lead, quantum)
         if run.size < MIN_EXTENSION_SAMPLES or not (math.isfinite(d) and d + frame.doffs > 0):
             return None
         top = float(run.max())
