@@ -6,7 +6,8 @@
   ``Z_ext1 < Z1'`` and ``Z_ext2 < Z2'``.
 - The robust method's rule (``clear_gap_ends``), in disparity: each end's surface is
   its extension's valid pixels together with the segment's samples next to the click that lie in
-  front of the segment's robust line and are not supported by it (``leading_run``). It needs
+  front of the segment's robust line and are not supported by it (``leading_run``), up to the first the
+  extension's own bisquare would not weigh (``_end_run``). It needs
   ``MIN_EXTENSION_SAMPLES`` samples, and its Tukey location must exceed the segment's line at the end
   by ``GAP_STEP_REL`` and by ``GAP_SIGMAS`` standard errors of the difference, each inflated for the
   lag-one correlation of its residuals. On a gap the answer is measured between the clicks' rays at

@@ -116,8 +116,9 @@ def test_a_gaps_rounding_is_its_ends_whatever_lies_behind_it(noise):
     gap's sigma is that, propagated to the width, and does not grow with the depth of the room behind
     the door (it did: the rounding was the back wall's, at its depth and over its length)."""
     from measure import robust_with_terms
+    from measure.gap import GAP_SIGMA_SCALE
     from measure.sampling import ray
-    from measure.uncertainty import SIGMA_SCALE, endpoint_depth_sigma
+    from measure.uncertainty import endpoint_depth_sigma
 
     p1, p2 = (99.0, 120.0), (220.0, 120.0)  # the last wall pixel each side
     z = F * B / 10.0
@@ -135,7 +136,7 @@ def test_a_gaps_rounding_is_its_ends_whatever_lies_behind_it(noise):
         assert np.allclose(m.p1_m, ray(f, *p1) * z) and terms["fit"] == 0.0  # one level: no scatter
         assert terms["quant"] == pytest.approx(want, rel=1e-6)
         sigmas.append(m.uncertainty_m)
-    assert sigmas == pytest.approx([SIGMA_SCALE * want] * 3, rel=1e-6)
+    assert sigmas == pytest.approx([GAP_SIGMA_SCALE * want] * 3, rel=1e-6)
 
 
 def test_gap_detection_can_be_switched_off():
