@@ -14,7 +14,7 @@ from measure import Frame
 from service.frame_errors import NotAReplay, SeekOutOfRange
 from service.frames import FrameRing
 from service.provenance import RECORDED_KINDS, recorded_index
-from service.render import live_jpeg
+from service.render import LIVE_JPEG, encode_jpeg
 
 __all__ = ["Capture", "FrameSink", "SourceFactory"]
 
@@ -240,11 +240,10 @@ class Capture:
             backoff = min(self.backoff_max_s, backoff * 2)
 
     def _deliver(self, frame: Frame, info: SourceInfo) -> None:
-        entry = self.ring.push(frame)
-        if self.ring.last_viewed and entry.id == self.ring.last_viewed + 1:
-            # A page follows every frame: make its JPEG here, so that the live view's request finds it
-            # made instead of encoding on a worker thread behind the measurements.
-            live_jpeg(entry)
+        # A page follows every frame: its JPEG is made before the frame can be seen, so the live view's
+        # request never finds the frame without it (and waits for an encoding behind other threads).
+        cache = {LIVE_JPEG: encode_jpeg(frame.image)} if self.ring.followed else None
+        self.ring.push(frame, cache=cache)
         now = time.monotonic()
         with self._lock:
             self._state = "streaming"

@@ -101,12 +101,14 @@ class FrameRing:
         self._held: tuple[int, list[RingFrame]] = (0, [])  # (frozen id, the frames just before it)
         self._cond = threading.Condition()
 
-    def push(self, frame: Frame, *, frozen: bool = False, uid: str | None = None) -> RingFrame:
+    def push(self, frame: Frame, *, frozen: bool = False, uid: str | None = None, cache: dict[str, bytes] | None = None) -> RingFrame:
+        """Add ``frame`` as the newest; ``cache``: encodings made already, in the entry from the moment
+        it can be seen."""
         packed = PackedFrame.pack(frame)  # outside the lock: readers of the ring need not wait for the packing
         with self._cond:
             fid = next(self._ids)
             self._next = fid + 1
-            entry = RingFrame(id=fid, packed=packed, holds=int(frozen), touched=self._clock())
+            entry = RingFrame(id=fid, packed=packed, holds=int(frozen), touched=self._clock(), cache=dict(cache or {}))
             if uid:
                 entry.uid = uid
             self._frames[fid] = entry
@@ -173,6 +175,13 @@ class FrameRing:
                 if left <= 0:
                     return None
                 self._cond.wait(left)
+
+    @property
+    def followed(self) -> bool:
+        """Whether the newest frame was handed out as "latest" (a page follows the stream, so it asks
+        for the next one's image too)."""
+        with self._cond:
+            return self.last_viewed > 0 and self.last_viewed == self._next - 1
 
     def mark_viewed(self, fid: int) -> None:
         """Keep frame ``fid`` while it is among the last ``keep_viewed`` frames shown to a client."""

@@ -247,14 +247,17 @@ def test_capture_makes_the_live_jpeg_ahead_only_while_a_page_follows_every_frame
     ring = FrameRing(capacity=8)
     cap = Capture(lambda: None, ring, fps=10, backoff_initial_s=1, backoff_max_s=1)
     info = SourceInfo(kind="test", name="test")
+    # what a long-poll woken by the push would find: the newest frame as it is when it becomes visible
+    seen = []
+    ring._wakers.add(lambda: seen.append(ring.latest().cached(LIVE_JPEG)))
     cap._deliver(wall_frame(0), info)  # nobody has looked yet
-    assert ring.latest().cached(LIVE_JPEG) is None
+    assert ring.latest().cached(LIVE_JPEG) is None and seen == [None]
     ring.mark_viewed(ring.latest().id)  # a page shows frame 1 ...
-    cap._deliver(wall_frame(1), info)  # ... so frame 2's JPEG is made with it
+    cap._deliver(wall_frame(1), info)  # ... so frame 2's JPEG is made before frame 2 can be seen
     entry = ring.latest()
-    assert entry.cached(LIVE_JPEG) == encode_jpeg(entry.frame.image)
+    assert seen[-1] is not None and seen[-1] == entry.cached(LIVE_JPEG) == encode_jpeg(entry.frame.image)
     cap._deliver(wall_frame(2), info)  # the page did not ask for frame 2: nothing made ahead
-    assert ring.latest().cached(LIVE_JPEG) is None
+    assert ring.latest().cached(LIVE_JPEG) is None and seen[-1] is None
 
 
 def test_writes_in_one_turn_of_the_loop_reach_the_socket_as_one():
