@@ -58,6 +58,7 @@ OPTION_FIELDS: dict[str, type] = {f.name: f.type for f in dataclasses.fields(Mea
 FILE_KINDS = ("replay", "depthpng", "middlebury", "video", "history")  # spec kinds whose target is a path
 RANDOM_ACCESS_KINDS = ("replay", "history")  # a frame can be read without reading the ones before it
 LIVE_KINDS = ("oak", "v4l2")  # cameras: frame i is whatever arrives, not a recorded frame
+PARQUET_BATCH_ROWS = 4096  # a Parquet table's rows become dicts this many at a time (~2 MB of them)
 
 
 class TaskError(BatchError):
@@ -309,7 +310,7 @@ def _rows(path: Path, suffix: str, row_groups: list[int] | None = None) -> Itera
         else:
             import pyarrow.parquet as pq
 
-            for batch in pq.ParquetFile(path).iter_batches(batch_size=4096, row_groups=row_groups):
+            for batch in pq.ParquetFile(path).iter_batches(batch_size=PARQUET_BATCH_ROWS, row_groups=row_groups):
                 yield from batch.to_pylist()
     except (OSError, UnicodeDecodeError, csv.Error) as exc:
         raise TaskError(f"{path} cannot be read as {suffix[1:]}: {exc}") from exc

@@ -2,7 +2,7 @@
 (`ray start --head`, `ray start --address`), `depthruler batch --ray HEAD`, the second node killed
 mid-run; the results are complete (one row per task) and equal to a local run.
 
-The table has DEPTHRULER_CLUSTER_TASKS tasks (default 800 to fit CI on two cores: the node is killed
+The table has DEPTHRULER_CLUSTER_TASKS tasks (default 400 to fit CI on two cores: the node is killed
 once two groups are written, with the others in flight or to come; the scale run of the issue is 50,000)."""
 
 from __future__ import annotations
@@ -98,7 +98,7 @@ def _wait_nodes(address: str, n: int, env: dict, timeout: float = 180.0) -> None
 
 def test_two_node_cluster_survives_a_killed_node(archive, tmp_path, cluster):
     address, node, token = cluster
-    n = int(os.environ.get("DEPTHRULER_CLUSTER_TASKS", "800"))
+    n = int(os.environ.get("DEPTHRULER_CLUSTER_TASKS", "400"))
     table = _table(tmp_path / "tasks.csv", archive, n)
     local = tmp_path / "local.parquet"
     invoke(["batch", str(table), "--out", str(local), "--workers", "1"])  # the local run, in this process

@@ -149,9 +149,10 @@ def test_an_unwritable_out_is_a_one_line_error_before_the_run(table, tmp_path):
 
 
 @pytest.mark.slow
-def test_a_ray_data_run_killed_mid_run_and_at_the_commit_resumes_to_every_task_once(table, reference, tmp_path):
+def test_a_ray_data_run_killed_mid_run_resumes_to_every_task_once(table, reference, tmp_path):
     """On Ray Data the workers write the parts: a driver killed (with its private Ray) once parts are
-    on disk, and a resume killed at the commit point, resume on Ray to the rows of a local run."""
+    on disk resumes on Ray to the rows of a local run. (The commit's own kill points are the driver's
+    whatever measured the parts: the pool's tests above kill them; each private Ray start costs seconds.)"""
     tasks_csv, n = table
     out = tmp_path / "r.parquet"
     args = ["batch", str(tasks_csv), "--out", str(out), "--ray", "local", "--workers", "2"]
@@ -159,11 +160,9 @@ def test_a_ray_data_run_killed_mid_run_and_at_the_commit_resumes_to_every_task_o
     assert killed_after_first_part(args, parts) == -signal.SIGKILL, "the run ended before it could be killed"
     written = pq.read_table(parts).num_rows
     assert 0 < written < n and not out.exists()
-    assert depthruler([*args, "--resume"], env={STOP_ENV: "sealed"}).returncode == -signal.SIGKILL
-    assert _left(out)["merged"] > 0 and _left(out)["tmp"] == 1
     resumed = depthruler([*args, "--resume"])
     assert resumed.returncode == 0, resumed.stderr
-    assert f"{n} tasks, {n} already done; running 0" in " ".join(resumed.stdout.split())
+    assert f"{n} tasks, {written} already done; running {n - written}" in " ".join(resumed.stdout.split()), resumed.stdout
     rows = stable(out, DROP)
     assert [r["task"] for r in rows] == list(range(n)) and rows == reference
     assert _left(out) == {"parts": -1, "merged": -1, "tmp": 0, "out": 1}

@@ -5,7 +5,6 @@ from __future__ import annotations
 
 import shutil
 
-from batch.raydata import measure_block
 from batch.run import close_readers
 from batch.schema import result_schema
 from batch.taskblocks import to_block
@@ -13,6 +12,8 @@ from batch.tasks import parse_row
 
 
 def test_a_new_run_reopens_the_recordings_a_worker_kept_open(archive, tmp_path):
+    from batch.raydata import measure_block  # imports ray.data (seconds): not at collection, which every worker pays
+
     rec = tmp_path / "rec"
     shutil.copytree(archive / "rec_poster", rec)
     index = rec / "frames.jsonl"

@@ -6,7 +6,6 @@ from __future__ import annotations
 import shutil
 
 import pytest
-from moto import server as moto_server
 
 from batch_tables import depthruler, invoke, stable, write_tasks
 
@@ -14,6 +13,8 @@ from batch_tables import depthruler, invoke, stable, write_tasks
 @pytest.fixture
 def s3(monkeypatch, tmp_path):
     """A bucket on a private moto S3 server; the environment points boto at it (as for MinIO)."""
+    from moto import server as moto_server  # not at collection, which every worker pays
+
     server = moto_server.ThreadedMotoServer(ip_address="127.0.0.1", port=0, verbose=False)
     server.start()
     host, port = server.get_host_and_port()

@@ -10,7 +10,6 @@ from __future__ import annotations
 
 import httpx
 import pytest
-import schemathesis
 from fastapi.testclient import TestClient
 from hypothesis import HealthCheck, given, settings
 
@@ -62,6 +61,8 @@ def _check(client: TestClient, case) -> None:
 
 @pytest.mark.slow
 def test_api_answers_every_request_without_a_server_error(app, client):
+    import schemathesis  # here, not at collection, which every run of the fast loop (leaving this test out) pays
+
     schema = schemathesis.openapi.from_dict(app.openapi()).exclude(method="POST", path="/api/recordings")
     examples = max(5, settings.default.max_examples // 4)  # per operation: a quarter of the profile's
     failures = []
