@@ -35,6 +35,9 @@ TESTS = Path(__file__).resolve().parent
 # A test in one of these folders carries its marker, so `-m` selects across folders (the fast loop
 # leaves them out; docs/testing.md).
 FOLDER_MARKERS = {"integration": "integration", "studies": "study", "browser": "browser"}
+# The unit tests that cost the most in the last measured full run (tests/heavy.txt, written by
+# `tests/durations.py --heavy`): marked `heavy`, which the fast loop leaves out and the full suite runs.
+HEAVY = frozenset(line for line in (TESTS / "heavy.txt").read_text().splitlines() if line and not line.startswith("#"))
 
 
 def pytest_configure(config: pytest.Config) -> None:
@@ -63,6 +66,8 @@ def pytest_collection_modifyitems(config: pytest.Config, items: list[pytest.Item
         folder = item.path.relative_to(TESTS).parts[0] if item.path.is_relative_to(TESTS) else ""
         if folder in FOLDER_MARKERS:
             item.add_marker(FOLDER_MARKERS[folder])
+        if item.nodeid in HEAVY:
+            item.add_marker("heavy")
         if long_fuzz and "fuzz" in item.nodeid.split("/"):
             item.add_marker(pytest.mark.timeout(0))
         if "hardware" in item.keywords and not hardware:

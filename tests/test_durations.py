@@ -10,7 +10,7 @@ import textwrap
 
 import pytest
 
-from durations import FAST_LOOP, FAST_LOOP_COMMAND, ROOT, parse_log, top_share
+from durations import FAST_LOOP, FAST_LOOP_COMMAND, HEAVY_FILE, ROOT, heavy_tests, heavy_text, parse_log, top_share
 
 LOG = """\
 ........ [100%]
@@ -37,6 +37,21 @@ def test_the_log_gives_wall_cpu_load_and_summary():
 def test_a_log_without_the_plugin_still_reads():
     run = parse_log("1.00s call     tests/t.py::test_x\n1 passed in 1.10s\n")
     assert (dict(run.wall), dict(run.cpu), run.run_cpu, run.load) == ({"tests/t.py::test_x": 1.0}, {}, None, None)
+
+
+def test_heavy_tests_are_the_costly_unit_tests_and_their_file_reads_back():
+    log = LOG + "0.40s cpu tests/studies/test_s.py::test_study\n3.00s call     tests/studies/test_s.py::test_study\n"
+    # test_burn by its CPU, test_sleep[x y] not (1.0 s of wall, 0.01 s of CPU), a study never
+    nodes = heavy_tests(parse_log(log))
+    assert nodes == ["tests/a/test_a.py::test_burn"]
+    text = heavy_text(nodes + ["tests/b/test_b.py::test_wait[1 2]"], "today")
+    assert [line for line in text.splitlines() if not line.startswith("#")] == [*nodes, "tests/b/test_b.py::test_wait[1 2]"]
+
+
+def test_the_heavy_marker_is_given_by_the_listed_node_ids(request):
+    listed = {line for line in HEAVY_FILE.read_text().splitlines() if line and not line.startswith("#")}
+    assert ("heavy" in request.node.keywords) == (request.node.nodeid in listed)
+    assert all("::" in node and node.startswith("tests/") for node in listed)
 
 
 def test_the_fast_loop_command_selects_the_fast_loop():
