@@ -30,6 +30,10 @@ LEVEL_BIN_M = 0.01
 LEVEL_SHARE = 0.08
 MAX_LEVEL_BINS = 4096
 LEVEL_FIT_PIXELS = 500
+FOOT_POINTS = 240
+FOOT_TANGENT_PX = 3
+FOOT_MIN = 0.3
+RING_WIDEN = 2
 
 
 def ring_pixels(mask: np.ndarray, gap_px: int, width_px: int) -> tuple[np.ndarray, np.ndarray]:
@@ -64,20 +68,44 @@ def angle_deg(a: Plane, b: Plane) -> float:
 
 def parallel_levels(frame: Frame, mask: np.ndarray, top: Plane, seed: int = 0,
                     min_drop_m: float = 0.0) -> tuple[Plane | None, bool]:
-    """The plane a box with top plane ``top`` stands on, and whether another parallel level lies between
-    them (a table, a neighbour's top: the choice is ambiguous). Among the ring's pixels, the densest
-    level below the top along its normal (a histogram of n . P + o in bins of ``LEVEL_BIN_M`` or two
-    depth-noise scales, whichever is wider, holding at least ``LEVEL_SHARE`` of the ring; side faces
-    spread over all levels, a floor or table is one), then a robust plane of that level's pixels,
-    parallel to the top within ``PARALLEL_DEG``."""
-    area = int(mask.sum())
-    width = max(RING_MIN_PX, int(0.6 * math.sqrt(max(area, 1))))
+    """The plane and ``between`` of :func:`support_levels`."""
+    return support_levels(frame, mask, top, seed, min_drop_m)[:2]
+
+
+def support_levels(frame: Frame, mask: np.ndarray, top: Plane, seed: int = 0,
+                   min_drop_m: float = 0.0) -> tuple[Plane | None, bool, float]:
+    """The plane a box with top plane ``top`` stands on, whether another parallel level lies between
+    them (a neighbour's top: the choice is ambiguous), and the share of the box's visible foot where
+    that plane is seen (``_foot_share``). The candidates are the dense levels of a ring around the top
+    (``_ring_levels``); the ring widens twice by ``RING_WIDEN`` while no level is seen at the foot
+    (``FOOT_MIN``): beside a tall box on a table, a narrow ring sees only its side faces and the floor
+    beyond the table."""
+    width = max(RING_MIN_PX, int(0.6 * math.sqrt(max(int(mask.sum()), 1))))
+    line = _outline_px(mask, top)
+    best: tuple[Plane | None, bool, float] = (None, False, -1.0)
+    for _ in range(3):
+        got = _ring_levels(frame, mask, top, line, seed, min_drop_m, width)
+        if got[0] is not None and got[2] > best[2]:
+            best = got
+        if best[2] >= FOOT_MIN:
+            break
+        width *= RING_WIDEN
+    return best if best[0] is not None else (None, False, 0.0)
+
+
+def _ring_levels(frame: Frame, mask: np.ndarray, top: Plane, line: np.ndarray, seed: int, min_drop_m: float,
+                 width: int) -> tuple[Plane | None, bool, float]:
+    """:func:`support_levels` on a ring ``width`` px wide: among the ring's pixels, the dense levels below
+    the top along its normal (a histogram of n . P + o in bins of ``LEVEL_BIN_M`` or two depth-noise
+    scales, whichever is wider, holding at least ``LEVEL_SHARE`` of the ring; side faces spread over
+    all levels, a floor or table is one), each a robust plane of the ring's pixels clear of what stands
+    above it, parallel to the top within ``PARALLEL_DEG``; of these the one best seen at the foot."""
     xs, ys = ring_pixels(mask, RING_GAP_PX, width)
     d = frame.disparity[ys, xs]
     keep = frame.valid(d)
     xs, ys, d = xs[keep], ys[keep], d[keep].astype(float)
     if len(xs) < MIN_PLANE_PIXELS * 4:
-        return None, False
+        return None, False, 0.0
     z = top.fb / (d + top.doffs)
     pts = np.stack([(xs - top.cx) * z / top.fx, (ys - top.cy) * z / top.fy, z], axis=1)
     n, o = top.metric()
@@ -85,11 +113,12 @@ def parallel_levels(frame: Frame, mask: np.ndarray, top: Plane, seed: int = 0,
     lo = max(min_drop_m, 0.0)
     sel = below > lo
     if sel.sum() < MIN_PLANE_PIXELS * 4:
-        return None, False
+        return None, False, 0.0
     # A level's spread along the normal is the ring's depth noise, Z² / fB times the disparity noise the
     # top shows (or the quantum's rounding): a coarse sensor's floor spans several centimetres.
     z_med = float(median(z))
     bin_m = max(LEVEL_BIN_M, 2.0 * z_med * z_med / top.fb * max(top.sigma_px, top.quantum / math.sqrt(12.0)))
+    noise_m = z * z / top.fb * max(top.sigma_px, top.quantum / math.sqrt(12.0))  # each pixel's, along the normal
     idx = ((below[sel] - lo) / bin_m).astype(np.int64)
     hist = np.bincount(idx[idx < MAX_LEVEL_BINS])  # stray matches tens of metres away make no level
     # Two neighbouring bins together: a level straddling a bin edge still counts once.
@@ -97,42 +126,97 @@ def parallel_levels(frame: Frame, mask: np.ndarray, top: Plane, seed: int = 0,
     dense = np.flatnonzero(pair >= LEVEL_SHARE * len(xs))
 
     def level_plane(k: int) -> Plane | None:
-        # The level's pixels, from the top moved down to them (its two bins' middle), then the whole ring
-        # from there: inliers chosen by their residual to the plane, not by their noisy level, which
-        # would truncate the noise on one side and bias the plane; a slab of side faces cut out by its
-        # level fits a plane parallel to the top, but on the whole ring it turns away.
-        level = np.flatnonzero((below >= lo + (k - 1) * bin_m) & (below <= lo + (k + 3) * bin_m))
-        level = level[::max(1, len(level) // LEVEL_FIT_PIXELS)]  # it only steers the fit on the ring
+        # The ring's pixels clear of everything standing more than two bins above the level (side faces,
+        # the box, a neighbour), from the top moved down to the level (its two bins' middle): inliers
+        # chosen by their residual to the plane, not by their noisy level, which would truncate the
+        # noise on one side and bias the plane. Where side faces meet the level their pixels within its
+        # tolerance would tilt it (a table's level turns by 15-20 degrees); a slab of side faces cut
+        # out by its level is next to the faces above it and goes with them.
+        in_pair = (below >= lo + k * bin_m) & (below < lo + (k + 2) * bin_m)
+        drop = float(median(below[in_pair])) if in_pair.any() else lo + (k + 1) * bin_m
+        keep = _clear_of(xs, ys, below < drop - INLIER_SIGMAS * noise_m)
+        keep &= np.abs(below - drop) <= np.maximum(INLIER_SIGMAS * noise_m, bin_m)
         try:
-            plane = fit_plane(frame, xs[level], ys[level], seed, start=parallel_plane(top, o + lo + (k + 1) * bin_m))
-            plane = fit_plane(frame, xs, ys, seed, start=plane)
+            plane = fit_plane(frame, xs[keep], ys[keep], seed, start=parallel_plane(top, o + drop))
         except MeasureError:
             return None
         return plane if angle_deg(plane, top) <= PARALLEL_DEG and plane.n_support >= MIN_PLANE_PIXELS * 4 else None
 
     # Runs of neighbouring dense bins: a level is a run of two or three, side faces a long one.
     runs = np.split(dense, np.flatnonzero(np.diff(dense) > 1) + 1) if dense.size else []
-    peaks = [int(r[np.argmax(pair[r])]) for r in runs]  # each run's densest bin
-    for i in np.argsort([-pair[p] for p in peaks], kind="stable")[:MAX_CANDIDATES]:  # densest level first
-        plane = level_plane(peaks[i])
-        if plane is None:
-            continue
-        # A parallel level nearer below the top than the one chosen: a table under the box, or a
-        # neighbour's top; which one the box stands on is not known from the ring alone.
-        between = any(level_plane(peaks[j]) is not None for j in range(i))
-        return _clear_of_sides(frame, xs, ys, plane, seed), between
-    return None, False
+    peaks = [int(r[np.argmax(pair[r])]) for r in runs]  # each run's densest bin, nearest below the top first
+    order = np.argsort([-pair[p] for p in peaks], kind="stable")[:MAX_CANDIDATES]  # densest level first
+    levels = {int(i): level_plane(peaks[i]) for i in order}
+    found = [i for i in order if levels[int(i)] is not None]
+    if not found:
+        return None, False, 0.0
+    # The level the box stands on is the one seen at its foot: a table seen beyond a box on it lies
+    # under the floor's pixels around the foot, a floor beyond the table's edge, or a neighbour's top
+    # in the air beside its side faces, both fail (docs/decisions/box-support-level.md). The densest
+    # level wins a tie.
+    foot = [_foot_share(frame, line, top, levels[int(i)]) for i in found]
+    best = int(found[int(np.argmax(foot))])
+    # A parallel level nearer below the top than the one chosen: a neighbour's top (or a shelf); which
+    # one the box stands on is not certain from the ring alone.
+    between = any((levels[j] if j in levels else level_plane(peaks[j])) is not None for j in range(best))
+    return _clear_of_sides(frame, xs, ys, levels[best], seed), between, float(max(foot))
 
 
-def _clear_of_sides(frame: Frame, xs: np.ndarray, ys: np.ndarray, plane: Plane, seed: int) -> Plane:
-    """``plane`` refit on the ring pixels (xs, ys, a regular grid) farther than ``RING_GAP_PX`` from any
-    that stand clearly above it: where an object's side face meets its floor, the face's first
-    pixels lie within the floor's tolerance and lift the plane (a box's height comes out short)."""
+def _outline_px(mask: np.ndarray, top: Plane) -> np.ndarray:
+    """Points of the outer outline of the largest region of ``mask`` (about ``FOOT_POINTS``) on the near
+    sides of the top on plane ``top``, those whose side face turns towards the camera: n x 4 float,
+    x and y (px) and the outline's outward unit normal in the image."""
     import cv2
 
-    tol = INLIER_SIGMAS * max(plane.sigma_px, plane.quantum * 0.75)
+    contours, _ = cv2.findContours(mask.astype(np.uint8), cv2.RETR_EXTERNAL, cv2.CHAIN_APPROX_NONE)
+    if not contours:
+        return np.zeros((0, 4))
+    line = max(contours, key=len).reshape(-1, 2).astype(float)
+    t = np.roll(line, -FOOT_TANGENT_PX, axis=0) - np.roll(line, FOOT_TANGENT_PX, axis=0)
+    nrm = np.stack([t[:, 1], -t[:, 0]], axis=1)
+    nrm /= np.maximum(np.linalg.norm(nrm, axis=1, keepdims=True), 1e-9)
+    nrm *= np.where(np.einsum("ij,ij->i", line - line.mean(axis=0), nrm) < 0, -1.0, 1.0)[:, None]
+    step = max(1, len(line) // FOOT_POINTS)
+    line, nrm = line[::step], nrm[::step]
+    p = top.points_at(line[:, 0], line[:, 1])
+    out = top.points_at(line[:, 0] + nrm[:, 0], line[:, 1] + nrm[:, 1]) - p  # outward on the top plane
     with np.errstate(invalid="ignore"):
-        above = frame.disparity[ys, xs] - plane.disparity_at(xs, ys) > tol
+        near = np.einsum("ij,ij->i", out, -p) > 0
+    return np.hstack([line, nrm])[near]
+
+
+def _foot_share(frame: Frame, line: np.ndarray, top: Plane, level: Plane) -> float:
+    """Share of the top's near outline points (``_outline_px``) whose foot on ``level`` (the point on the top
+    plane moved along the top's normal onto ``level``), seen ``RING_GAP_PX`` further out in the image,
+    shows ``level``'s disparity: where a box's side faces meet what it stands on, that surface is seen
+    just outside them (on the near sides; the far ones are hidden by the box)."""
+    h, w = frame.shape
+    if not len(line):
+        return 0.0
+    p = top.points_at(line[:, 0], line[:, 1])
+    n = top.metric()[0]
+    nl, ol = level.metric()
+    along = (p @ nl + ol) / float(n @ nl)
+    f = p - along[:, None] * n
+    with np.errstate(divide="ignore", invalid="ignore"):
+        px = np.stack([top.fx * f[:, 0] / f[:, 2] + top.cx, top.fy * f[:, 1] / f[:, 2] + top.cy], axis=1)
+    look = np.rint(px + RING_GAP_PX * line[:, 2:]).astype(np.int64, copy=False) if np.isfinite(px).all() else None
+    if look is None:
+        return 0.0
+    ok = (look[:, 0] >= 0) & (look[:, 0] < w) & (look[:, 1] >= 0) & (look[:, 1] < h)
+    if not ok.any():
+        return 0.0
+    x, y = look[ok, 0], look[ok, 1]
+    tol = INLIER_SIGMAS * max(level.sigma_px, level.quantum * 0.75)
+    with np.errstate(invalid="ignore"):
+        return float(np.mean(np.abs(frame.disparity[y, x] - level.disparity_at(x, y)) <= tol))
+
+
+def _clear_of(xs: np.ndarray, ys: np.ndarray, above: np.ndarray) -> np.ndarray:
+    """Which of the ring pixels (xs, ys, a regular grid) lie farther than ``RING_GAP_PX`` from any
+    flagged ``above`` (bool); all of them when fewer than ``MIN_PLANE_PIXELS * 4`` would be left."""
+    import cv2
+
     keep = np.ones(len(xs), bool)
     if above.any():
         step = max(1, int(np.gcd.reduce(np.concatenate([xs - xs.min(), ys - ys.min()]))))
@@ -143,6 +227,22 @@ def _clear_of_sides(frame: Frame, xs: np.ndarray, ys: np.ndarray, plane: Plane, 
         keep = ~cv2.dilate(grid, np.ones((2 * reach + 1,) * 2, np.uint8))[gy, gx].astype(bool)
         if np.count_nonzero(keep) < MIN_PLANE_PIXELS * 4:
             keep[:] = True
+    return keep
+
+
+def _clear_of_sides(frame: Frame, xs: np.ndarray, ys: np.ndarray, plane: Plane, seed: int) -> Plane:
+    """``plane`` refit on the ring pixels (xs, ys, a regular grid) near it and farther than
+    ``RING_GAP_PX`` from any that stand clearly above it: where an object's side face meets its floor, the face's first
+    pixels lie within the floor's tolerance and lift the plane (a box's height comes out short)."""
+    tol = INLIER_SIGMAS * max(plane.sigma_px, plane.quantum * 0.75)
+    with np.errstate(invalid="ignore"):
+        above = frame.disparity[ys, xs] - plane.disparity_at(xs, ys) > tol
+    # A wider surface far below (the floor beyond a table) would draw the fit's scale and then the
+    # plane down to it: only pixels within twice the tolerance of the plane take part.
+    with np.errstate(invalid="ignore"):
+        keep = _clear_of(xs, ys, above) & (np.abs(frame.disparity[ys, xs] - plane.disparity_at(xs, ys)) <= 2.0 * tol)
+    if np.count_nonzero(keep) < MIN_PLANE_PIXELS * 4:
+        return plane
     try:
         return fit_plane(frame, xs[keep], ys[keep], seed, start=plane)
     except MeasureError:
