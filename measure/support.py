@@ -33,6 +33,8 @@ LEVEL_FIT_PIXELS = 500
 FOOT_POINTS = 240
 FOOT_TANGENT_PX = 3
 FOOT_MIN = 0.3
+FOOT_LEAST = 10
+FOOT_STEPS_PX = (8, 16, 32)
 RING_WIDEN = 2
 
 
@@ -123,7 +125,6 @@ def _ring_levels(frame: Frame, mask: np.ndarray, top: Plane, line: np.ndarray, s
     hist = np.bincount(idx[idx < MAX_LEVEL_BINS])  # stray matches tens of metres away make no level
     # Two neighbouring bins together: a level straddling a bin edge still counts once.
     pair = hist[:-1] + hist[1:] if len(hist) > 1 else hist
-    dense = np.flatnonzero(pair >= LEVEL_SHARE * len(xs))
 
     def level_plane(k: int) -> Plane | None:
         # The ring's pixels clear of everything standing more than two bins above the level (side faces,
@@ -142,9 +143,12 @@ def _ring_levels(frame: Frame, mask: np.ndarray, top: Plane, line: np.ndarray, s
             return None
         return plane if angle_deg(plane, top) <= PARALLEL_DEG and plane.n_support >= MIN_PLANE_PIXELS * 4 else None
 
-    # Runs of neighbouring dense bins: a level is a run of two or three, side faces a long one.
-    runs = np.split(dense, np.flatnonzero(np.diff(dense) > 1) + 1) if dense.size else []
-    peaks = [int(r[np.argmax(pair[r])]) for r in runs]  # each run's densest bin, nearest below the top first
+    # Each dense pair of bins that holds a bin no emptier than its neighbours: two levels closer than
+    # a few bins (a neighbour's top and the table beside it) make one run of dense pairs but two peaks.
+    padded = np.concatenate([[0], hist, [0]])
+    tops = np.flatnonzero((padded[1:-1] >= padded[:-2]) & (padded[1:-1] >= padded[2:]))
+    pairs = (np.where(padded[tops + 2] >= padded[tops], tops, tops - 1)).clip(0, len(pair) - 1)
+    peaks = sorted({int(k) for k in pairs if pair[k] >= LEVEL_SHARE * len(xs)})  # nearest below the top first
     order = np.argsort([-pair[p] for p in peaks], kind="stable")[:MAX_CANDIDATES]  # densest level first
     levels = {int(i): level_plane(peaks[i]) for i in order}
     found = [i for i in order if levels[int(i)] is not None]
@@ -165,12 +169,12 @@ def _ring_levels(frame: Frame, mask: np.ndarray, top: Plane, line: np.ndarray, s
 def _outline_px(mask: np.ndarray, top: Plane) -> np.ndarray:
     """Points of the outer outline of the largest region of ``mask`` (about ``FOOT_POINTS``) on the near
     sides of the top on plane ``top``, those whose side face turns towards the camera: n x 4 float,
-    x and y (px) and the outline's outward unit normal in the image."""
+    x and y (px), the outline's outward unit normal in the image and on the top plane (3D, m)."""
     import cv2
 
     contours, _ = cv2.findContours(mask.astype(np.uint8), cv2.RETR_EXTERNAL, cv2.CHAIN_APPROX_NONE)
     if not contours:
-        return np.zeros((0, 4))
+        return np.zeros((0, 7))
     line = max(contours, key=len).reshape(-1, 2).astype(float)
     t = np.roll(line, -FOOT_TANGENT_PX, axis=0) - np.roll(line, FOOT_TANGENT_PX, axis=0)
     nrm = np.stack([t[:, 1], -t[:, 0]], axis=1)
@@ -182,13 +186,14 @@ def _outline_px(mask: np.ndarray, top: Plane) -> np.ndarray:
     out = top.points_at(line[:, 0] + nrm[:, 0], line[:, 1] + nrm[:, 1]) - p  # outward on the top plane
     with np.errstate(invalid="ignore"):
         near = np.einsum("ij,ij->i", out, -p) > 0
-    return np.hstack([line, nrm])[near]
+    out /= np.maximum(np.linalg.norm(out, axis=1, keepdims=True), 1e-12)
+    return np.hstack([line, nrm, out])[near]
 
 
 def _foot_share(frame: Frame, line: np.ndarray, top: Plane, level: Plane) -> float:
     """Share of the top's near outline points (``_outline_px``) whose foot on ``level`` (the point on the top
-    plane moved along the top's normal onto ``level``), seen ``RING_GAP_PX`` further out in the image,
-    shows ``level``'s disparity: where a box's side faces meet what it stands on, that surface is seen
+    plane moved along the top's normal onto ``level``), seen ``FOOT_STEPS_PX`` further out in the
+    image, shows ``level``'s disparity: where a box's side faces meet what it stands on, that surface is seen
     just outside them (on the near sides; the far ones are hidden by the box)."""
     h, w = frame.shape
     if not len(line):
@@ -200,16 +205,27 @@ def _foot_share(frame: Frame, line: np.ndarray, top: Plane, level: Plane) -> flo
     f = p - along[:, None] * n
     with np.errstate(divide="ignore", invalid="ignore"):
         px = np.stack([top.fx * f[:, 0] / f[:, 2] + top.cx, top.fy * f[:, 1] / f[:, 2] + top.cy], axis=1)
-    look = np.rint(px + RING_GAP_PX * line[:, 2:]).astype(np.int64, copy=False) if np.isfinite(px).all() else None
-    if look is None:
+    if not np.isfinite(px).all():
         return 0.0
+    # Several steps out: near the foot the level and the side face look alike (below).
+    look = np.rint(np.concatenate([px + k * line[:, 2:4] for k in FOOT_STEPS_PX])).astype(np.int64)
+    f, line = np.tile(f, (len(FOOT_STEPS_PX), 1)), np.tile(line, (len(FOOT_STEPS_PX), 1))
     ok = (look[:, 0] >= 0) & (look[:, 0] < w) & (look[:, 1] >= 0) & (look[:, 1] < h)
-    if not ok.any():
-        return 0.0
-    x, y = look[ok, 0], look[ok, 1]
+    look, f, out = look[ok], f[ok], line[ok, 4:]
+    x, y = look[:, 0], look[:, 1]
+    # The side face, the vertical plane through the foot, predicts the same disparity as a level a
+    # few centimetres below the top there: such a point tells nothing about the level.
+    ray = np.stack([(x - top.cx) / top.fx, (y - top.cy) / top.fy, np.ones(len(x))], axis=1)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        z_side = np.einsum("ij,ij->i", out, f) / np.einsum("ij,ij->i", out, ray)
+        d_side = top.fb / z_side - top.doffs
+    d_level = level.disparity_at(x, y)
     tol = INLIER_SIGMAS * max(level.sigma_px, level.quantum * 0.75)
+    telling = ~(np.abs(d_side - d_level) <= 2.0 * tol)
+    if np.count_nonzero(telling) < FOOT_LEAST:
+        return 0.0
     with np.errstate(invalid="ignore"):
-        return float(np.mean(np.abs(frame.disparity[y, x] - level.disparity_at(x, y)) <= tol))
+        return float(np.mean(np.abs(frame.disparity[y[telling], x[telling]] - d_level[telling]) <= tol))
 
 
 def _clear_of(xs: np.ndarray, ys: np.ndarray, above: np.ndarray) -> np.ndarray:
