@@ -78,21 +78,21 @@ def support_levels(frame: Frame, mask: np.ndarray, top: Plane, seed: int = 0,
                    min_drop_m: float = 0.0) -> tuple[Plane | None, bool, float]:
     """The plane a box with top plane ``top`` stands on, whether another parallel level lies between
     them (a neighbour's top: the choice is ambiguous), and the share of the box's visible foot where
-    that plane is seen (``_foot_share``). The candidates are the dense levels of a ring around the top
-    (``_ring_levels``); the ring widens twice by ``RING_WIDEN`` while no level is seen at the foot
-    (``FOOT_MIN``): beside a tall box on a table, a narrow ring sees only its side faces and the floor
-    beyond the table."""
+    that plane is seen (``_foot_share``), from the levels of a ring around the top (``_ring_levels``).
+    When none of them is seen at the foot (``FOOT_MIN``) the ring widens, twice by ``RING_WIDEN``,
+    until one is (beside a tall box on a table, a narrow ring sees only its side faces and the floor
+    beyond the table's edge); failing that, the first ring's answer stands."""
     width = max(RING_MIN_PX, int(0.6 * math.sqrt(max(int(mask.sum()), 1))))
     line = _outline_px(mask, top)
-    best: tuple[Plane | None, bool, float] = (None, False, -1.0)
-    for _ in range(3):
-        got = _ring_levels(frame, mask, top, line, seed, min_drop_m, width)
-        if got[0] is not None and got[2] > best[2]:
-            best = got
-        if best[2] >= FOOT_MIN:
-            break
+    first = _ring_levels(frame, mask, top, line, seed, min_drop_m, width)
+    if first[0] is None or first[2] >= FOOT_MIN:
+        return first
+    for _ in range(2):
         width *= RING_WIDEN
-    return best if best[0] is not None else (None, False, 0.0)
+        got = _ring_levels(frame, mask, top, line, seed, min_drop_m, width)
+        if got[0] is not None and got[2] >= FOOT_MIN:
+            return got
+    return first
 
 
 def _ring_levels(frame: Frame, mask: np.ndarray, top: Plane, line: np.ndarray, seed: int, min_drop_m: float,
@@ -100,8 +100,8 @@ def _ring_levels(frame: Frame, mask: np.ndarray, top: Plane, line: np.ndarray, s
     """:func:`support_levels` on a ring ``width`` px wide: among the ring's pixels, the dense levels below
     the top along its normal (a histogram of n . P + o in bins of ``LEVEL_BIN_M`` or two depth-noise
     scales, whichever is wider, holding at least ``LEVEL_SHARE`` of the ring; side faces spread over
-    all levels, a floor or table is one), each a robust plane of the ring's pixels clear of what stands
-    above it, parallel to the top within ``PARALLEL_DEG``; of these the one best seen at the foot."""
+    all levels, a floor or table is one), the densest whose robust plane is parallel to the top within
+    ``PARALLEL_DEG``; if it is not seen at the foot, the level that is (``_foot_level``)."""
     xs, ys = ring_pixels(mask, RING_GAP_PX, width)
     d = frame.disparity[ys, xs]
     keep = frame.valid(d)
@@ -126,13 +126,24 @@ def _ring_levels(frame: Frame, mask: np.ndarray, top: Plane, line: np.ndarray, s
     # Two neighbouring bins together: a level straddling a bin edge still counts once.
     pair = hist[:-1] + hist[1:] if len(hist) > 1 else hist
 
-    def level_plane(k: int) -> Plane | None:
-        # The ring's pixels clear of everything standing more than two bins above the level (side faces,
-        # the box, a neighbour), from the top moved down to the level (its two bins' middle): inliers
-        # chosen by their residual to the plane, not by their noisy level, which would truncate the
-        # noise on one side and bias the plane. Where side faces meet the level their pixels within its
-        # tolerance would tilt it (a table's level turns by 15-20 degrees); a slab of side faces cut
-        # out by its level is next to the faces above it and goes with them.
+    def whole_ring_plane(k: int) -> Plane | None:
+        # The level's pixels, from the top moved down to them (its two bins' middle), then the whole ring
+        # from there: inliers chosen by their residual to the plane, not by their noisy level, which
+        # would truncate the noise on one side and bias the plane; a slab of side faces cut out by its
+        # level fits a plane parallel to the top, but on the whole ring it turns away.
+        level = np.flatnonzero((below >= lo + (k - 1) * bin_m) & (below <= lo + (k + 3) * bin_m))
+        level = level[::max(1, len(level) // LEVEL_FIT_PIXELS)]  # it only steers the fit on the ring
+        try:
+            plane = fit_plane(frame, xs[level], ys[level], seed, start=parallel_plane(top, o + lo + (k + 1) * bin_m))
+            plane = fit_plane(frame, xs, ys, seed, start=plane)
+        except MeasureError:
+            return None
+        return plane if angle_deg(plane, top) <= PARALLEL_DEG and plane.n_support >= MIN_PLANE_PIXELS * 4 else None
+
+    def slab_plane(k: int) -> Plane | None:
+        # The ring's pixels within the level's slab (three noise scales or a bin) and clear of all that
+        # stands above it (side faces, the box, a neighbour): on the whole ring a table's level turns
+        # by 15-20 degrees into the side faces that meet it, or slides to the floor beyond it.
         in_pair = (below >= lo + k * bin_m) & (below < lo + (k + 2) * bin_m)
         drop = float(median(below[in_pair])) if in_pair.any() else lo + (k + 1) * bin_m
         keep = _clear_of(xs, ys, below < drop - INLIER_SIGMAS * noise_m)
@@ -143,27 +154,45 @@ def _ring_levels(frame: Frame, mask: np.ndarray, top: Plane, line: np.ndarray, s
             return None
         return plane if angle_deg(plane, top) <= PARALLEL_DEG and plane.n_support >= MIN_PLANE_PIXELS * 4 else None
 
-    # Each dense pair of bins that holds a bin no emptier than its neighbours: two levels closer than
-    # a few bins (a neighbour's top and the table beside it) make one run of dense pairs but two peaks.
+    # First the densest level: runs of neighbouring dense pairs of bins (a level is a run of two or
+    # three, side faces a long one), each run's densest pair, the densest run first.
+    dense = np.flatnonzero(pair >= LEVEL_SHARE * len(xs))
+    runs = np.split(dense, np.flatnonzero(np.diff(dense) > 1) + 1) if dense.size else []
+    peaks = [int(r[np.argmax(pair[r])]) for r in runs]
+    for i in np.argsort([-pair[p] for p in peaks], kind="stable")[:MAX_CANDIDATES]:
+        plane = whole_ring_plane(peaks[i])
+        if plane is None:
+            continue
+        # A parallel level nearer below the top than the one chosen: a table under the box, or a
+        # neighbour's top; which one the box stands on is not known from the ring alone.
+        between = any(whole_ring_plane(peaks[j]) is not None for j in range(i))
+        foot = _foot_share(frame, line, top, plane)
+        if foot >= FOOT_MIN:
+            return _clear_of_sides(frame, xs, ys, plane, seed), between, foot
+        return _foot_level(frame, xs, ys, line, top, hist, pair, slab_plane, seed) or (
+            _clear_of_sides(frame, xs, ys, plane, seed), between, foot)
+    return None, False, 0.0
+
+
+def _foot_level(frame: Frame, xs: np.ndarray, ys: np.ndarray, line: np.ndarray, top: Plane, hist: np.ndarray,
+                pair: np.ndarray, slab_plane, seed: int) -> tuple[Plane, bool, float] | None:
+    """The level seen at the box's foot (``_foot_share`` at least ``FOOT_MIN``) when the densest is not:
+    a table under a tall box, with the floor beyond its edge filling the ring; a table beside which a
+    neighbour's top is the densest level. Each histogram peak (a bin no emptier than its neighbours,
+    in its denser pair) is a candidate, two levels a few bins apart too; the one seen best at the
+    foot is taken, the nearest of equals (docs/decisions/box-support-level.md). None when no level
+    is seen at the foot."""
     padded = np.concatenate([[0], hist, [0]])
-    tops = np.flatnonzero((padded[1:-1] >= padded[:-2]) & (padded[1:-1] >= padded[2:]))
-    pairs = (np.where(padded[tops + 2] >= padded[tops], tops, tops - 1)).clip(0, len(pair) - 1)
-    peaks = sorted({int(k) for k in pairs if pair[k] >= LEVEL_SHARE * len(xs)})  # nearest below the top first
-    order = np.argsort([-pair[p] for p in peaks], kind="stable")[:MAX_CANDIDATES]  # densest level first
-    levels = {int(i): level_plane(peaks[i]) for i in order}
-    found = [i for i in order if levels[int(i)] is not None]
-    if not found:
-        return None, False, 0.0
-    # The level the box stands on is the one seen at its foot: a table seen beyond a box on it lies
-    # under the floor's pixels around the foot, a floor beyond the table's edge, or a neighbour's top
-    # in the air beside its side faces, both fail (docs/decisions/box-support-level.md). The densest
-    # level wins a tie.
-    foot = [_foot_share(frame, line, top, levels[int(i)]) for i in found]
-    best = int(found[int(np.argmax(foot))])
-    # A parallel level nearer below the top than the one chosen: a neighbour's top (or a shelf); which
-    # one the box stands on is not certain from the ring alone.
-    between = any((levels[j] if j in levels else level_plane(peaks[j])) is not None for j in range(best))
-    return _clear_of_sides(frame, xs, ys, levels[best], seed), between, float(max(foot))
+    tops = np.flatnonzero((padded[1:-1] >= padded[:-2]) & (padded[1:-1] >= padded[2:]) & (hist > 0))
+    pairs = np.where(padded[tops + 2] >= padded[tops], tops, tops - 1).clip(0, len(pair) - 1)
+    peaks = np.unique(pairs[pair[pairs] >= LEVEL_SHARE * len(xs)])  # nearest below the top first
+    peaks = peaks[np.sort(np.argsort(-pair[peaks], kind="stable")[:MAX_CANDIDATES])]
+    levels = [(int(k), slab_plane(int(k))) for k in peaks]
+    levels = [(k, pl, _foot_share(frame, line, top, pl)) for k, pl in levels if pl is not None]
+    if not levels or max(f for _, _, f in levels) < FOOT_MIN:
+        return None
+    i = int(np.argmax([f for _, _, f in levels]))
+    return _clear_of_sides(frame, xs, ys, levels[i][1], seed), i > 0, levels[i][2]
 
 
 def _outline_px(mask: np.ndarray, top: Plane) -> np.ndarray:
@@ -221,11 +250,11 @@ def _foot_share(frame: Frame, line: np.ndarray, top: Plane, level: Plane) -> flo
         d_side = top.fb / z_side - top.doffs
     d_level = level.disparity_at(x, y)
     tol = INLIER_SIGMAS * max(level.sigma_px, level.quantum * 0.75)
-    telling = ~(np.abs(d_side - d_level) <= 2.0 * tol)
+    obs = frame.disparity[y, x]
+    telling = ~(np.abs(d_side - d_level) <= 2.0 * tol) & frame.valid(obs)
     if np.count_nonzero(telling) < FOOT_LEAST:
         return 0.0
-    with np.errstate(invalid="ignore"):
-        return float(np.mean(np.abs(frame.disparity[y[telling], x[telling]] - d_level[telling]) <= tol))
+    return float(np.mean(np.abs(obs[telling] - d_level[telling]) <= tol))
 
 
 def _clear_of(xs: np.ndarray, ys: np.ndarray, above: np.ndarray) -> np.ndarray:
