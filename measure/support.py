@@ -6,6 +6,10 @@ the object's top lies on the camera's side of it and in front of it along the to
 (a front face of the object itself fails that test); otherwise the plane's inliers leave the ring
 and the next plane is tried. With ``parallel_to``, only planes within ``PARALLEL_DEG`` of it count
 (a box's top and the floor it stands on).
+
+:func:`support_levels` finds the plane under a level top (a box's) among the levels parallel to it
+in such a ring: the densest, unless it is not seen at the box's foot, where its side faces meet what
+it stands on (``_foot_share``), and another level is (docs/decisions/box-support-level.md).
 """
 
 from __future__ import annotations
@@ -163,14 +167,15 @@ def _ring_levels(frame: Frame, mask: np.ndarray, top: Plane, line: np.ndarray, s
         plane = whole_ring_plane(peaks[i])
         if plane is None:
             continue
+        foot = _foot_share(frame, line, top, plane)
+        if foot < FOOT_MIN:
+            seen = _foot_level(frame, xs, ys, line, top, hist, pair, slab_plane, seed)
+            if seen is not None:
+                return seen
         # A parallel level nearer below the top than the one chosen: a table under the box, or a
         # neighbour's top; which one the box stands on is not known from the ring alone.
         between = any(whole_ring_plane(peaks[j]) is not None for j in range(i))
-        foot = _foot_share(frame, line, top, plane)
-        if foot >= FOOT_MIN:
-            return _clear_of_sides(frame, xs, ys, plane, seed), between, foot
-        return _foot_level(frame, xs, ys, line, top, hist, pair, slab_plane, seed) or (
-            _clear_of_sides(frame, xs, ys, plane, seed), between, foot)
+        return _clear_of_sides(frame, xs, ys, plane, seed), between, foot
     return None, False, 0.0
 
 
