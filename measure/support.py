@@ -206,16 +206,19 @@ def _outline_px(mask: np.ndarray, top: Plane) -> np.ndarray:
     x and y (px), the outline's outward unit normal in the image and on the top plane (3D, m)."""
     import cv2
 
-    contours, _ = cv2.findContours(mask.astype(np.uint8), cv2.RETR_EXTERNAL, cv2.CHAIN_APPROX_NONE)
-    if not contours:
+    rows, cols = np.flatnonzero(mask.any(axis=1)), np.flatnonzero(mask.any(axis=0))
+    if rows.size == 0:
         return np.zeros((0, 7))
-    line = max(contours, key=len).reshape(-1, 2).astype(float)
-    t = np.roll(line, -FOOT_TANGENT_PX, axis=0) - np.roll(line, FOOT_TANGENT_PX, axis=0)
+    y0, x0 = max(0, rows[0] - 1), max(0, cols[0] - 1)
+    sub = mask[y0:rows[-1] + 2, x0:cols[-1] + 2].astype(np.uint8)
+    contours, _ = cv2.findContours(sub, cv2.RETR_EXTERNAL, cv2.CHAIN_APPROX_NONE, offset=(int(x0), int(y0)))
+    full = max(contours, key=len).reshape(-1, 2).astype(float)
+    idx = np.arange(0, len(full), max(1, len(full) // FOOT_POINTS))
+    t = full[(idx + FOOT_TANGENT_PX) % len(full)] - full[(idx - FOOT_TANGENT_PX) % len(full)]
+    line = full[idx]
     nrm = np.stack([t[:, 1], -t[:, 0]], axis=1)
     nrm /= np.maximum(np.linalg.norm(nrm, axis=1, keepdims=True), 1e-9)
-    nrm *= np.where(np.einsum("ij,ij->i", line - line.mean(axis=0), nrm) < 0, -1.0, 1.0)[:, None]
-    step = max(1, len(line) // FOOT_POINTS)
-    line, nrm = line[::step], nrm[::step]
+    nrm *= np.where(np.einsum("ij,ij->i", line - full.mean(axis=0), nrm) < 0, -1.0, 1.0)[:, None]
     p = top.points_at(line[:, 0], line[:, 1])
     out = top.points_at(line[:, 0] + nrm[:, 0], line[:, 1] + nrm[:, 1]) - p  # outward on the top plane
     with np.errstate(invalid="ignore"):
