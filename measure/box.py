@@ -6,7 +6,8 @@ Steps (docs/method.md Eq. 9-15):
    (``measure.planes.grow_plane``); its outline is where the disparity leaves that plane (a depth
    step to the floor, or the crease to a side face), not a bounding box of noisy points.
 2. The supporting plane: the densest level parallel to the top and below it in a ring around the
-   face (``measure.support.parallel_levels``). None found: the click is not on a box top (MeasureError).
+   face, or the level seen at the box's foot where the densest is not (``measure.support.parallel_levels``).
+   None found: the click is not on a box top (MeasureError).
 3. The rectangle: the outline's pixels are put on the top plane (Eq. 2, 9); a minimum-area rectangle
    gives the orientation, refined from the sides' own directions; each side first lies at the median
    offset of its outline pixels plus half a pixel's footprint outward (Eq. 15), from the middle

@@ -15,8 +15,8 @@ placed in two steps, on profiles across it on the top plane (Eq. 2, 9; docs/deci
    ``SEGMENTS`` stretches of it; in each, the strong significant peaks within the depth's window: a
    step's edge lies inside its depth edge by at most the fattening reach, and beyond it lie the
    fattened background's features, so the innermost is taken; a crease's lies within twice that
-   reach inside its hinge (the ridge is flattened too) and inside it lie the top's own features, so
-   the outermost. A line through the stretches' peaks that most of them agree on is the side, with
+   reach inside its hinge (the ridge is flattened too), not beyond it, and inside it lie the top's
+   own features, so the outermost. A line through the stretches' peaks that most of them agree on is the side, with
    its tilt. A side without one keeps its depth edge moved inward by half the fattening reach, with
    that reach as its uncertainty, and makes the answer one to check (measure.box).
 """
@@ -276,7 +276,9 @@ def _depth_window(t: np.ndarray, r: np.ndarray, top: Plane, reach_in: float) -> 
     noise2 = (1.2533 * max(top.sigma_px, top.quantum / math.sqrt(12.0))) ** 2 * CORRELATED_PX
     hinge = _hinge(t, r, tol, noise2, -reach_in, t_d)
     if hinge is not None:
-        return hinge - 2.0 * FATTEN_REACH_PX, t_d + 1.0, False, hinge, True, True
+        # The ridge's edge lies inside the hinge (the matcher flattens it), not past it: there lie the
+        # side face's own features and, a side face seen at a grazing angle, its foot a few px on.
+        return hinge - 2.0 * FATTEN_REACH_PX, min(t_d, hinge) + 1.0, False, hinge, True, True
     return t_d - FATTEN_REACH_PX, t_d + 1.0, True, t_d, False, True
 
 

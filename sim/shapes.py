@@ -3,7 +3,8 @@
 World frame as in ``sim.scenes`` (floor at Y = 0, Y down, metres). A box case draws from its seed a box
 of 10-80 cm per side at a yaw, standing on the floor or on a table, seen from ``range_m`` (0.6-3 m, to
 the top face's centre) looking down at 30-65 degrees; variants put it partly outside the image
-("cut") or beside a second box ("beside"). Its truth: length >= width of the top face, height above
+("cut") or beside a second box ("beside"); the click is on the top's centre, or its shown pixel nearest
+the centre where the box beside it hides that. Its truth: length >= width of the top face, height above
 what it stands on, the top's corners in the image, and how much of the top face is visible. A panel
 case is a framed board 2 cm proud of a wall, its four corners clicked. Frames go through the rig's
 sensor model (``sim.sensor``) with a profile ("stress" or "paper").
@@ -120,8 +121,16 @@ def box_case(seed: int, profile: str = "stress", lighting: str = "indoor", range
     top = top[np.argsort(ang)]
     cpx = _project(pose, frame, top)
     edge = [float(np.linalg.norm(top[1] - top[0])), float(np.linalg.norm(top[2] - top[1]))]
-    visible = _visible_share(view, cpx, width, height)
+    shown, total = _top_pixels(view, cpx, width, height)
+    visible = float(shown.sum()) / total if total else 0.0
     centre_px = _project(pose, frame, top_centre[None])[0]
+    # A person clicks the top where it shows: where its centre is hidden (by the box beside it) or
+    # outside the image, at its shown pixel nearest the centre.
+    ci, cj = int(round(centre_px[1])), int(round(centre_px[0]))
+    if shown.any() and not (0 <= ci < height and 0 <= cj < width and shown[ci, cj]):
+        ys, xs = np.nonzero(shown)
+        k = int(np.argmin((xs - centre_px[0]) ** 2 + (ys - centre_px[1]) ** 2))
+        centre_px = np.array([float(xs[k]), float(ys[k])])
     click = centre_px + rng.normal(0.0, CLICK_SIGMA_PX, 2)
     click = (float(np.clip(round(click[0]), 0, width - 1)), float(np.clip(round(click[1]), 0, height - 1)))
     # A region of the supporting surface in front of the box: a small square below its nearest corner.
@@ -135,20 +144,20 @@ def box_case(seed: int, profile: str = "stress", lighting: str = "indoor", range
                    support, r, base_px, (*map(float, up), offset))
 
 
-def _visible_share(view, cpx: np.ndarray, width: int, height: int) -> float:
-    """Share of the top face's projected polygon that is inside the image and shows the box."""
+def _top_pixels(view, cpx: np.ndarray, width: int, height: int) -> tuple[np.ndarray, int]:
+    """The top face's pixels that are in the image and show the box (H x W bool), and the pixel count
+    of its whole projected polygon (in the image or not)."""
     import cv2
 
     if not np.isfinite(cpx).all():
-        return 0.0
+        return np.zeros((height, width), bool), 0
     pad = max(width, height)
     canvas = np.zeros((height + 2 * pad, width + 2 * pad), np.uint8)
     cv2.fillPoly(canvas, [np.round(cpx + pad).astype(np.int32).reshape(-1, 1, 2)], 1)
     total = int(canvas.sum())
     inside = canvas[pad:pad + height, pad:pad + width].astype(bool)
     box_id = view.objects.index("box")
-    shown = inside & (view.obj == box_id)
-    return float(shown.sum()) / total if total else 0.0
+    return inside & (view.obj == box_id), total
 
 
 def panel_case(seed: int, profile: str = "stress", lighting: str = "indoor", range_m: float | None = None,
