@@ -22,7 +22,7 @@ from measure.robust_range import TUKEY_C
 
 RIDGE = 1e-8  # regularises singular starts (relative to the start's scale, at least 1)
 _SMALL = 16  # below this many values a selection sorts by insertion
-_LONG, _SAMPLE, _MARGIN = 384, 64, 8  # rows from _LONG values on are narrowed by a sample first (_pair)
+_LONG, _SAMPLE, _MARGIN = 128, 64, 8  # rows from _LONG values on are narrowed by a sample first (_pair)
 
 
 @njit(cache=True, nogil=True, error_model="numpy")
