@@ -430,3 +430,102 @@ def bisquare_line(t: np.ndarray, d: np.ndarray, alpha: float, beta: float, scale
         if done:
             break
     return alpha, beta, r
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
+def _weighted_moments(z: np.ndarray, w: np.ndarray, mean: np.ndarray, cov: np.ndarray, diff: np.ndarray) -> None:
+    """Mean and biased covariance of the points ``z`` (n, p) with 0/1 weights ``w`` (two-pass), and
+    every point's offset ``diff`` from that mean."""
+    n, p = z.shape
+    count = 0.0
+    mean[:] = 0.0
+    for i in range(n):
+        if w[i]:
+            count += 1.0
+            for j in range(p):
+                mean[j] += z[i, j]
+    for j in range(p):
+        mean[j] /= count
+    cov[:] = 0.0
+    for i in range(n):
+        for j in range(p):
+            diff[i, j] = z[i, j] - mean[j]
+        if w[i]:
+            for j in range(p):
+                for k in range(p):
+                    cov[j, k] += diff[i, j] * diff[i, k]
+    for j in range(p):
+        for k in range(p):
+            cov[j, k] /= count
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
+def _mahalanobis(diff: np.ndarray, cov: np.ndarray, out: np.ndarray) -> bool:
+    """Squared Mahalanobis lengths of the rows of ``diff`` under ``cov`` (p <= 3, closed-form inverse)
+    into ``out``; False (``out`` untouched) when ``cov`` is singular (its determinant <= 0)."""
+    p = cov.shape[0]
+    inv = np.empty((p, p))
+    if p == 1:
+        det = cov[0, 0]
+        inv[0, 0] = 1.0
+    elif p == 2:
+        a, b, d = cov[0, 0], cov[0, 1], cov[1, 1]
+        det = a * d - b * b
+        inv[0, 0], inv[1, 1], inv[0, 1], inv[1, 0] = d, a, -b, -b
+    else:
+        a, b, c = cov[0, 0], cov[0, 1], cov[0, 2]
+        e, f, i = cov[1, 1], cov[1, 2], cov[2, 2]
+        inv[0, 0], inv[1, 1], inv[2, 2] = e * i - f * f, a * i - c * c, a * e - b * b
+        inv[0, 1] = inv[1, 0] = c * f - b * i
+        inv[0, 2] = inv[2, 0] = b * f - c * e
+        inv[1, 2] = inv[2, 1] = b * c - a * f
+        det = a * inv[0, 0] + b * inv[0, 1] + c * inv[0, 2]
+    if not det > 0:
+        return False
+    for j in range(p):
+        for k in range(p):
+            inv[j, k] /= det
+    for r in range(diff.shape[0]):
+        acc = 0.0
+        for j in range(p):
+            v = 0.0
+            for k in range(p):
+                v += diff[r, k] * inv[k, j]
+            acc += v * diff[r, j]
+        out[r] = acc
+    return True
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
+def mcd_finish(z: np.ndarray, subset: np.ndarray, med_q: float, q: float, reweight: float):
+    """FAST-MCD's consistency correction and reweighting (``measure.mcd._finish``) in normalised
+    coordinates ``z`` (n, p) of the best h-subset ``subset``: the raw mean and covariance, the latter
+    times median(d²) / ``med_q``; the support d² <= ``q`` and its mean and covariance times
+    ``reweight``; every point's d² under them. The first value is False when a covariance is singular
+    (the caller's numpy path takes its pseudo-inverse)."""
+    n, p = z.shape
+    raw_mean, raw_cov = np.empty(p), np.empty((p, p))
+    mean, cov = np.empty(p), np.empty((p, p))
+    diff, d2, work = np.empty((n, p)), np.empty(n), np.empty(n)
+    support = np.empty(n, np.bool_)
+    _weighted_moments(z, subset, raw_mean, raw_cov, diff)
+    if not _mahalanobis(diff, raw_cov, d2):
+        return False, raw_mean, raw_cov, support, mean, cov, d2
+    work[:] = d2
+    a, b = _ends(work, (n - 1) // 2, n // 2)
+    factor = (a + b) / 2.0 / med_q
+    if factor > 0:
+        for j in range(p):
+            for k in range(p):
+                raw_cov[j, k] *= factor
+        for i in range(n):
+            d2[i] /= factor
+    for i in range(n):
+        support[i] = d2[i] <= q
+    _weighted_moments(z, support, mean, cov, diff)
+    for j in range(p):
+        for k in range(p):
+            cov[j, k] *= reweight
+    if not _mahalanobis(diff, cov, d2):
+        return False, raw_mean, raw_cov, support, mean, cov, d2
+    return True, raw_mean, raw_cov, support, mean, cov, d2

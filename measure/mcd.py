@@ -385,6 +385,12 @@ def _finish(x: np.ndarray, z: np.ndarray, center: np.ndarray, s: float, subset: 
     """Consistency correction and reweighting (R&VD eq. 1.3 and section 1) of the best h-subset."""
     p = x.shape[1]
     med_q, q, reweight_factor = _chi2_constants(p)
+    from measure.kernels import mcd_finish  # numba loads on first use: `import measure` stays fast
+
+    ok, raw_mean, raw_cov, support, mean, cov, d2 = mcd_finish(np.ascontiguousarray(z), np.ascontiguousarray(subset), med_q, q, reweight_factor)
+    if ok:
+        return _result(x, center, s, subset, h, raw_mean, raw_cov, support, mean, cov, d2)
+    # A singular covariance: its pseudo-inverse in numpy.
     raw_mean, raw_cov, diff = _mean_cov(z, subset)
     d2 = _d2(diff, raw_cov)
     factor = median(d2) / med_q
@@ -394,6 +400,11 @@ def _finish(x: np.ndarray, z: np.ndarray, center: np.ndarray, s: float, subset: 
     support = d2 <= q
     mean, cov, diff = _mean_cov(z, support)
     cov = cov * reweight_factor
+    return _result(x, center, s, subset, h, raw_mean, raw_cov, support, mean, cov, _d2(diff, cov))
+
+
+def _result(x, center, s, subset, h, raw_mean, raw_cov, support, mean, cov, d2) -> McdResult:
+    """The McdResult of :func:`_finish`'s estimates (normalised coordinates) in the input's units."""
     return McdResult(
         location=center + s * mean,
         covariance=(s * s) * cov,
@@ -401,7 +412,7 @@ def _finish(x: np.ndarray, z: np.ndarray, center: np.ndarray, s: float, subset: 
         raw_covariance=(s * s) * raw_cov,
         support=support,
         raw_support=subset.copy(),
-        distances=_d2(diff, cov),
+        distances=d2,
         h=h,
         exact_fit=False,
         fit_kind="none",
