@@ -106,7 +106,7 @@ def _irls(t: np.ndarray, d: np.ndarray, alpha: float, beta: float, scale: float,
     line and its residuals. Compiled (``measure.kernels.bisquare_line``): it stops when the line moves
     by less than 1e-4 of the noise scale anywhere on the segment, far below its own standard error
     (>= scale / sqrt(n))."""
-    from measure.kernels import bisquare_line  # numba loads on first use: `import measure` stays fast
+    from measure.fit_kernels import bisquare_line  # numba loads on first use: `import measure` stays fast
 
     return bisquare_line(np.ascontiguousarray(t), np.ascontiguousarray(d), float(alpha), float(beta), float(scale), iterations)
 

@@ -385,7 +385,7 @@ def _finish(x: np.ndarray, z: np.ndarray, center: np.ndarray, s: float, subset: 
     """Consistency correction and reweighting (R&VD eq. 1.3 and section 1) of the best h-subset."""
     p = x.shape[1]
     med_q, q, reweight_factor = _chi2_constants(p)
-    from measure.kernels import mcd_finish  # numba loads on first use: `import measure` stays fast
+    from measure.fit_kernels import mcd_finish  # numba loads on first use: `import measure` stays fast
 
     ok, raw_mean, raw_cov, support, mean, cov, d2 = mcd_finish(np.ascontiguousarray(z), np.ascontiguousarray(subset), med_q, q, reweight_factor)
     if ok:
