@@ -149,7 +149,7 @@ def fit_disparity_line(t: np.ndarray, d: np.ndarray, support_fraction: float, se
     t = np.asarray(t, dtype=np.float64)
     d = np.asarray(d, dtype=np.float64)
     res = fast_mcd(
-        np.c_[t, d], support_fraction=support_fraction, seed=seed,
+        np.column_stack((t, d)), support_fraction=support_fraction, seed=seed,
         n_starts=_STARTS, n_best=_BEST_PER_SUBSAMPLE, max_iter=_FULL_DATA_STEPS,
     )
     line = mcd_line(res)
