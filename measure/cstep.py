@@ -16,6 +16,7 @@ import numpy as np
 
 
 _F32_MAX = float(np.finfo(np.float32).max)
+_FEW_STARTS = 8  # up to this many starts a C-step's masks come from one compiled call (measure.fit_kernels)
 
 
 @functools.lru_cache(maxsize=None)
@@ -78,6 +79,13 @@ def c_step(mono: np.ndarray, mean: np.ndarray, cov: np.ndarray, lam: np.ndarray,
     matrix products stay with BLAS and the selection with numpy's partition (SIMD, faster than a loop).
     """
     from measure.kernels import moments_det_lam, start_coefficients  # numba loads on first use: `import measure` stays fast
+    if mono.dtype == np.float64 and mean.shape[0] * mean.shape[1] <= _FEW_STARTS:
+        # A few starts (the full data's best five): the masks in one compiled call (the numpy calls
+        # cost more than their arithmetic), the sums by the same BLAS product.
+        from measure.fit_kernels import few_starts_masks
+
+        mask = few_starts_masks(np.ascontiguousarray(mono), mean, cov, lam, h)
+        return (mask,) + moments_det_lam(mm(mask.astype(np.float64), mono), p)
     coef = start_coefficients(mean, cov, lam)
     d2 = mm(coef.astype(mono.dtype, copy=False), np.swapaxes(mono, -1, -2))
     # Expanded in monomials, d² of a point on the start's support can round a hair below zero.

@@ -103,36 +103,12 @@ def mcd_line(res: McdResult) -> tuple[float, float] | None:
 
 def _irls(t: np.ndarray, d: np.ndarray, alpha: float, beta: float, scale: float, iterations: int) -> tuple[float, float, np.ndarray]:
     """Tukey-bisquare IRLS of d = alpha + beta t from a start, at a fixed ``scale`` (px); returns the
-    line and its residuals."""
-    r = d - (alpha + beta * t)
-    span = float(np.ptp(t)) + 1.0
-    # Rows 1, t, t², d, t d: one product with the weights gives all five weighted sums.
-    terms = np.stack([np.ones_like(t), t, t * t, d, t * d])
-    inv_cs = 1.0 / (TUKEY_C * scale)
-    # Stop when the fitted line moves by less than 1e-4 of the noise scale anywhere on the segment:
-    # far below its own standard error (>= scale / sqrt(n)).
-    tol = 1e-4 * scale
-    w, line = np.empty_like(r), np.empty_like(r)  # reused: the loop allocates nothing
-    for _ in range(iterations):
-        np.multiply(r, inv_cs, out=w)  # u, then 1 - u², then the weight (1 - u²)² inside the band
-        np.multiply(w, w, out=w)
-        np.subtract(1.0, w, out=w)
-        np.maximum(w, 0.0, out=w)
-        w *= w
-        sw, swt, swtt, swd, swtd = (terms @ w).tolist()
-        det = sw * swtt - swt * swt
-        if det <= 0:
-            break
-        a_new = (swtt * swd - swt * swtd) / det
-        b_new = (sw * swtd - swt * swd) / det
-        done = abs(a_new - alpha) + abs(b_new - beta) * span < tol
-        alpha, beta = float(a_new), float(b_new)
-        np.multiply(t, beta, out=line)
-        line += alpha
-        r = d - line
-        if done:
-            break
-    return alpha, beta, r
+    line and its residuals. Compiled (``measure.kernels.bisquare_line``): it stops when the line moves
+    by less than 1e-4 of the noise scale anywhere on the segment, far below its own standard error
+    (>= scale / sqrt(n))."""
+    from measure.fit_kernels import bisquare_line  # numba loads on first use: `import measure` stays fast
+
+    return bisquare_line(np.ascontiguousarray(t), np.ascontiguousarray(d), float(alpha), float(beta), float(scale), iterations)
 
 
 def _lts(r: np.ndarray, h: int) -> float:
@@ -173,7 +149,7 @@ def fit_disparity_line(t: np.ndarray, d: np.ndarray, support_fraction: float, se
     t = np.asarray(t, dtype=np.float64)
     d = np.asarray(d, dtype=np.float64)
     res = fast_mcd(
-        np.c_[t, d], support_fraction=support_fraction, seed=seed,
+        np.column_stack((t, d)), support_fraction=support_fraction, seed=seed,
         n_starts=_STARTS, n_best=_BEST_PER_SUBSAMPLE, max_iter=_FULL_DATA_STEPS,
     )
     line = mcd_line(res)

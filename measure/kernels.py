@@ -20,7 +20,7 @@ from numba import njit
 
 RIDGE = 1e-8  # regularises singular starts (relative to the start's scale, at least 1)
 _SMALL = 16  # below this many values a selection sorts by insertion
-_LONG, _SAMPLE, _MARGIN = 384, 64, 8  # rows from _LONG values on are narrowed by a sample first (_pair)
+_LONG, _SAMPLE, _MARGIN = 128, 64, 8  # rows from _LONG values on are narrowed by a sample first (_pair)
 
 
 @njit(cache=True, nogil=True, error_model="numpy")
@@ -381,3 +381,5 @@ def trimmed_crease_fits(t: np.ndarray, d: np.ndarray, t0: np.ndarray, floor: flo
         s, m, mad = _scale_of(r, floor, work, window, m, mad)
         beta[k, 0], beta[k, 1], beta[k, 2] = _hinge_fit(t, d, t0[k], r, m, 3.0 * s, a, y)
     return beta
+
+

@@ -228,7 +228,6 @@ def fast_mcd(
         return _finish(x, z, center, s, np.ones(n, bool), h)
 
     from measure.kernels import moments_det_lam  # numba loads on first use: `import measure` stays fast
-    rng = np.random.default_rng(seed)
     mono = monomials(z)
 
     def exact(lam: np.ndarray, masks: np.ndarray, idx: np.ndarray, mean: np.ndarray, cov: np.ndarray) -> McdResult | None:
@@ -250,16 +249,9 @@ def fast_mcd(
         return _exact_fit_result(x, s, sub, h)
 
     # Stage 1: random starts on up to five disjoint subsamples (all of the data when n is small).
-    if n > 2 * _SUBSAMPLE:
-        groups = min(_MAX_GROUPS, n // _SUBSAMPLE)
-        perm = rng.permutation(n)[: groups * _SUBSAMPLE].reshape(groups, _SUBSAMPLE)
-    else:
-        groups, perm = 1, np.arange(n)[None, :]
-    m = perm.shape[1]
-    per_group = max(1, n_starts // groups)
-    draw = rng.integers(0, m, size=(groups, per_group * (p + 1)))
-    if groups > 1:
-        draw = np.take_along_axis(perm, draw, axis=1)
+    perm, draw = (_draws if isinstance(seed, int) else _draws.__wrapped__)(n, p, n_starts, seed)
+    groups, m = perm.shape
+    per_group = draw.shape[1] // (p + 1)
     mean, cov, _, lam = moments_det_lam(mono[draw].reshape(groups, per_group, p + 1, -1).sum(axis=2), p)
     stages = [(perm, max(p + 1, int(math.ceil(h * m / n))), 2, False)]
     if groups > 1:
@@ -318,6 +310,25 @@ def fast_mcd(
     return _finish(x, z, center, s, best_mask, h)
 
 
+@functools.lru_cache(maxsize=512)
+def _draws(n: int, p: int, n_starts: int, seed: int) -> tuple[np.ndarray, np.ndarray]:
+    """Step 2's subsamples (groups x m point indices) and each group's starts' points (groups x
+    per_group (p + 1)), drawn from ``np.random.default_rng(seed)``. They depend on the sizes and the
+    seed only: kept for the next segment of the same length (read-only), as a person re-measures."""
+    rng = np.random.default_rng(seed)
+    if n > 2 * _SUBSAMPLE:
+        groups = min(_MAX_GROUPS, n // _SUBSAMPLE)
+        perm = rng.permutation(n)[: groups * _SUBSAMPLE].reshape(groups, _SUBSAMPLE)
+    else:
+        groups, perm = 1, np.arange(n)[None, :]
+    per_group = max(1, n_starts // groups)
+    draw = rng.integers(0, perm.shape[1], size=(groups, per_group * (p + 1)))
+    if groups > 1:
+        draw = np.take_along_axis(perm, draw, axis=1)
+    perm.flags.writeable = draw.flags.writeable = False
+    return perm, draw
+
+
 def _lowest_rank(found: McdResult, x: np.ndarray, z: np.ndarray, s: float, h: int, seed: int, exact_tol: float) -> McdResult:
     """A hyperplane holding >= h points may hold a line (or point) with >= h points: report that.
 
@@ -374,6 +385,12 @@ def _finish(x: np.ndarray, z: np.ndarray, center: np.ndarray, s: float, subset: 
     """Consistency correction and reweighting (R&VD eq. 1.3 and section 1) of the best h-subset."""
     p = x.shape[1]
     med_q, q, reweight_factor = _chi2_constants(p)
+    from measure.fit_kernels import mcd_finish  # numba loads on first use: `import measure` stays fast
+
+    ok, raw_mean, raw_cov, support, mean, cov, d2 = mcd_finish(np.ascontiguousarray(z), np.ascontiguousarray(subset), med_q, q, reweight_factor)
+    if ok:
+        return _result(x, center, s, subset, h, raw_mean, raw_cov, support, mean, cov, d2)
+    # A singular covariance: its pseudo-inverse in numpy.
     raw_mean, raw_cov, diff = _mean_cov(z, subset)
     d2 = _d2(diff, raw_cov)
     factor = median(d2) / med_q
@@ -383,6 +400,11 @@ def _finish(x: np.ndarray, z: np.ndarray, center: np.ndarray, s: float, subset: 
     support = d2 <= q
     mean, cov, diff = _mean_cov(z, support)
     cov = cov * reweight_factor
+    return _result(x, center, s, subset, h, raw_mean, raw_cov, support, mean, cov, _d2(diff, cov))
+
+
+def _result(x, center, s, subset, h, raw_mean, raw_cov, support, mean, cov, d2) -> McdResult:
+    """The McdResult of :func:`_finish`'s estimates (normalised coordinates) in the input's units."""
     return McdResult(
         location=center + s * mean,
         covariance=(s * s) * cov,
@@ -390,7 +412,7 @@ def _finish(x: np.ndarray, z: np.ndarray, center: np.ndarray, s: float, subset: 
         raw_covariance=(s * s) * raw_cov,
         support=support,
         raw_support=subset.copy(),
-        distances=_d2(diff, cov),
+        distances=d2,
         h=h,
         exact_fit=False,
         fit_kind="none",

@@ -76,7 +76,7 @@ def test_c_step_arithmetic_is_the_numpy_arithmetic_bit_for_bit(p):
     np.testing.assert_array_equal(start_coefficients(m, c, l), _numpy_coefficients(m, c, l))
 
 
-@pytest.mark.parametrize("n", [20, 21, 383, 384, 385, 600, 1280, 1281])
+@pytest.mark.parametrize("n", [20, 21, 127, 128, 129, 270, 383, 600, 1280, 1281])
 def test_crease_medians_and_mads_are_the_order_statistics(n):
     """Residual rows of 48 candidates (quantized: many ties at the median and the MAD), short ones sorted
     by insertion and long ones narrowed by a sample first, are np.median's numbers to the bit; the
