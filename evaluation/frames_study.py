@@ -36,6 +36,7 @@ from typing import Any
 import numpy as np
 
 from evaluation import report
+from evaluation.report import wilson
 from batch.executors import make_executor
 from measure import accuracy
 
@@ -203,16 +204,6 @@ def run(jobs: Sequence[FramesJob], workers: int = 1) -> list[dict[str, Any]]:
     finally:
         ex.close()
     return [r for i in range(len(jobs)) for r in done[i]]
-
-
-def wilson(k: int, n: int, z: float = 1.96) -> tuple[float, float]:
-    """Wilson score interval of a binomial proportion k / n (95 % for z = 1.96)."""
-    if n == 0:
-        return math.nan, math.nan
-    p = k / n
-    c = (p + z * z / (2 * n)) / (1 + z * z / n)
-    half = z * math.sqrt(p * (1 - p) / n + z * z / (4 * n * n)) / (1 + z * z / n)
-    return max(0.0, c - half), min(1.0, c + half)
 
 
 def _rate(flags: Sequence[bool]) -> dict[str, Any]:

@@ -18,6 +18,7 @@ from collections.abc import Sequence
 
 import numpy as np
 
+from evaluation.report import wilson
 from evaluation.stress import StressCase, StressRecord, measure_case
 
 DISTANCES_M: tuple[float, ...] = (1.5, 2.0, 2.5, 3.0, 4.0, 5.0)
@@ -45,17 +46,6 @@ def run_gap_edges(seeds: Sequence[int], distances: Sequence[float] = DISTANCES_M
                 j1, j2 = (tuple(float(v) for v in np.asarray(p) + rng.normal(0.0, JITTER_PX, 2)) for p in (truth.p1_px, truth.p2_px))
                 out.append(measure_case(frame, StressCase(scene, case.condition, j1, j2, truth.length_m, is_gap=True), "sim-jittered-clicks"))
     return out
-
-
-def wilson(k: int, n: int, z: float = 1.96) -> tuple[float, float]:
-    """95 % Wilson score interval of a share k / n."""
-    if n == 0:
-        return math.nan, math.nan
-    p = k / n
-    den = 1.0 + z * z / n
-    mid = (p + z * z / (2 * n)) / den
-    half = z * math.sqrt(p * (1.0 - p) / n + z * z / (4.0 * n * n)) / den
-    return mid - half, mid + half
 
 
 def notes(split: str, records: Sequence[StressRecord]) -> list[str]:

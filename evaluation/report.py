@@ -46,6 +46,16 @@ def summary(values: np.ndarray) -> dict[str, float | int | None]:
     }
 
 
+def wilson(k: int, n: int, z: float = 1.96) -> tuple[float, float]:
+    """Wilson score interval of a binomial proportion k / n (95 % for z = 1.96)."""
+    if n == 0:
+        return math.nan, math.nan
+    p = k / n
+    c = (p + z * z / (2 * n)) / (1 + z * z / n)
+    half = z * math.sqrt(p * (1 - p) / n + z * z / (4 * n * n)) / (1 + z * z / n)
+    return max(0.0, c - half), min(1.0, c + half)
+
+
 def timing_summary(ms: np.ndarray) -> dict[str, float | int | None]:
     """Median, 95th percentile and worst of run times in milliseconds."""
     v = np.asarray(ms, dtype=np.float64)

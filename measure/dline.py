@@ -103,7 +103,7 @@ def mcd_line(res: McdResult) -> tuple[float, float] | None:
 
 def _irls(t: np.ndarray, d: np.ndarray, alpha: float, beta: float, scale: float, iterations: int) -> tuple[float, float, np.ndarray]:
     """Tukey-bisquare IRLS of d = alpha + beta t from a start, at a fixed ``scale`` (px); returns the
-    line and its residuals. Compiled (``measure.kernels.bisquare_line``): it stops when the line moves
+    line and its residuals. Compiled (``measure.fit_kernels.bisquare_line``): it stops when the line moves
     by less than 1e-4 of the noise scale anywhere on the segment, far below its own standard error
     (>= scale / sqrt(n))."""
     from measure.fit_kernels import bisquare_line  # numba loads on first use: `import measure` stays fast

@@ -92,8 +92,9 @@ def _end_run(frame: Frame, start: tuple[float, float], other: tuple[float, float
     d = d[valid_disparity(frame, d)].astype(np.float64)
     lead = np.asarray(leading, dtype=np.float64)
     if d.size and lead.size:
-        reach = TUKEY_C * max(tukey_scale(d), quantum / math.sqrt(12.0))
-        lead = lead[: int(np.argmin(np.abs(lead - median(d)) <= reach)) if (np.abs(lead - median(d)) > reach).any() else lead.size]
+        far = np.abs(lead - median(d)) > TUKEY_C * max(tukey_scale(d), quantum / math.sqrt(12.0))
+        if far.any():
+            lead = lead[: int(np.argmax(far))]
     # Nearest to the end first on both sides: the run is in image order through the click.
     return np.concatenate([d[::-1], lead])
 

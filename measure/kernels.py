@@ -381,5 +381,3 @@ def trimmed_crease_fits(t: np.ndarray, d: np.ndarray, t0: np.ndarray, floor: flo
         s, m, mad = _scale_of(r, floor, work, window, m, mad)
         beta[k, 0], beta[k, 1], beta[k, 2] = _hinge_fit(t, d, t0[k], r, m, 3.0 * s, a, y)
     return beta
-
-

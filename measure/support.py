@@ -122,9 +122,10 @@ def _ring_levels(frame: Frame, mask: np.ndarray, top: Plane, line: np.ndarray, s
         return None, False, 0.0
     # A level's spread along the normal is the ring's depth noise, Z² / fB times the disparity noise the
     # top shows (or the quantum's rounding): a coarse sensor's floor spans several centimetres.
+    noise_px = max(top.sigma_px, top.quantum / math.sqrt(12.0))
     z_med = float(median(z))
-    bin_m = max(LEVEL_BIN_M, 2.0 * z_med * z_med / top.fb * max(top.sigma_px, top.quantum / math.sqrt(12.0)))
-    noise_m = z * z / top.fb * max(top.sigma_px, top.quantum / math.sqrt(12.0))  # each pixel's, along the normal
+    bin_m = max(LEVEL_BIN_M, 2.0 * z_med * z_med / top.fb * noise_px)
+    noise_m = z * z / top.fb * noise_px  # each pixel's, along the normal
     idx = ((below[sel] - lo) / bin_m).astype(np.int64)
     hist = np.bincount(idx[idx < MAX_LEVEL_BINS])  # stray matches tens of metres away make no level
     # Two neighbouring bins together: a level straddling a bin edge still counts once.
@@ -288,12 +289,11 @@ def _clear_of_sides(frame: Frame, xs: np.ndarray, ys: np.ndarray, plane: Plane, 
     ``RING_GAP_PX`` from any that stand clearly above it: where an object's side face meets its floor, the face's first
     pixels lie within the floor's tolerance and lift the plane (a box's height comes out short)."""
     tol = INLIER_SIGMAS * max(plane.sigma_px, plane.quantum * 0.75)
-    with np.errstate(invalid="ignore"):
-        above = frame.disparity[ys, xs] - plane.disparity_at(xs, ys) > tol
     # A wider surface far below (the floor beyond a table) would draw the fit's scale and then the
     # plane down to it: only pixels within twice the tolerance of the plane take part.
     with np.errstate(invalid="ignore"):
-        keep = _clear_of(xs, ys, above) & (np.abs(frame.disparity[ys, xs] - plane.disparity_at(xs, ys)) <= 2.0 * tol)
+        resid = frame.disparity[ys, xs] - plane.disparity_at(xs, ys)
+        keep = _clear_of(xs, ys, resid > tol) & (np.abs(resid) <= 2.0 * tol)
     if np.count_nonzero(keep) < MIN_PLANE_PIXELS * 4:
         return plane
     try:
