@@ -1,4 +1,4 @@
-"""`bag:` conversions against the numpy formulations they replaced: the compiled z-buffer splat and the
+"""`bag:` conversions against whole-array numpy formulations: the compiled z-buffer splat and the
 whole-array NaN fill give the same bits (NaN payloads aside) on the bag fixtures' depth."""
 
 from __future__ import annotations
@@ -13,32 +13,33 @@ from measure import PinholeCamera
 
 
 def _numpy_align(depth_m: np.ndarray, depth_cam: PinholeCamera, color_cam: PinholeCamera, T: Rigid) -> np.ndarray:
-    """The vectorised numpy registration that ``kernels.splat_nearest`` replaced (float64 footprints,
+    """The registration as whole-array numpy (footprints in float32 in the kernel's order of operations,
     ``np.minimum.at`` z-buffers per footprint offset): the oracle."""
-    z_d = np.asarray(depth_m, dtype=np.float64)
+    z_d = np.asarray(depth_m).astype(np.float32)
     v, u = np.nonzero(np.isfinite(z_d) & (z_d > 0))
     z = z_d[v, u]
-    R, t = T.rotation, T.translation
+    R, t = T.rotation, T.translation.astype(np.float32)
+    fx, fy, cx, cy = (np.float32(a) for a in (color_cam.fx, color_cam.fy, color_cam.cx, color_cam.cy))
     u, v = u.astype(np.float64), v.astype(np.float64)
 
-    def to_color(du: float, dv: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        x = (u + du - depth_cam.cx) / depth_cam.fx * z
-        y = (v + dv - depth_cam.cy) / depth_cam.fy * z
-        X = R[0, 0] * x + R[0, 1] * y + R[0, 2] * z + t[0]
-        Y = R[1, 0] * x + R[1, 1] * y + R[1, 2] * z + t[1]
-        Z = R[2, 0] * x + R[2, 1] * y + R[2, 2] * z + t[2]
-        with np.errstate(divide="ignore", invalid="ignore"):
-            return color_cam.fx * X / Z + color_cam.cx, color_cam.fy * Y / Z + color_cam.cy, Z
+    def to_color(do: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        xn = (u + do - depth_cam.cx) / depth_cam.fx
+        yn = (v + do - depth_cam.cy) / depth_cam.fy
+        ray = [(R[i, 0] * xn + R[i, 2]).astype(np.float32) + (R[i, 1] * yn).astype(np.float32) for i in range(3)]
+        Z = z * ray[2] + t[2]
+        with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
+            return fx * (z * ray[0] + t[0]) / Z + cx, fy * (z * ray[1] + t[1]) / Z + cy, Z
 
-    xa, ya, _ = to_color(-0.5, -0.5)
-    xb, yb, _ = to_color(0.5, 0.5)
-    xc, yc, zc = to_color(0.0, 0.0)
+    xa, ya, _ = to_color(-0.5)
+    xb, yb, _ = to_color(0.5)
+    xc, yc, zc = to_color(0.0)
+    one, half = np.float32(1.0), np.float32(0.5)
     with np.errstate(invalid="ignore"):
-        x0, x1 = np.ceil(np.minimum(xa, xb)), np.ceil(np.maximum(xa, xb)) - 1
-        y0, y1 = np.ceil(np.minimum(ya, yb)), np.ceil(np.maximum(ya, yb)) - 1
+        x0, x1 = np.ceil(np.minimum(xa, xb)), np.ceil(np.maximum(xa, xb)) - one
+        y0, y1 = np.ceil(np.minimum(ya, yb)), np.ceil(np.maximum(ya, yb)) - one
         primary = (x1 >= x0) & (y1 >= y0)
-        x0, x1 = np.where(x1 < x0, np.floor(xc + 0.5), x0), np.where(x1 < x0, np.floor(xc + 0.5), x1)
-        y0, y1 = np.where(y1 < y0, np.floor(yc + 0.5), y0), np.where(y1 < y0, np.floor(yc + 0.5), y1)
+        x0, x1 = np.where(x1 < x0, np.floor(xc + half), x0), np.where(x1 < x0, np.floor(xc + half), x1)
+        y0, y1 = np.where(y1 < y0, np.floor(yc + half), y0), np.where(y1 < y0, np.floor(yc + half), y1)
         keep = (zc > 0) & np.isfinite(x0 + x1 + y0 + y1)
         keep &= (x1 >= 0) & (x0 <= color_cam.width - 1) & (y1 >= 0) & (y0 <= color_cam.height - 1)
     x0, x1, y0, y1, zc, primary = (a[keep] for a in (x0, x1, y0, y1, zc, primary))

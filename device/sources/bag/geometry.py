@@ -92,13 +92,14 @@ def align_depth_to_color(depth_m: np.ndarray, depth_cam: PinholeCamera, color_ca
     if depth_cam == color_cam and depth_to_color.is_identity():
         z = pixels_to_metres(z_d, depth_unit_m) if depth_unit_m > 0 else np.where(np.isfinite(z_d) & (z_d > 0), z_d, np.nan).astype(np.float32)
         return np.divide(np.float32(disparity_k), z) if disparity_k > 0 else z
-    from device.sources.bag.kernels import splat_nearest  # numba compiles on first use: `import device` stays fast
+    from device.sources.bag.kernels import OFFSETS, ray_terms, splat_nearest  # numba compiles on first use: `import device` stays fast
 
-    offsets = np.array([[-0.5], [0.5], [0.0]])  # footprint corners and centre
+    offsets = np.array(OFFSETS)[:, None]
     xn = (np.arange(depth_cam.width, dtype=np.float64) + offsets - depth_cam.cx) / depth_cam.fx
     yn = (np.arange(depth_cam.height, dtype=np.float64) + offsets - depth_cam.cy) / depth_cam.fy
-    c = np.array([color_cam.fx, color_cam.fy, color_cam.cx, color_cam.cy], np.float64)
-    return splat_nearest(z_d, xn, yn, depth_to_color.rotation, depth_to_color.translation, c, color_cam.width, color_cam.height,
+    cols, rows = ray_terms(depth_to_color.rotation, xn, yn)
+    c = np.array([color_cam.fx, color_cam.fy, color_cam.cx, color_cam.cy], np.float32)
+    return splat_nearest(z_d, cols, rows, np.asarray(depth_to_color.translation, np.float32), c, color_cam.width, color_cam.height,
                          MAX_SPLAT_PX, float(disparity_k), float(depth_unit_m))  # fmt: skip
 
 
