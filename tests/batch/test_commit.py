@@ -80,11 +80,11 @@ def test_a_resume_killed_again_and_a_pool_run_killed_between_parts(table, refere
     assert _left(out)["parts"] == 2
     assert depthruler([*args, "--workers", "1", "--resume"], env={STOP_ENV: "sealed"}).returncode == -signal.SIGKILL
     assert _left(out) == {"parts": -1, "merged": 5, "tmp": 1, "out": 0}
-    again = depthruler([*args, "--workers", "1", "--resume"])
-    assert again.returncode == 0 and f"{n} tasks, {n} already done; running 0" in " ".join(again.stdout.split())
+    # the resumes that no kill stops run in this process (a process start and the imports cost 1.5-2 s of CPU each)
+    assert f"{n} tasks, {n} already done; running 0" in invoke([*args, "--workers", "1", "--resume"])
     assert stable(out, DROP) == reference
-    twice = depthruler([*args, "--workers", "1", "--resume"])  # a finished run resumed stays as it is
-    assert twice.returncode == 0 and stable(out, DROP) == reference
+    invoke([*args, "--workers", "1", "--resume"])  # a finished run resumed stays as it is
+    assert stable(out, DROP) == reference
 
 
 def _file_size_limit(limit: int):
@@ -126,8 +126,7 @@ def test_a_full_disk_is_a_one_line_error_that_keeps_what_was_done(table, referen
     assert f"all {n} rows are kept in {parts}" in message and "--resume" in message
     assert _left(out) == {"parts": 5, "merged": -1, "tmp": 0, "out": 0}
     # with room again, the resume commits them, measuring nothing twice
-    done = depthruler([*args, "--resume"])
-    assert done.returncode == 0 and f"{n} tasks, {n} already done; running 0" in " ".join(done.stdout.split())
+    assert f"{n} tasks, {n} already done; running 0" in invoke([*args, "--resume"])  # in this process: no limit to set
     assert stable(out, DROP) == reference
 
 
