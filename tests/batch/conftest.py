@@ -55,7 +55,7 @@ def ray_session():
 @pytest.fixture(scope="session")
 def ray_address(ray_session) -> str:
     """The session's Ray instance's address, for a `depthruler batch --ray ADDRESS` driver in a process
-    of its own: the driver joins it in about a second instead of starting a private Ray (5-20 s of a
-    test's wall time per start). Workers of a joining driver have the environment this process had
-    when Ray started, not the driver's."""
+    of its own: the driver joins it instead of starting a private Ray (seconds of a test's wall time
+    per start), as a driver joins a cluster. Workers of a joining driver have the environment this
+    process had when Ray started, not the driver's."""
     return ray_session.get_runtime_context().gcs_address

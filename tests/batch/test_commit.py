@@ -80,7 +80,7 @@ def test_a_resume_killed_again_and_a_pool_run_killed_between_parts(table, refere
     assert _left(out)["parts"] == 2
     assert depthruler([*args, "--workers", "1", "--resume"], env={STOP_ENV: "sealed"}).returncode == -signal.SIGKILL
     assert _left(out) == {"parts": -1, "merged": 5, "tmp": 1, "out": 0}
-    # the resumes that no kill stops run in this process (a process start and the imports cost 1.5-2 s of CPU each)
+    # the resumes that no kill stops run in this process (a process's start and imports cost seconds of CPU)
     assert f"{n} tasks, {n} already done; running 0" in invoke([*args, "--workers", "1", "--resume"])
     assert stable(out, DROP) == reference
     invoke([*args, "--workers", "1", "--resume"])  # a finished run resumed stays as it is
