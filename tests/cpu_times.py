@@ -10,13 +10,16 @@ report, so a run with pytest-xdist lists its workers' tests as well.
 With ``--durations`` given, the run ends with one line per test, ``1.23s cpu <node id>`` (slowest
 first, all of them with ``--durations=0``), and a line with the run's wall and CPU seconds and the
 host's 1-minute load average sampled every few seconds (the machine is shared: a wall time means
-little without it).
+little without it), and whether Python writes its compiled files (not under PYTHONDONTWRITEBYTECODE:
+then each process rewrites the test modules and compiles the project again unless an earlier run
+wrote them, docs/testing.md).
 """
 
 from __future__ import annotations
 
 import os
 import resource
+import sys
 import threading
 import time
 from collections import Counter
@@ -104,4 +107,5 @@ class CpuTimes:
             f"run: {time.perf_counter() - self.wall0:.1f}s wall, {sum(self.per_test.values()):.1f}s cpu in tests, "
             f"{cpu_seconds() - self.cpu0:.1f}s cpu in this process and its ended children, "
             f"load {min(samples):.1f}-{max(samples):.1f} (1-minute average, {len(samples)} samples, "
-            f"start {samples[0]:.1f}, end {samples[-1]:.1f})")
+            f"start {samples[0]:.1f}, end {samples[-1]:.1f}); "
+            f"compiled files {'not written (PYTHONDONTWRITEBYTECODE)' if sys.dont_write_bytecode else 'written'}")

@@ -38,6 +38,7 @@ DURATION = re.compile(r"^(\d+\.\d+)s (setup|call|teardown)\s+(\S.*)$")
 CPU = re.compile(r"^(\d+\.\d+)s cpu (\S.*)$")  # tests/cpu_times.py's line per test
 # ... and its closing line: the CPU of the whole run (with xdist's workers, once they have ended) and the load
 RUN_LINE = re.compile(r"^run: .*, (\d+\.\d+)s cpu in this process and its ended children, load (\d+\.\d+)-(\d+\.\d+) ")
+BYTECODE = re.compile(r"; compiled files (written|not written)")  # ... which ends with whether Python wrote its compiled files
 # the summary line, framed by "=" or, with -q (addopts), bare
 SESSION = re.compile(r"^(?:=+ )?(.*) in (\d+\.\d+)s( \([\d:]+\))?(?: =+)?$")
 COLLECTED = re.compile(r"(\d+)(?:/\d+)? tests? collected(?: \(\d+ deselected\))? in (\d+\.\d+)s")
@@ -58,7 +59,7 @@ NOT_UNIT = ("tests/integration/", "tests/studies/", "tests/browser/")
 class Run:
     """One ``--durations=0`` log: per node id its wall seconds (setup + call + teardown) and CPU seconds,
     the final summary ("663 passed, ..."), pytest's session seconds, the whole run's CPU seconds
-    (collection included) and the load average's range."""
+    (collection included), the load average's range and whether Python wrote its compiled files."""
 
     wall: Counter
     cpu: Counter
@@ -66,13 +67,14 @@ class Run:
     session: float | None
     run_cpu: float | None
     load: tuple[float, float] | None
+    bytecode: str | None = None
 
 
 def parse_log(text: str) -> Run:
     """The figures of a ``pytest --durations=0`` log (CPU and load only where tests/cpu_times.py ran)."""
     wall: Counter = Counter()
     cpu: Counter = Counter()
-    summary, session, run_cpu, load = "", None, None, None
+    summary, session, run_cpu, load, bytecode = "", None, None, None, None
     for line in text.splitlines():
         line = line.strip()
         if m := DURATION.match(line):
@@ -81,9 +83,10 @@ def parse_log(text: str) -> Run:
             cpu[m.group(2).strip()] += float(m.group(1))
         elif m := RUN_LINE.match(line):
             run_cpu, load = float(m.group(1)), (float(m.group(2)), float(m.group(3)))
+            bytecode = b.group(1) if (b := BYTECODE.search(line)) else None
         elif (m := SESSION.match(line)) and ("passed" in m.group(1) or "failed" in m.group(1)):
             summary, session = m.group(1), float(m.group(2))
-    return Run(wall, cpu, summary, session, run_cpu, load)
+    return Run(wall, cpu, summary, session, run_cpu, load, bytecode)
 
 
 def collect(*args: str) -> tuple[set[str], float]:
@@ -137,7 +140,8 @@ def fast_loop_lines(text: str) -> list[str]:
         f"{run.session if run.session is not None else 'n/a'} s wall on {os.cpu_count()} CPUs, "
         f"{sum(run.cpu.values()):.1f} s of CPU in its tests, {run.run_cpu if run.run_cpu is not None else 'n/a'} s in the "
         f"whole run (collection and the workers' start included); the host's 1-minute load average was {load} "
-        "while it ran (other programs share the machine).",
+        "while it ran (other programs share the machine); compiled files were "
+        f"{run.bytecode or 'not logged'} (when not, each worker compiles what no earlier run wrote: [Testing](testing.md)).",
         "",
         "| seconds | cpu | slowest in the fast loop |",
         "| --- | --- | --- |",

@@ -17,7 +17,7 @@ LOG = """\
 ========================== cpu seconds per test (all) ==========================
 2.50s cpu tests/a/test_a.py::test_burn
 0.01s cpu tests/a/test_a.py::test_sleep[x y]
-run: 4.0s wall, 2.5s cpu in tests, 3.1s cpu in this process and its ended children, load 1.5-7.2 (1-minute average, 2 samples, start 1.5, end 7.2)
+run: 4.0s wall, 2.5s cpu in tests, 3.1s cpu in this process and its ended children, load 1.5-7.2 (1-minute average, 2 samples, start 1.5, end 7.2); compiled files not written (PYTHONDONTWRITEBYTECODE)
 ============================== slowest durations ===============================
 2.40s call     tests/a/test_a.py::test_burn
 0.30s setup    tests/a/test_a.py::test_burn
@@ -30,13 +30,13 @@ def test_the_log_gives_wall_cpu_load_and_summary():
     run = parse_log(LOG)
     assert run.wall == {"tests/a/test_a.py::test_burn": pytest.approx(2.7), "tests/a/test_a.py::test_sleep[x y]": 1.0}
     assert run.cpu == {"tests/a/test_a.py::test_burn": 2.5, "tests/a/test_a.py::test_sleep[x y]": 0.01}
-    assert (run.summary, run.session, run.run_cpu, run.load) == ("2 passed", 4.02, 3.1, (1.5, 7.2))
+    assert (run.summary, run.session, run.run_cpu, run.load, run.bytecode) == ("2 passed", 4.02, 3.1, (1.5, 7.2), "not written")
     assert top_share(run.wall) == 1.0
 
 
 def test_a_log_without_the_plugin_still_reads():
     run = parse_log("1.00s call     tests/t.py::test_x\n1 passed in 1.10s\n")
-    assert (dict(run.wall), dict(run.cpu), run.run_cpu, run.load) == ({"tests/t.py::test_x": 1.0}, {}, None, None)
+    assert (dict(run.wall), dict(run.cpu), run.run_cpu, run.load, run.bytecode) == ({"tests/t.py::test_x": 1.0}, {}, None, None, None)
 
 
 def test_heavy_tests_are_the_costly_unit_tests_and_their_file_reads_back():
@@ -85,8 +85,11 @@ def test_cpu_seconds_are_the_tests_own_in_and_out_of_xdist(tmp_path, workers):
     unused = ["-p", "no:schemathesis", "-p", "no:anyio", "-p", "no:hypothesispytest"]
     out = subprocess.run([sys.executable, "-m", "pytest", "-q", "-p", "no:cacheprovider", *unused, "--durations=0", *workers, str(tmp_path)],
                          cwd=tmp_path, capture_output=True, text=True, check=False,
-                         env={"PYTHONPATH": str(ROOT / "tests"), "PATH": "/usr/bin:/bin"}).stdout
+                         env={"PYTHONPATH": str(ROOT / "tests"), "PATH": "/usr/bin:/bin",
+                              # the run line says whether Python writes compiled files: not in one case, in the other
+                              **({} if workers else {"PYTHONDONTWRITEBYTECODE": "1"})}).stdout
     run = parse_log(out)
     assert run.summary == "2 passed", out
     assert run.cpu["test_work.py::test_spin"] >= 0.29 and run.cpu["test_work.py::test_sleep"] < 0.1, out
     assert run.wall["test_work.py::test_sleep"] >= 0.3 and run.load is not None and run.run_cpu is not None, out
+    assert run.bytecode == ("written" if workers else "not written"), out

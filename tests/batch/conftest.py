@@ -1,4 +1,5 @@
-"""Fixtures of the batch tests: a small simulated archive, a recording of shape scenes, one Ray instance per session."""
+"""Fixtures of the batch tests: a small simulated archive, a recording of shape scenes, one Ray instance per session
+(joined in this process, and by address by a `depthruler batch` driver in a process of its own)."""
 
 from __future__ import annotations
 
@@ -49,3 +50,12 @@ def ray_session():
                  _system_config={"idle_worker_killing_time_threshold_ms": IDLE_WORKER_MS})
     yield ray
     ray.shutdown()
+
+
+@pytest.fixture(scope="session")
+def ray_address(ray_session) -> str:
+    """The session's Ray instance's address, for a `depthruler batch --ray ADDRESS` driver in a process
+    of its own: the driver joins it instead of starting a private Ray (seconds of a test's wall time
+    per start), as a driver joins a cluster. Workers of a joining driver have the environment this
+    process had when Ray started, not the driver's."""
+    return ray_session.get_runtime_context().gcs_address

@@ -74,7 +74,7 @@ def cluster(tmp_path):
     # started with the head, not after it: `ray start --address` waits for the head's GCS itself
     node = subprocess.Popen([str(RAY), "start", "--address", address, *common],
                             env=env, start_new_session=True, stdout=(logs / "node.out").open("w"), stderr=subprocess.STDOUT)  # fmt: skip
-    _wait_nodes(address, 2, env)
+    _wait_started({"head": head, "node": node}, logs)
     yield address, node, token
     for proc in (node, head):
         try:
@@ -84,16 +84,22 @@ def cluster(tmp_path):
         proc.wait()
 
 
-def _wait_nodes(address: str, n: int, env: dict, timeout: float = 180.0) -> None:
-    """Until the cluster at ``address`` has ``n`` live nodes: one driver that connects once (ray.init
-    waits for the head) and polls, not a Python start and an import of Ray per poll (each 2-5 s)."""
-    script = (f"import time, ray\nray.init(address={address!r}, log_to_driver=False)\n"
-              f"end = time.monotonic() + {timeout}\n"
-              f"while sum(x['Alive'] for x in ray.nodes()) < {n} and time.monotonic() < end:\n    time.sleep(0.1)\n"
-              "print(sum(x['Alive'] for x in ray.nodes()))")
-    out = subprocess.run([sys.executable, "-c", script], env=env, capture_output=True, text=True, timeout=timeout + 60)
-    if out.returncode != 0 or out.stdout.strip().splitlines()[-1:] != [str(n)]:
-        raise AssertionError(f"the Ray cluster at {address} did not reach {n} live node(s): {out.stdout[-500:]} {out.stderr[-1000:]}")
+def _wait_started(procs: dict[str, subprocess.Popen], logs: Path, timeout: float = 180.0) -> None:
+    """Until each `ray start` has printed "Ray runtime started.", which it does once its node is
+    registered with the head (a node's start waits for that): no driver process, whose Python start
+    and import of Ray cost seconds, polling the cluster for live nodes."""
+    end = time.monotonic() + timeout
+    waiting = dict(procs)
+    while waiting and time.monotonic() < end:
+        for name, proc in list(waiting.items()):
+            if "Ray runtime started." in (logs / f"{name}.out").read_text(errors="replace"):
+                del waiting[name]
+            elif proc.poll() is not None:
+                raise AssertionError(f"`ray start` of the {name} ended: " + (logs / f"{name}.out").read_text(errors="replace")[-2000:])
+        time.sleep(0.1)
+    if waiting:
+        raise AssertionError(f"the Ray {', '.join(waiting)} did not start in {timeout} s: "
+                             + " ".join((logs / f"{name}.out").read_text(errors="replace")[-1000:] for name in waiting))
 
 
 def test_two_node_cluster_survives_a_killed_node(archive, tmp_path, cluster):
@@ -119,6 +125,7 @@ def test_two_node_cluster_survives_a_killed_node(archive, tmp_path, cluster):
     print(f"node killed with {done_before_kill} group(s) written")
     output, _ = proc.communicate(timeout=900)
     assert proc.returncode == 0, output
+    assert "on Ray (2 CPUs on 2 node(s)" in " ".join(output.split()), output  # the run began on both nodes
     assert f"{n} tasks measured" in output
     rows = pq.read_table(out).column("task").to_pylist()
     assert rows == list(range(n))  # exactly one row per task, none lost, none twice
