@@ -98,6 +98,8 @@ def frame_from_view(view: View, model: SensorModel, rng: np.random.Generator, *,
     recipe = image_noise(view.renders[model.lighting], LIGHTING[model.lighting].image_noise, rng)
     image = recipe()
     meta = dict(meta or {"source": "sim"})
+    if out.offset_px:  # the truth of the frame's calibration error, for studies that split it off
+        meta["calibration_offset_px"] = out.offset_px
     if rebuild_image:
         meta[REBUILD_IMAGE] = recipe
     return Frame(

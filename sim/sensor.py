@@ -200,6 +200,7 @@ class SensorOutput:
     outlier: np.ndarray  # bool: carries the wrong pair's match (contention)
     stray: np.ndarray  # bool: stray outlier
     static: StaticMaps
+    offset_px: float = 0.0  # the disparity offset drawn for the whole frame (px): its calibration error
 
 
 def _occluded(d: np.ndarray, direction: int, max_shift: int) -> np.ndarray:
@@ -367,8 +368,9 @@ def sense(view: View, model: SensorModel, rng: np.random.Generator) -> SensorOut
         # the window (a k x k box mean of unit noise has std 1/k; scale back to noise_px).
         noise = cv2.blur(noise, (k, k), borderType=cv2.BORDER_REFLECT) * np.float32(k)
     noise *= np.float32(model.effective_noise_px)
-    if model.calibration_px > 0:
-        noise += np.float32(rng.normal(0.0, model.calibration_px))
+    offset = float(rng.normal(0.0, model.calibration_px)) if model.calibration_px > 0 else 0.0
+    if offset:
+        noise += np.float32(offset)
     d = _blocks(noise, b, shape)
     if st.narrow_idx.size:
         d.ravel()[st.narrow_idx] *= ratio
@@ -420,4 +422,4 @@ def sense(view: View, model: SensorModel, rng: np.random.Generator) -> SensorOut
         c[holes] = 0.0
         conf = c
     kept = ~holes
-    return SensorOutput(d, conf, outlier & kept, stray & kept, st)
+    return SensorOutput(d, conf, outlier & kept, stray & kept, st, offset)

@@ -132,6 +132,22 @@ def test_quiet_sensor_reproduces_true_depth():
     assert frame.camera.fx == pytest.approx(500.0)  # 1000 px at 1280 wide, scaled with the image
 
 
+def test_calibration_offset_shifts_every_pixel_by_the_drawn_value_and_is_reported():
+    view = get_view(SceneParams("boxes", 4.0, width=640, height=360))
+    quiet = sense(view, SensorModel(**QUIET), np.random.default_rng(3))
+    assert quiet.offset_px == 0.0
+    out = sense(view, SensorModel(**QUIET, calibration_px=0.3), np.random.default_rng(3))
+    assert 0.0 < abs(out.offset_px) < 1.5  # a draw of one-sigma 0.3 px
+    # (where only the narrow pair sees a point, its match and the offset are scaled to the wide pair's)
+    ok = np.isfinite(out.disparity) & np.isfinite(quiet.disparity) & ~out.static.use_narrow
+    assert ok.mean() > 0.5
+    np.testing.assert_allclose(out.disparity[ok] - quiet.disparity[ok], out.offset_px, atol=1e-4)
+    frame, _, _ = sim.scenario("table", distance_m=2.0, seed=1, width=640, height=360, profile="paper")
+    assert abs(frame.meta["calibration_offset_px"]) > 0.0  # the paper profile's frames carry it as truth
+    frame, _, _ = sim.scenario("table", distance_m=2.0, seed=1, width=640, height=360)
+    assert "calibration_offset_px" not in frame.meta  # the stress profile has none
+
+
 def test_edge_fattening_bleeds_foreground_into_background_only_near_edges():
     view = get_view(SceneParams("boxes", 4.0, width=640, height=360))
     for k in (0, 3):
