@@ -15,7 +15,6 @@ import functools
 import numpy as np
 
 
-_F32_MAX = float(np.finfo(np.float32).max)
 _FEW_STARTS = 8  # up to this many starts a C-step's masks come from one compiled call (measure.fit_kernels)
 
 
@@ -99,21 +98,10 @@ def _h_smallest(d2: np.ndarray, h: int, mono: np.ndarray) -> tuple[np.ndarray, n
     h-th) and the summed monomials of those points.
 
     The bit patterns of non-negative floats read as integers sort like the floats, and an integer
-    partition skips the NaN-aware float comparisons. Double-precision d² is selected in single
-    precision (about twice as fast): rounding keeps the order, so the points at or below the h-th
-    single-precision value include all those at or below the h-th double one, and are the same set
-    where they are h (the summed monomials' leading 1 counts them). Where rounding joined values at the
-    h-th, the rows are selected again in double precision."""
-    if d2.dtype == np.float32:
-        key = d2.view(np.int32)
-    else:  # rounded to single precision below its largest value (no overflow to infinity): still monotone
-        key = np.minimum(d2, _F32_MAX, out=np.empty(d2.shape, np.float32)).view(np.int32)
+    partition skips the NaN-aware float comparisons. Double-precision d² is selected on its own 64-bit
+    patterns: a partition of those costs less than rounding them to single precision and partitioning
+    32-bit ones (59 vs 16 + 49 us for 104 starts of 270 points), and needs no second selection where
+    rounding joins values at the h-th (common on quantized disparities)."""
+    key = d2.view(np.int32 if d2.dtype == np.float32 else np.int64)
     mask = key <= np.partition(key, h - 1, axis=-1)[..., h - 1 : h]
-    sums = mm(mask.astype(mono.dtype), mono)
-    if d2.dtype == np.float64:
-        redo = sums[..., 0] != h
-        if redo.any():
-            exact = d2[redo].view(np.int64)
-            mask[redo] = exact <= np.partition(exact, h - 1, axis=-1)[..., h - 1 : h]
-            sums = mm(mask.astype(mono.dtype), mono)
-    return mask, sums
+    return mask, mm(mask.astype(mono.dtype), mono)

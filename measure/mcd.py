@@ -265,14 +265,15 @@ def fast_mcd(
         # full-data stage (which decides exact fits) runs in double precision.
         sm = mono[None] if final else mono[idx] if idx.shape[1] == n else mono[idx].astype(np.float32)
         prev = None
-        for _ in range(iters):
+        for step in range(iters):
             masks, mean, cov, det, lam = c_step(sm, mean, cov, lam, hs, p)
             if (lam <= tol * tol).any():
                 found = exact(lam, masks, idx, mean, cov)
                 if found is not None:
                     return _lowest_rank(found, x, z, s, h, seed, exact_tol)
             if not final:
-                if prev is not None and np.array_equal(prev, masks):
+                # (After the last step stopping changes nothing.)
+                if prev is not None and step < iters - 1 and np.array_equal(prev, masks):
                     break
                 prev = masks
                 continue
