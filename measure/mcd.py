@@ -288,6 +288,10 @@ def fast_mcd(
                     k = done[np.argmin(det[0, done])]
                     if det[0, k] < best_det:
                         best_det, best_mask = det[0, k], masks[0, k]
+            if step == iters - 1:
+                # The last step: the lowest determinant of all is taken below; the ones set aside here
+                # (converged: counted above; repeats of another subset) cannot change it.
+                continue
             order = np.argsort(det[0], kind="stable")
             a, b = order[1:], order[:-1]
             tie = det[0, a] == det[0, b]
