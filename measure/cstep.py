@@ -4,8 +4,9 @@
 per-point ``monomials`` (1, x, y, z, x², xy, ...) with per-start coefficient rows; the h smallest per
 start form the next subset; its mean and covariance come from one more matrix product of the subset
 mask with the monomials. Determinants and adjugates of 1x1, 2x2 and 3x3 covariances are closed form
-(``det_adj``; per start in ``measure.kernels``). Inputs in ``measure.mcd``'s normalised, dimensionless
-units.
+(``det_adj``; per start in ``measure.kernels``). Many starts on many points are taken in blocks of
+starts (``_CHUNK_BYTES``), row by row the same numbers. Inputs in ``measure.mcd``'s normalised,
+dimensionless units.
 """
 
 from __future__ import annotations
@@ -28,12 +29,7 @@ def monomials(z: np.ndarray) -> np.ndarray:
     """Per point: (1, z_1..z_p, z_j z_k for j <= k); n x m. The leading 1 makes one matrix
     product give a subset's count and a start's constant term."""
     j, k = pairs(z.shape[1])
-    p = z.shape[1]
-    out = np.empty((len(z), 1 + p + len(j)))
-    out[:, 0] = 1.0
-    out[:, 1 : 1 + p] = z
-    np.multiply(z[:, j], z[:, k], out=out[:, 1 + p :])
-    return out
+    return np.concatenate([np.ones((len(z), 1)), z, z[:, j] * z[:, k]], axis=1)
 
 
 def det_adj(cov: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

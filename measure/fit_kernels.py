@@ -1,6 +1,8 @@
 """The robust line's and FAST-MCD's compiled loops (numba) beside ``measure.kernels``: the Tukey IRLS of
 the disparity line (``bisquare_line``), FAST-MCD's consistency correction and reweighting
-(``mcd_finish``) and the subset masks of a C-step with few starts (``few_starts_masks``).
+(``mcd_finish``), the subset masks of a C-step with few starts (``few_starts_masks``) and Tukey's
+bisquare location of a run of values (``bisquare_location``, ``measure.robust_range.tukey_location``:
+its sums in numpy's pairwise order, so the same bits as the numpy loop).
 
 Each does numpy's element-wise operations; sums over the samples are added in sample order, where a
 BLAS product adds them in another, so their last bits can differ from the numpy formulation they
