@@ -1,6 +1,8 @@
 """The robust line's and FAST-MCD's compiled loops (numba) beside ``measure.kernels``: the Tukey IRLS of
 the disparity line (``bisquare_line``), FAST-MCD's consistency correction and reweighting
-(``mcd_finish``) and the subset masks of a C-step with few starts (``few_starts_masks``).
+(``mcd_finish``), the subset masks of a C-step with few starts (``few_starts_masks``) and Tukey's
+bisquare location of a run of values (``bisquare_location``, ``measure.robust_range.tukey_location``:
+its sums in numpy's pairwise order, so the same bits as the numpy loop).
 
 Each does numpy's element-wise operations; sums over the samples are added in sample order, where a
 BLAS product adds them in another, so their last bits can differ from the numpy formulation they
@@ -196,3 +198,95 @@ def few_starts_masks(mono: np.ndarray, mean: np.ndarray, cov: np.ndarray, lam: n
             for i in range(n):
                 masks[g, s, i] = d2[i] <= kth
     return masks
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
+def _block_sum(a: np.ndarray, lo: int, n: int) -> float:
+    """numpy's sum of ``a[lo:lo + n]`` for n <= 128: one by one below 8, else eight running sums."""
+    if n < 8:
+        res = 0.0
+        for i in range(lo, lo + n):
+            res += a[i]
+        return res
+    r0, r1, r2, r3 = a[lo], a[lo + 1], a[lo + 2], a[lo + 3]
+    r4, r5, r6, r7 = a[lo + 4], a[lo + 5], a[lo + 6], a[lo + 7]
+    i = 8
+    while i < n - n % 8:
+        r0 += a[lo + i]
+        r1 += a[lo + i + 1]
+        r2 += a[lo + i + 2]
+        r3 += a[lo + i + 3]
+        r4 += a[lo + i + 4]
+        r5 += a[lo + i + 5]
+        r6 += a[lo + i + 6]
+        r7 += a[lo + i + 7]
+        i += 8
+    res = ((r0 + r1) + (r2 + r3)) + ((r4 + r5) + (r6 + r7))
+    while i < n:
+        res += a[lo + i]
+        i += 1
+    return res
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
+def _pairwise_sum(a: np.ndarray, n: int) -> float:
+    """sum of ``a[:n]`` added as numpy adds a contiguous float64 array (its pairwise summation: blocks of
+    up to 128 values by ``_block_sum``, longer runs split in halves, rounded down to a multiple of 8, summed
+    apart and added; the reduction starts from the identity 0), so the same bits as ``a[:n].sum()``. The
+    halves are walked with a stack of tasks, not by recursion (numba's disk cache cannot hold a recursive
+    function)."""
+    if n <= 128:
+        return _block_sum(a, 0, n)
+    task_lo, task_n = np.empty(128, np.int64), np.empty(128, np.int64)  # task_n -1: add the last two values
+    values = np.empty(128)
+    tasks, top = 1, 0
+    task_lo[0], task_n[0] = 0, n
+    while tasks:
+        tasks -= 1
+        lo, k = task_lo[tasks], task_n[tasks]
+        if k < 0:
+            top -= 1
+            values[top - 1] += values[top]
+        elif k <= 128:
+            values[top] = _block_sum(a, lo, k)
+            top += 1
+        else:
+            half = k // 2
+            half -= half % 8
+            task_lo[tasks], task_n[tasks] = 0, -1
+            task_lo[tasks + 1], task_n[tasks + 1] = lo + half, k - half
+            task_lo[tasks + 2], task_n[tasks + 2] = lo, half
+            tasks += 3
+    return values[0]
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
+def bisquare_location(v: np.ndarray, m: float, c: float, s: float, iterations: int) -> tuple[float, float]:
+    """Tukey's bisquare location of ``v`` from the start ``m`` at the fixed scale ``c`` ``s`` and its standard
+    error (``measure.robust_range.tukey_location``, s > 0): per iteration the weights max(1 - u², 0)² of
+    u = (v - m) / (c s) and their weighted mean, until it moves by at most 1e-12 of max(1, |m|); then the
+    RMS deviation of the samples with |u| < 1 over the root of their count. numpy's element-wise
+    operations and its pairwise sums (``_pairwise_sum``): the same bits as the numpy loop it replaced."""
+    n = v.size
+    cs = c * s
+    w, wv = np.empty(n), np.empty(n)
+    for _ in range(iterations):
+        for i in range(n):
+            x = (v[i] - m) / cs
+            x = max(1.0 - x * x, 0.0)
+            x *= x
+            w[i] = x
+            wv[i] = x * v[i]
+        m_new = _pairwise_sum(wv, n) / _pairwise_sum(w, n)
+        done = abs(m_new - m) <= 1e-12 * max(1.0, abs(m))
+        m = m_new
+        if done:
+            break
+    count = 0
+    for i in range(n):
+        x = v[i] - m
+        if abs(x / cs) < 1.0:
+            w[count] = x * x
+            count += 1
+    spread = np.sqrt(_pairwise_sum(w, count) / count) if count else 0.0
+    return m, (spread if spread > 0 else s) / np.sqrt(max(1, count))

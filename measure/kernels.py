@@ -98,13 +98,14 @@ def _pair(a: np.ndarray, lo: int, hi: int, window: np.ndarray, low: float = -np.
 def _bracketed(a: np.ndarray, lo: int, hi: int, window: np.ndarray, low: float, high: float) -> tuple[bool, float, float]:
     """(True, the lo-th and hi-th smallest of ``a``) when both lie in [``low``, ``high``], else False."""
     below, count = 0, 0
+    # Without branches: whether a value is below or within the bracket is a coin toss the processor
+    # cannot predict (a miss costs more than the store); every value is written, the count advances
+    # past those within.
     for i in range(a.size):
         v = a[i]
-        if v < low:
-            below += 1
-        elif v <= high:
-            window[count] = v
-            count += 1
+        below += int(v < low)
+        window[count] = v
+        count += int(v >= low) & int(v <= high)
     if below <= lo and hi < below + count:
         first, second = _ends(window[:count], lo - below, hi - below)
         return True, first, second

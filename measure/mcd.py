@@ -265,14 +265,15 @@ def fast_mcd(
         # full-data stage (which decides exact fits) runs in double precision.
         sm = mono[None] if final else mono[idx] if idx.shape[1] == n else mono[idx].astype(np.float32)
         prev = None
-        for _ in range(iters):
+        for step in range(iters):
             masks, mean, cov, det, lam = c_step(sm, mean, cov, lam, hs, p)
             if (lam <= tol * tol).any():
                 found = exact(lam, masks, idx, mean, cov)
                 if found is not None:
                     return _lowest_rank(found, x, z, s, h, seed, exact_tol)
             if not final:
-                if prev is not None and np.array_equal(prev, masks):
+                # (After the last step stopping changes nothing.)
+                if prev is not None and step < iters - 1 and np.array_equal(prev, masks):
                     break
                 prev = masks
                 continue
@@ -287,6 +288,10 @@ def fast_mcd(
                     k = done[np.argmin(det[0, done])]
                     if det[0, k] < best_det:
                         best_det, best_mask = det[0, k], masks[0, k]
+            if step == iters - 1:
+                # The last step: the lowest determinant of all is taken below; the ones set aside here
+                # (converged: counted above; repeats of another subset) cannot change it.
+                continue
             order = np.argsort(det[0], kind="stable")
             a, b = order[1:], order[:-1]
             tie = det[0, a] == det[0, b]

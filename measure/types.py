@@ -183,8 +183,9 @@ class Frame:
         """
         d = np.asarray(disparity)
         # d > -doffs is d + doffs > 0 (a rounded sum has the sign of the exact one) without the sum's
-        # overflow, so without an errstate context, which costs more than the test on a segment.
-        return np.isfinite(d) & (d > -self.doffs) & (d <= self.camera.width)
+        # overflow, so without an errstate context, which costs more than the test on a segment. The two
+        # comparisons are the finiteness test too: NaN fails both, -inf the first and +inf the second.
+        return (d > -self.doffs) & (d <= self.camera.width)
 
     def depth(self) -> np.ndarray:
         """Depth in metres, NaN where the disparity is invalid (:meth:`valid`).

@@ -126,11 +126,11 @@ def test_default_h():
     assert default_h(3, 3, 0.5) == 3
 
 
-def test_h_smallest_in_single_precision_is_the_double_precision_selection():
-    """The C-step's h smallest d² chosen in single precision are the double-precision choice: on rows
-    whose values around the h-th differ only below single precision, on exact ties at the h-th, on
-    overflow to single-precision infinity and on ordinary rows; and the summed monomials are those of
-    that mask."""
+def test_h_smallest_is_the_double_precision_selection():
+    """The C-step's h smallest d² (selected on their 64-bit patterns) are the h smallest doubles, with any
+    ties at the h-th: on rows whose values around the h-th differ only below single precision, on exact
+    ties, on values beyond single precision's range and on ordinary rows; the summed monomials are those
+    of that mask, and single-precision d² (the subsample stages) are selected as single-precision values."""
     from measure.cstep import _h_smallest, monomials
 
     rng = np.random.default_rng(5)
@@ -149,3 +149,7 @@ def test_h_smallest_in_single_precision_is_the_double_precision_selection():
     assert np.array_equal(mask, expected)
     assert (mask.sum(axis=-1) >= h).all() and (mask.sum(axis=-1)[0, 4:6] >= h).all()
     assert np.array_equal(sums, expected.astype(np.float64) @ mono)
+    single = d2[:, :4].astype(np.float32)
+    mask32, sums32 = _h_smallest(single, h, mono.astype(np.float32))
+    assert np.array_equal(mask32, single <= np.sort(single, axis=-1)[..., h - 1 : h])
+    assert np.array_equal(sums32, mask32.astype(np.float32) @ mono.astype(np.float32))
