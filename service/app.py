@@ -83,7 +83,7 @@ def create_app(source: str | Callable[[], Source], settings: ServerConfig | None
     )  # fmt: skip
     store = Store(settings.db, max_bytes=settings.history_max_bytes)
     recorder = Recorder(capture, settings.recordings_dir)
-    measures = MeasurePool(settings.measure_workers, settings.measure_queue)
+    measures = MeasurePool(settings.measure_workers, settings.measure_queue, settings.measure_nice)
     state = ServiceState(ring=ring, capture=capture, store=store, recorder=recorder, measures=measures, home=(factory, spec))
 
     @asynccontextmanager

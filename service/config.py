@@ -47,6 +47,9 @@ class ServerConfig(_Model):
     freeze_ttl_s: float = Field(60.0, gt=0, le=86_400)  # a frozen frame nobody used for this long is released
     measure_workers: int = Field(0, ge=0, le=256)  # measurements at once; 0: the CPU count
     measure_queue: int = Field(8, ge=0, le=100_000)  # measurements waiting for a worker; 429 beyond
+    # The measurement threads' niceness above the server's (Linux): when the cores are busy, the live
+    # view, the long-polls and health are served first (docs/decisions/measure-pool.md).
+    measure_nice: int = Field(10, ge=0, le=19)
     capture_fps: float = Field(15.0, gt=0, le=1000)
     reconnect_initial_s: float = Field(0.5, gt=0, le=60)
     reconnect_max_s: float = Field(10.0, gt=0, le=600)

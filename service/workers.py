@@ -4,13 +4,16 @@ then :class:`Busy` (HTTP 429 with ``Retry-After``).
 A measurement holds the interpreter's lock for most of its few milliseconds; run on the server's
 general thread pool (40 threads), 32 of them at once starved the event loop, and with it the live
 view, the long-polls and health (docs/decisions/measure-pool.md). :class:`MeasurePool` runs them
-on ``workers`` threads of their own and refuses a request when ``queue`` are already waiting.
+on ``workers`` threads of their own, below the server's other threads in the CPU's queue, and
+refuses a request when ``queue`` are already waiting.
 """
 
 from __future__ import annotations
 
 import asyncio
+import functools
 import os
+import sys
 import threading
 from collections.abc import Callable
 from concurrent.futures import ThreadPoolExecutor
@@ -19,17 +22,31 @@ from typing import TypeVar
 T = TypeVar("T")
 
 
+def lower_priority(nice: int) -> None:
+    """Raise the calling thread's niceness by ``nice`` (Linux, where each thread has its own; elsewhere
+    nothing): a thread only lowers its own priority, which needs no privilege."""
+    if nice <= 0 or not sys.platform.startswith("linux"):
+        return
+    tid = threading.get_native_id()
+    try:
+        os.setpriority(os.PRIO_PROCESS, tid, min(os.getpriority(os.PRIO_PROCESS, tid) + nice, 19))
+    except OSError:  # a sandbox without setpriority: the pool still works, at the server's priority
+        pass
+
+
 class Busy(RuntimeError):
     """Every measurement worker is busy and the queue is full (HTTP 429, ``Retry-After``)."""
 
 
 class MeasurePool:
-    """``workers`` threads (0: ``os.cpu_count()``) and at most ``queue`` calls waiting for one."""
+    """``workers`` threads (0: ``os.cpu_count()``), ``nice`` steps below the server's priority, and at
+    most ``queue`` calls waiting for one."""
 
-    def __init__(self, workers: int = 0, queue: int = 8) -> None:
+    def __init__(self, workers: int = 0, queue: int = 8, nice: int = 0) -> None:
         self.workers = workers or os.cpu_count() or 1
         self.queue = queue
-        self._executor = ThreadPoolExecutor(self.workers, thread_name_prefix="measure")
+        self._executor = ThreadPoolExecutor(self.workers, thread_name_prefix="measure",
+                                            initializer=functools.partial(lower_priority, nice))
         self._lock = threading.Lock()
         self._inside = 0  # running + waiting
 

@@ -6,6 +6,8 @@ from __future__ import annotations
 import csv
 import gc
 import io
+import os
+import sys
 import time
 
 import cv2
@@ -296,3 +298,34 @@ def test_writes_in_one_turn_of_the_loop_reach_the_socket_as_one():
         assert len(raw.writes) == 2
 
     asyncio.run(run())
+
+
+@pytest.mark.skipif(not sys.platform.startswith("linux"), reason="per-thread niceness is Linux's")
+def test_measurements_run_below_the_servers_other_threads():
+    """The pool's threads run ``nice`` steps below the thread that made the pool, which keeps its own."""
+    import asyncio
+    import threading
+
+    from service.workers import MeasurePool
+
+    def own_nice() -> int:
+        return os.getpriority(os.PRIO_PROCESS, threading.get_native_id())
+
+    server = own_nice()
+    pool = MeasurePool(workers=2, queue=2, nice=7)
+    try:
+        seen = asyncio.run(_gather(pool, own_nice, 4))
+    finally:
+        pool.close()
+    assert set(seen) == {min(server + 7, 19)} and own_nice() == server
+    plain = MeasurePool(workers=1, queue=0, nice=0)
+    try:
+        assert asyncio.run(_gather(plain, own_nice, 1)) == [server]
+    finally:
+        plain.close()
+
+
+async def _gather(pool, fn, n: int) -> list:
+    import asyncio
+
+    return list(await asyncio.gather(*(pool.run(fn) for _ in range(n))))
