@@ -28,6 +28,7 @@ SIM_SEEDS, SIM_DISTANCES = (0, 1), (3.0, 5.0)
 ROOM_SEEDS = (500, 501, 502)
 SCENES = ("Adirondack", "Piano")
 STRESS_SEGMENTS, EDGE_SEGMENTS = 4, 6
+PROTOCOLS = frozenset({"stress-sim", "rooms", "stress-middlebury", "edge-middlebury"})
 
 
 def _row(protocol: str, key: str, frame: Any, p1, p2, truth: float) -> dict[str, Any]:
@@ -42,19 +43,26 @@ def _row(protocol: str, key: str, frame: Any, p1, p2, truth: float) -> dict[str,
                    "fit": m.fit, "gap": bool(m.gap_detected), "error": ""}
 
 
-def _cases(middlebury_dir: Path | None, sim_cases: list[tuple[Any, list]] | None = None) -> Iterator[tuple[str, str, Any, Any, Any, float]]:
-    """Every (protocol, key, frame, p1, p2, truth) to answer; ``sim_cases``: the simulated stress frames and cases
-    (``stress_sim_cases(SIM_SEEDS, SIM_DISTANCES)``) when the caller has them already."""
+def _cases(middlebury_dir: Path | None, sim_cases: list[tuple[Any, list]] | None = None,
+           protocols: frozenset[str] = PROTOCOLS) -> Iterator[tuple[str, str, Any, Any, Any, float]]:
+    """Every (protocol, key, frame, p1, p2, truth) to answer of ``protocols`` (the others' frames are not
+    made); ``sim_cases``: the simulated stress frames and cases (``stress_sim_cases(SIM_SEEDS, SIM_DISTANCES)``)
+    when the caller has them already."""
     from evaluation.bent_rooms import room_cases
     from evaluation.stress_sim import stress_sim_cases
 
-    for i, (frame, cases) in enumerate(stress_sim_cases(SIM_SEEDS, SIM_DISTANCES) if sim_cases is None else sim_cases):
-        for j, c in enumerate(cases):
-            yield "stress-sim", f"{i}.{j}.{c.condition}", frame, c.p1_px, c.p2_px, c.truth_m
-    for i, (frame, cases) in enumerate(room_cases(ROOM_SEEDS)):
-        for j, c in enumerate(cases):
-            yield "rooms", f"{i}.{j}.{c.condition}", frame, c.p1_px, c.p2_px, c.truth_m
-    if middlebury_dir is None:
+    unknown = sorted(set(protocols) - PROTOCOLS)
+    if unknown:
+        raise ValueError(f"unknown protocol(s) {', '.join(unknown)}; use any of {', '.join(sorted(PROTOCOLS))}")
+    if "stress-sim" in protocols:
+        for i, (frame, cases) in enumerate(stress_sim_cases(SIM_SEEDS, SIM_DISTANCES) if sim_cases is None else sim_cases):
+            for j, c in enumerate(cases):
+                yield "stress-sim", f"{i}.{j}.{c.condition}", frame, c.p1_px, c.p2_px, c.truth_m
+    if "rooms" in protocols:
+        for i, (frame, cases) in enumerate(room_cases(ROOM_SEEDS)):
+            for j, c in enumerate(cases):
+                yield "rooms", f"{i}.{j}.{c.condition}", frame, c.p1_px, c.p2_px, c.truth_m
+    if middlebury_dir is None or not protocols & {"stress-middlebury", "edge-middlebury"}:
         return
     from device.sources.middlebury import load_scene, scene_frame, scene_sgbm_config
     from device.sources.sgbm import compute_disparity

@@ -51,14 +51,27 @@ def poster_depth(cam: PinholeCamera, center: np.ndarray, rot: np.ndarray, half: 
     """Per-pixel true depth (m) and a poster mask (NaN depth where nothing is hit)."""
     xs = (np.arange(cam.width) - cam.cx) / cam.fx
     ys = (np.arange(cam.height) - cam.cy) / cam.fy
-    rx, ry = np.meshgrid(xs, ys)
+    rx, ry = xs[None, :], ys[:, None]  # broadcast, not a grid: the same numbers per pixel
     n = rot[:, 2]
-    t = (n @ center) / (n[0] * rx + n[1] * ry + n[2])
-    px, py, pz = t * rx - center[0], t * ry - center[1], t - center[2]
-    lu = px * rot[0, 0] + py * rot[1, 0] + pz * rot[2, 0]
-    lw = px * rot[0, 1] + py * rot[1, 1] + pz * rot[2, 1]
-    poster = (np.abs(lu) <= half[0]) & (np.abs(lw) <= half[1]) & (t > 0)
-    depth = np.where(poster, t, np.nan if wall_z is None else wall_z)
+    # The arithmetic of t = (n.c) / (n.ray), p = t ray - c and its in-plane coordinates (lu, lw), in the
+    # same order, written into a few image-sized arrays instead of a new one per operation.
+    t = n[0] * rx + n[1] * ry
+    t += n[2]
+    np.divide(n @ center, t, out=t)
+    px, py, pz = t * rx, t * ry, t - center[2]
+    px -= center[0]
+    py -= center[1]
+    lu, tmp = px * rot[0, 0], np.multiply(py, rot[1, 0])
+    lu += tmp
+    lu += np.multiply(pz, rot[2, 0], out=tmp)
+    lw = np.multiply(px, rot[0, 1], out=px)
+    lw += np.multiply(py, rot[1, 1], out=tmp)
+    lw += np.multiply(pz, rot[2, 1], out=tmp)
+    poster = np.abs(lu, out=lu) <= half[0]
+    poster &= np.abs(lw, out=lw) <= half[1]
+    poster &= t > 0
+    depth = t
+    depth[~poster] = np.nan if wall_z is None else wall_z
     return depth, poster
 
 
@@ -79,11 +92,10 @@ def degrade(
     import cv2
 
     d = fb / depth
-    background = np.where(poster, np.nan, depth)
     k = np.ones((2 * band_px + 3, 2 * band_px + 3), np.uint8)
     fg_disp = cv2.dilate(np.where(poster, d, 0).astype(np.float32), k)
     bg = np.where(poster, 0, fb / np.where(poster, 1.0, depth)).astype(np.float32)
-    background = fb / np.maximum(cv2.dilate(bg, k), 1e-6)
+    background = cv2.dilate(bg, k)
     if fatten_px > 0:
         k = np.ones((2 * fatten_px + 1, 2 * fatten_px + 1), np.uint8)
         grown = cv2.dilate(poster.astype(np.uint8), k).astype(bool)
@@ -93,12 +105,18 @@ def degrade(
     if contention > 0 and band_px > 0:
         k = np.ones((2 * band_px + 1, 2 * band_px + 1), np.uint8)
         band = cv2.dilate(poster.astype(np.uint8), k).astype(bool) & ~cv2.erode(poster.astype(np.uint8), k).astype(bool)
-        wrong = band & (rng.random(d.shape) < contention)
+        wrong = np.flatnonzero(band & (rng.random(d.shape) < contention))
+        # Every draw is made over the whole image (the same stream whatever the band), the arithmetic only
+        # where a pixel is replaced: a few percent of the image.
+        noise, scale = rng.normal(0.0, noise_px, d.shape).ravel()[wrong], rng.uniform(0.6, 1.4, d.shape).ravel()[wrong]
+        take_swap = (rng.random(d.shape) < 0.5).ravel()[wrong]
         # The other pair's wrong match near a depth edge is the surface on the other side
         # of the edge (poster <-> wall), as in mixed windows; the rest are gross errors.
-        swap = np.where(poster, fb / (background + 1e-9), fg_disp) + rng.normal(0.0, noise_px, d.shape)
-        gross = d * rng.uniform(0.6, 1.4, d.shape)
-        d = np.where(wrong, np.where(rng.random(d.shape) < 0.5, swap, gross), d)
+        behind = fb / (fb / np.maximum(background.ravel()[wrong], 1e-6) + 1e-9)
+        swap = np.where(poster.ravel()[wrong], behind, fg_disp.ravel()[wrong]) + noise
+        d = d.ravel()
+        d[wrong] = np.where(take_swap, swap, d[wrong] * scale)
+        d = d.reshape(depth.shape)
     if quantization:
         d = np.round(d / quantization) * quantization
     d[rng.random(d.shape) < holes] = np.nan

@@ -19,7 +19,7 @@ TOLERANCE_A = 0.05
 
 def _compare(protocols: set[str], middlebury_dir: Path | None, sim_cases: list | None = None) -> None:
     stored = {(r["protocol"], r["key"]): r for r in json.loads(STORED.read_text()) if r["protocol"] in protocols}
-    now = [_row(*c) for c in _cases(middlebury_dir, sim_cases) if c[0] in protocols]
+    now = [_row(*c) for c in _cases(middlebury_dir, sim_cases, frozenset(protocols))]
     assert {(r["protocol"], r["key"]) for r in now} == set(stored)
     worst = 0.0
     for r in now:
