@@ -38,18 +38,20 @@ def shape_rec(tmp_path_factory):
 
 @pytest.fixture(scope="session")
 def ray_session():
-    """One local Ray instance with 2 CPUs for the whole session (starting Ray costs seconds), keeping
-    its idle worker processes as ``--ray local`` does (Ray's default kills one idle for 1 s, and the
-    next task waits for a new process and its imports)."""
+    """One local Ray instance with 2 CPUs for the whole session (starting Ray costs seconds), started
+    as ``depthruler batch --ray local --workers 2`` starts its own (:class:`batch.executors.RayExecutor`:
+    never a Ray another program runs here; idle worker processes kept, where Ray's default kills one
+    idle for 1 s and the next task waits for a new process and its imports)."""
     import ray
 
-    from batch.executors import IDLE_WORKER_MS
+    from batch.executors import make_executor
 
-    if not ray.is_initialized():
-        ray.init(address="local", num_cpus=2, include_dashboard=False, log_to_driver=False,  # never a Ray another program runs here
-                 _system_config={"idle_worker_killing_time_threshold_ms": IDLE_WORKER_MS})
+    assert not ray.is_initialized()
+    executor = make_executor(2, "local")
+    assert executor.describe() == "on Ray (2 CPUs on 1 node(s), 2 workers)"
     yield ray
-    ray.shutdown()
+    executor.close()
+    assert not ray.is_initialized()
 
 
 @pytest.fixture(scope="session")

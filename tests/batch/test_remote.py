@@ -3,6 +3,8 @@ loopback (moto in server mode), measured on a pool, equal to the same archive ru
 
 from __future__ import annotations
 
+import json
+import os
 import shutil
 
 import pytest
@@ -35,6 +37,8 @@ def s3(monkeypatch, tmp_path):
     server.stop()
 
 
+# Where Ray's driver reads the job's configuration (what `ray job submit` sets for a submitted driver)
+JOB_CONFIG = "RAY_JOB_CONFIG_JSON_ENV_VAR"
 WHERE = {"source", "task_key", "error"}  # the error message names the recording's path or URL
 
 
@@ -70,11 +74,15 @@ def test_tasks_and_recordings_on_s3_give_the_local_rows(archive, s3, tmp_path):
 
 
 @pytest.mark.slow
-def test_on_ray_data_the_workers_read_table_and_recordings_from_s3(archive, s3, tmp_path):
-    """--ray local: a worker scans the table at its URL, Ray Data's read tasks parse it and the
-    measuring workers fetch the recordings; the rows equal the local run's."""
+def test_on_ray_data_the_workers_read_table_and_recordings_from_s3(archive, s3, tmp_path, ray_address):
+    """A driver joined to the session's Ray: a worker scans the table at its URL, Ray Data's read
+    tasks parse it and the measuring workers fetch the recordings; the rows equal the local run's.
+    The workers have the store's endpoint and keys in the job's environment (a runtime environment,
+    given to the driver as `ray job submit --runtime-env-json` gives it), not the Ray's."""
     ref, got = _archive_on_s3(archive, s3, tmp_path), tmp_path / "s3.parquet"
-    proc = depthruler(["batch", "s3://archive/tasks.csv", "--out", str(got), "--ray", "local", "--workers", "2"])
+    store_env = {k: os.environ[k] for k in ("AWS_ACCESS_KEY_ID", "AWS_SECRET_ACCESS_KEY", "AWS_DEFAULT_REGION", "AWS_ENDPOINT_URL", "DEPTHRULER_CACHE")}
+    job = {"runtime_env": {"env_vars": store_env}}
+    proc = depthruler(["batch", "s3://archive/tasks.csv", "--out", str(got), "--ray", ray_address], env={JOB_CONFIG: json.dumps(job)})
     assert proc.returncode == 0, proc.stdout + proc.stderr
     assert "17 tasks measured (1 error rows)" in " ".join(proc.stdout.split())
     assert stable(got, drop=WHERE) == stable(ref, drop=WHERE)
