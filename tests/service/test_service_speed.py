@@ -311,21 +311,16 @@ def test_measurements_run_below_the_servers_other_threads():
     def own_nice() -> int:
         return os.getpriority(os.PRIO_PROCESS, threading.get_native_id())
 
+    def niceness_in(pool: MeasurePool, calls: int) -> set[int]:
+        async def run() -> list[int]:
+            return list(await asyncio.gather(*(pool.run(own_nice) for _ in range(calls))))
+
+        try:
+            return set(asyncio.run(run()))
+        finally:
+            pool.close()
+
     server = own_nice()
-    pool = MeasurePool(workers=2, queue=2, nice=7)
-    try:
-        seen = asyncio.run(_gather(pool, own_nice, 4))
-    finally:
-        pool.close()
-    assert set(seen) == {min(server + 7, 19)} and own_nice() == server
-    plain = MeasurePool(workers=1, queue=0, nice=0)
-    try:
-        assert asyncio.run(_gather(plain, own_nice, 1)) == [server]
-    finally:
-        plain.close()
-
-
-async def _gather(pool, fn, n: int) -> list:
-    import asyncio
-
-    return list(await asyncio.gather(*(pool.run(fn) for _ in range(n))))
+    assert niceness_in(MeasurePool(workers=2, queue=2, nice=7), 4) == {min(server + 7, 19)}
+    assert own_nice() == server
+    assert niceness_in(MeasurePool(workers=1, queue=0, nice=0), 1) == {server}
