@@ -2,17 +2,21 @@
 
 A quantized disparity (the simulator's 1/4 px, a DepthAI's 1/8 px, SGBM's 1/16 px: every step a power
 of two no finer than 1/64 px, below 512 px) is held as codes of its own step: uint8 when they fit
-below ``NAN_CODE_U8`` (NaN), else int16 codes ``round(d * 64)`` (NaN ``NAN_CODE``); an 8-bit confidence (a device's 0-255 map, the simulator's) as uint8 codes
-``round(c * 255)``. Each packing is checked by unpacking it and comparing bit for bit: an array it
-does not give back exactly (noise-free float disparity, a finer confidence) is held as it is. The
+below ``NAN_CODE_U8`` (NaN), else int16 codes ``round(d * 64)`` (NaN ``NAN_CODE``); an 8-bit
+confidence (a device's 0-255 map, the simulator's) as uint8 codes ``round(c * 255)``. Each packing
+is checked by unpacking it and comparing bit for bit: an array it does not give back exactly
+(noise-free float disparity, a finer confidence) is held as it is. Codes are then compressed
+losslessly (zstd at level ``ZSTD_LEVEL``) when that saves at least a quarter of their bytes. The
 image of a frame whose source says how to make it again (``meta[REBUILD_IMAGE]``: the simulator's
 render plus a crop of its noise sheet) is not held: it is made when asked for. Why: the ring holds
 30 frames for several-frame measurements, and at 1280x720 a float32 disparity and confidence are
-7.4 of a frame's 10.1 MB, the image 2.8 (docs/decisions/measure-pool.md).
+7.4 of a frame's 10.1 MB, the image 2.8 (docs/decisions/measure-pool.md); compressing the codes costs
+a few ms of the capture thread per frame (docs/decisions/ring-compression.md).
 """
 
 from __future__ import annotations
 
+import threading
 import weakref
 from collections.abc import Mapping
 from collections.abc import Callable
@@ -20,6 +24,7 @@ from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
+import zstandard
 
 from device.base import REBUILD_IMAGE
 from measure import Frame, PinholeCamera
@@ -29,6 +34,49 @@ NAN_CODE = np.int16(-32768)
 NAN_CODE_U8 = 255
 CONFIDENCE_SCALE = np.float32(255.0)
 _NAN_BITS = np.float32(np.nan).view(np.uint32)
+ZSTD_LEVEL = 1  # the fastest of zstd's ordinary levels: 4-5x on the simulator's disparity codes, 2.5x on its confidence
+KEEP_IF_AT_MOST = 0.75  # compressed codes are kept when they take at most this share of the raw codes' bytes
+_CODECS = threading.local()  # a zstd context is for one thread at a time: one per thread that packs or unpacks
+
+
+@dataclass(frozen=True, eq=False)
+class Squeezed:
+    """Integer codes (an H x W uint8 or int16 array) compressed with zstd: ``array()`` gives them back
+    byte for byte."""
+
+    data: bytes
+    dtype: np.dtype
+    shape: tuple[int, ...]
+
+    @property
+    def nbytes(self) -> int:
+        return len(self.data)
+
+    def array(self) -> np.ndarray:
+        raw = _codec("decompressor", zstandard.ZstdDecompressor).decompress(self.data)
+        return np.frombuffer(raw, self.dtype).reshape(self.shape)
+
+
+def _codec(name: str, make: Callable[[], Any]) -> Any:
+    codec = getattr(_CODECS, name, None)
+    if codec is None:
+        codec = make()
+        setattr(_CODECS, name, codec)
+    return codec
+
+
+def _squeeze(codes: np.ndarray) -> np.ndarray | Squeezed:
+    """``codes`` compressed when that saves enough (quantized disparity and confidence are mostly
+    smooth or blocky), else ``codes`` themselves (noisy codes that zstd cannot shrink)."""
+    compressor = _codec("compressor", lambda: zstandard.ZstdCompressor(level=ZSTD_LEVEL))
+    data = compressor.compress(np.ascontiguousarray(codes).data)
+    if len(data) > KEEP_IF_AT_MOST * codes.nbytes:
+        return codes
+    return Squeezed(data, codes.dtype, codes.shape)
+
+
+def _codes(held: np.ndarray | Squeezed) -> np.ndarray:
+    return held.array() if isinstance(held, Squeezed) else held
 
 
 def _pack_disparity(d: np.ndarray) -> tuple[np.ndarray, np.float32] | None:
@@ -101,9 +149,9 @@ class PackedFrame:
     is the image, made again when it is not held."""
 
     held_image: np.ndarray | None  # None: made by meta[REBUILD_IMAGE] when asked for
-    disparity: np.ndarray  # uint8 or int16 codes, or the float32 disparity itself
+    disparity: np.ndarray | Squeezed  # uint8 or int16 codes (compressed or not), or the float32 disparity itself
     disparity_scale: np.float32  # codes per pixel (1 for the float32 disparity)
-    confidence: np.ndarray | None  # uint8 codes, float32 values or None
+    confidence: np.ndarray | Squeezed | None  # uint8 codes (compressed or not), float32 values or None
     camera: PinholeCamera
     baseline_m: float
     doffs: float
@@ -113,12 +161,13 @@ class PackedFrame:
 
     @classmethod
     def pack(cls, frame: Frame) -> PackedFrame:
-        disparity, scale = _pack_disparity(frame.disparity) or (frame.disparity, np.float32(1.0))
+        codes = _pack_disparity(frame.disparity)
+        disparity, scale = (frame.disparity, np.float32(1.0)) if codes is None else (_squeeze(codes[0]), codes[1])
         confidence = None if frame.confidence is None else _pack_confidence(frame.confidence)
         image = None if callable(frame.meta.get(REBUILD_IMAGE)) else frame.image
         packed = cls(image, disparity, scale,
-                     frame.confidence if confidence is None else confidence, frame.camera, frame.baseline_m, frame.doffs,
-                     frame.timestamp, frame.meta)  # fmt: skip
+                     frame.confidence if confidence is None else _squeeze(confidence), frame.camera, frame.baseline_m,
+                     frame.doffs, frame.timestamp, frame.meta)  # fmt: skip
         packed._last = weakref.ref(frame)
         return packed
 
@@ -152,10 +201,10 @@ class PackedFrame:
         """The frame, arrays as they were pushed (bit for bit)."""
         frame = self._last() if self._last is not None else None
         if frame is None:
-            d = self.disparity if self.disparity.dtype == np.float32 else _unpack_disparity(self.disparity, self.disparity_scale)
+            d = self.disparity if self.disparity.dtype == np.float32 else _unpack_disparity(_codes(self.disparity), self.disparity_scale)
             c = self.confidence
             if c is not None and c.dtype == np.uint8:
-                c = _unpack_confidence(c)
+                c = _unpack_confidence(_codes(c))
             frame = Frame(self.image, d, self.camera, self.baseline_m, self.doffs, c, self.timestamp, self.meta)
             self._last = weakref.ref(frame)
         return frame
