@@ -10,8 +10,8 @@ losslessly (zstd at level ``ZSTD_LEVEL``) when that saves at least a quarter of 
 image of a frame whose source says how to make it again (``meta[REBUILD_IMAGE]``: the simulator's
 render plus a crop of its noise sheet) is not held: it is made when asked for. Why: the ring holds
 30 frames for several-frame measurements, and at 1280x720 a float32 disparity and confidence are
-7.4 of a frame's 10.1 MB, the image 2.8 (docs/decisions/measure-pool.md); compressing the codes costs
-a few ms of the capture thread per frame (docs/decisions/ring-compression.md).
+7.4 of a frame's 10.1 MB, the image 2.8; compressing the codes costs a few ms of the capture
+thread per frame (docs/decisions/measure-pool.md).
 """
 
 from __future__ import annotations
