@@ -15,7 +15,7 @@ from hypothesis import HealthCheck, settings
 
 from cpu_times import CpuTimes
 from server_process import port_8000_taken
-from session_start import compile_measuring_kernels
+from session_start import WARMED, compile_measuring_kernels
 
 # Property-based tests (tests/fuzz/): a small, reproducible budget in the default run; a nightly-style
 # exploration with `--hypothesis-profile=long` (README "Fuzzing"; DEPTHRULER_FUZZ_EXAMPLES sets its examples per test). No example database: the tree stays
@@ -54,13 +54,14 @@ def pytest_sessionstart(session: pytest.Session) -> None:
     if hasattr(config, "workerinput") or config.getoption("collectonly"):
         return
     try:
-        seconds = compile_measuring_kernels()
+        warmed = compile_measuring_kernels()
     except Exception as exc:  # a broken measurement is the tests' to report, one by one
-        seconds = None
         print(f"session start: measuring the warm-up frames failed ({exc!r}); the tests that measure compile the kernels")
+        return
+    config.stash[WARMED] = warmed
     timer = config.pluginmanager.get_plugin("cpu_times")
     if timer is not None:
-        timer.session_start = seconds
+        timer.session_start = (warmed.wall_s, warmed.cpu_s)
 
 
 def pytest_collection_finish(session: pytest.Session) -> None:

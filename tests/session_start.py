@@ -1,5 +1,6 @@
 """What a test session does once, before its first test: the measuring kernels compiled by numba, or
-loaded from numba's disk cache when an earlier run wrote it (docs/testing.md, "Where the time goes").
+loaded from numba's disk cache when an earlier run wrote it (docs/testing.md, "Where the time goes";
+docs/decisions/test-tail.md).
 
 Called by ``tests/conftest.py`` at the session's start in the process that starts the session: with
 pytest-xdist that is the controller, before its workers start, so the workers load what it wrote
@@ -12,12 +13,46 @@ checkout, when no cache is on disk). The seconds it took are printed beside the 
 from __future__ import annotations
 
 import time
+from dataclasses import dataclass
+
+import pytest
+
+KERNEL_MODULES = ("measure.kernels", "measure.fit_kernels")
 
 
-def compile_measuring_kernels() -> tuple[float, float]:
+@dataclass(frozen=True)
+class Warmed:
+    """What the session start did: its wall and CPU seconds, and the kernels called from Python
+    (``module.name``) that it compiled or loaded."""
+
+    wall_s: float
+    cpu_s: float
+    kernels: frozenset[str]
+
+
+WARMED = pytest.StashKey[Warmed]()  # on the config of the process that ran it
+
+
+def entry_kernels() -> dict[str, object]:
+    """The compiled kernels that Python code calls (``module.name`` -> numba dispatcher): the public
+    names of ``KERNEL_MODULES``. The underscored ones are only called from other kernels and compiled
+    inside them; loaded from the cache they are not loaded on their own."""
+    import importlib
+
+    from numba.core.registry import CPUDispatcher
+
+    out = {}
+    for name in KERNEL_MODULES:
+        module = importlib.import_module(name)
+        for attr, value in vars(module).items():
+            if isinstance(value, CPUDispatcher) and value.py_func.__module__ == name and not attr.startswith("_"):
+                out[f"{name}.{attr}"] = value
+    return out
+
+
+def compile_measuring_kernels() -> Warmed:
     """Measure the plane rig's doorway and a tilted wall with noise and outliers by every method (what
-    runs each compiled kernel of ``measure.kernels`` and ``measure.fit_kernels`` with the array types
-    a measurement passes it); returns the wall and CPU seconds it took."""
+    runs each kernel of ``KERNEL_MODULES`` with the array types a measurement passes it)."""
     wall0, cpu0 = time.perf_counter(), time.process_time()
     from factories import doorway_frame, plane_frame
     from measure import MeasureOptions, measure_distance
@@ -30,4 +65,5 @@ def compile_measuring_kernels() -> tuple[float, float]:
     for frame, p1, p2 in frames:
         for method in METHODS:
             measure_distance(frame, p1, p2, MeasureOptions(method=method))
-    return time.perf_counter() - wall0, time.process_time() - cpu0
+    reached = frozenset(name for name, kernel in entry_kernels().items() if kernel.signatures)
+    return Warmed(time.perf_counter() - wall0, time.process_time() - cpu0, reached)
