@@ -1,4 +1,4 @@
-"""Shared fixtures, the folder markers (docs/testing.md) and the `hardware` / `browser` skips."""
+"""Shared fixtures, the folder markers (docs/testing.md), the `hardware` / `browser` skips and the kernels compiled at the session's start."""
 
 from __future__ import annotations
 
@@ -15,6 +15,7 @@ from hypothesis import HealthCheck, settings
 
 from cpu_times import CpuTimes
 from server_process import port_8000_taken
+from session_start import WARMED, compile_measuring_kernels
 
 # Property-based tests (tests/fuzz/): a small, reproducible budget in the default run; a nightly-style
 # exploration with `--hypothesis-profile=long` (README "Fuzzing"; DEPTHRULER_FUZZ_EXAMPLES sets its examples per test). No example database: the tree stays
@@ -44,6 +45,23 @@ def pytest_configure(config: pytest.Config) -> None:
     # With --durations, each test's CPU seconds and the host's load as well (tests/cpu_times.py).
     if config.getoption("durations", None) is not None:
         config.pluginmanager.register(CpuTimes(), "cpu_times")
+
+
+def pytest_sessionstart(session: pytest.Session) -> None:
+    # Compiled once here, not by the first test that measures nor by each xdist worker at once (they
+    # start after this hook and load numba's cache); its seconds are printed beside the tests' own.
+    config = session.config
+    if hasattr(config, "workerinput") or config.getoption("collectonly"):
+        return
+    try:
+        warmed = compile_measuring_kernels()
+    except Exception as exc:  # a broken measurement is the tests' to report, one by one
+        print(f"session start: measuring the warm-up frames failed ({exc!r}); the tests that measure compile the kernels")
+        return
+    config.stash[WARMED] = warmed
+    timer = config.pluginmanager.get_plugin("cpu_times")
+    if timer is not None:
+        timer.session_start = (warmed.wall_s, warmed.cpu_s)
 
 
 def pytest_collection_finish(session: pytest.Session) -> None:

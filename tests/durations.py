@@ -38,6 +38,8 @@ DURATION = re.compile(r"^(\d+\.\d+)s (setup|call|teardown)\s+(\S.*)$")
 CPU = re.compile(r"^(\d+\.\d+)s cpu (\S.*)$")  # tests/cpu_times.py's line per test
 # ... and its closing line: the CPU of the whole run (with xdist's workers, once they have ended) and the load
 RUN_LINE = re.compile(r"^run: .*, (\d+\.\d+)s cpu in this process and its ended children, load (\d+\.\d+)-(\d+\.\d+) ")
+# ... and before it, the seconds the session spent compiling the measuring kernels before its first test
+SESSION_START = re.compile(r"^session start: (\d+\.\d+)s wall, (\d+\.\d+)s cpu ")
 BYTECODE = re.compile(r"; compiled files (written|not written)")  # ... which ends with whether Python wrote its compiled files
 # the summary line, framed by "=" or, with -q (addopts), bare
 SESSION = re.compile(r"^(?:=+ )?(.*) in (\d+\.\d+)s( \([\d:]+\))?(?: =+)?$")
@@ -59,7 +61,8 @@ NOT_UNIT = ("tests/integration/", "tests/studies/", "tests/browser/")
 class Run:
     """One ``--durations=0`` log: per node id its wall seconds (setup + call + teardown) and CPU seconds,
     the final summary ("663 passed, ..."), pytest's session seconds, the whole run's CPU seconds
-    (collection included), the load average's range and whether Python wrote its compiled files."""
+    (collection included), the load average's range, whether Python wrote its compiled files and the
+    (wall, CPU) seconds spent compiling the measuring kernels before the first test (tests/session_start.py)."""
 
     wall: Counter
     cpu: Counter
@@ -68,13 +71,14 @@ class Run:
     run_cpu: float | None
     load: tuple[float, float] | None
     bytecode: str | None = None
+    start: tuple[float, float] | None = None
 
 
 def parse_log(text: str) -> Run:
     """The figures of a ``pytest --durations=0`` log (CPU and load only where tests/cpu_times.py ran)."""
     wall: Counter = Counter()
     cpu: Counter = Counter()
-    summary, session, run_cpu, load, bytecode = "", None, None, None, None
+    summary, session, run_cpu, load, bytecode, start = "", None, None, None, None, None
     for line in text.splitlines():
         line = line.strip()
         if m := DURATION.match(line):
@@ -84,9 +88,11 @@ def parse_log(text: str) -> Run:
         elif m := RUN_LINE.match(line):
             run_cpu, load = float(m.group(1)), (float(m.group(2)), float(m.group(3)))
             bytecode = b.group(1) if (b := BYTECODE.search(line)) else None
+        elif m := SESSION_START.match(line):
+            start = (float(m.group(1)), float(m.group(2)))
         elif (m := SESSION.match(line)) and ("passed" in m.group(1) or "failed" in m.group(1)):
             summary, session = m.group(1), float(m.group(2))
-    return Run(wall, cpu, summary, session, run_cpu, load, bytecode)
+    return Run(wall, cpu, summary, session, run_cpu, load, bytecode, start)
 
 
 def collect(*args: str) -> tuple[set[str], float]:
@@ -133,13 +139,15 @@ def fast_loop_lines(text: str) -> list[str]:
     run = parse_log(text)
     load = f"{run.load[0]:.1f}-{run.load[1]:.1f}" if run.load else "not logged"
     command = " ".join(f'"{a}"' if " " in a else a for a in FAST_LOOP_COMMAND)
+    starting = (f", and {run.start[1]:.1f} s compiling the measuring kernels or loading them from numba's cache before "
+                "the workers started" if run.start else "")
     return [
         "## The fast loop",
         "",
         f"`.venv/bin/python -m pytest {command}`: {run.summary or 'no summary line'} in "
         f"{run.session if run.session is not None else 'n/a'} s wall on {os.cpu_count()} CPUs, "
         f"{sum(run.cpu.values()):.1f} s of CPU in its tests, {run.run_cpu if run.run_cpu is not None else 'n/a'} s in the "
-        f"whole run (collection and the workers' start included); the host's 1-minute load average was {load} "
+        f"whole run (collection and the workers' start included{starting}); the host's 1-minute load average was {load} "
         "while it ran (other programs share the machine); compiled files were "
         f"{run.bytecode or 'not logged'} (when not, each worker compiles what no earlier run wrote: [Testing](testing.md)).",
         "",
@@ -168,7 +176,7 @@ def report(runs: dict[str, str], fast_text: str | None = None) -> str:
         "`-m \"not slow\"` | fast loop |",
         "| --- | --- | --- | --- | --- | --- | --- | --- | --- | --- |",
     ]
-    slowest_tables = []
+    slowest_tables, starts = [], []
     for label, path in runs.items():
         run = parse_log(Path(path).read_text(errors="replace"))
         total = sum(run.wall.values())
@@ -178,12 +186,18 @@ def report(runs: dict[str, str], fast_text: str | None = None) -> str:
         lines.append(f"| {label} | {run.summary or f'{len(run.wall)} tests timed'} | {run.session if run.session is not None else 'n/a'} | "
                      f"{load} | {total:.1f} | {cpu} | {top_share(run.wall):.1%} | {cpu_top} | {share(run.wall, not_slow):.1%} | "
                      f"{share(run.wall, fast):.1%} |")
+        starts.append(f"Before its first test, run {label} spent "
+                      + (f"{run.start[0]:.1f} s wall ({run.start[1]:.1f} s CPU) compiling the measuring kernels or loading them "
+                         "from numba's cache (tests/session_start.py): in no test's time nor in pytest's session seconds, so "
+                         "not in the shares above."
+                         if run.start else "nothing logged compiling the measuring kernels (an older log: the first test that "
+                         "measured carried it)."))
         slowest_tables += ["", f"## Slowest {SLOWEST}: {label}", "", "| seconds | cpu | test |", "| --- | --- | --- |"]
         slowest_tables += [f"| {s:.1f} | {run.cpu[node]:.1f} | `{node}` |" if run.cpu else f"| {s:.1f} | n/a | `{node}` |"
                            for node, s in run.wall.most_common(SLOWEST)]
     if fast_text is not None:
         slowest_tables = ["", *fast_loop_lines(fast_text), *slowest_tables]
-    return "\n".join(lines + slowest_tables) + "\n"
+    return "\n".join(lines + ["", *starts] + slowest_tables) + "\n"
 
 
 def heavy_tests(run: Run) -> list[str]:

@@ -17,6 +17,7 @@ LOG = """\
 ========================== cpu seconds per test (all) ==========================
 2.50s cpu tests/a/test_a.py::test_burn
 0.01s cpu tests/a/test_a.py::test_sleep[x y]
+session start: 11.6s wall, 11.5s cpu compiling the measuring kernels (or loading them from numba's cache), in no test
 run: 4.0s wall, 2.5s cpu in tests, 3.1s cpu in this process and its ended children, load 1.5-7.2 (1-minute average, 2 samples, start 1.5, end 7.2); compiled files not written (PYTHONDONTWRITEBYTECODE)
 ============================== slowest durations ===============================
 2.40s call     tests/a/test_a.py::test_burn
@@ -31,12 +32,13 @@ def test_the_log_gives_wall_cpu_load_and_summary():
     assert run.wall == {"tests/a/test_a.py::test_burn": pytest.approx(2.7), "tests/a/test_a.py::test_sleep[x y]": 1.0}
     assert run.cpu == {"tests/a/test_a.py::test_burn": 2.5, "tests/a/test_a.py::test_sleep[x y]": 0.01}
     assert (run.summary, run.session, run.run_cpu, run.load, run.bytecode) == ("2 passed", 4.02, 3.1, (1.5, 7.2), "not written")
+    assert run.start == (11.6, 11.5)
     assert top_share(run.wall) == 1.0
 
 
 def test_a_log_without_the_plugin_still_reads():
     run = parse_log("1.00s call     tests/t.py::test_x\n1 passed in 1.10s\n")
-    assert (dict(run.wall), dict(run.cpu), run.run_cpu, run.load, run.bytecode) == ({"tests/t.py::test_x": 1.0}, {}, None, None, None)
+    assert (dict(run.wall), dict(run.cpu), run.run_cpu, run.load, run.bytecode, run.start) == ({"tests/t.py::test_x": 1.0}, {}, None, None, None, None)
 
 
 def test_heavy_tests_are_the_costly_unit_tests_and_their_file_reads_back():
