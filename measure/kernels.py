@@ -425,3 +425,31 @@ def crease_candidates(t: np.ndarray, d: np.ndarray, length: float, quantum: floa
         part = abs(beta[j, 2]) * min(t0, length - t0)
         parted |= part > max(quantum, disagree * abs(beta[j, 0] + beta[j, 1] * t0))
     return creases[1:k], beta[1:], beta[0], scale[0], med[0], parted
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
+def median_1d(v: np.ndarray) -> float:
+    """``np.median`` of a non-empty 1-D ``v`` by selection: its middle value, or the mean of the two
+    middle ones (the same order statistics, the same bits)."""
+    n = v.size
+    work = v.copy()
+    a, b = _ends(work, (n - 1) // 2, n // 2)
+    return (a + b) / 2.0 if n % 2 == 0 else a
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
+def lag_one_correlation(r: np.ndarray) -> float:
+    """The lag-one autocorrelation sum (r_i - m)(r_i+1 - m) / sum (r_i - m)² of ``r`` (m its mean;
+    0 when every value is the mean), summed in order."""
+    n = r.size
+    m = 0.0
+    for i in range(n):
+        m += r[i]
+    m /= n
+    den, num = 0.0, 0.0
+    for i in range(n):
+        x = r[i] - m
+        den += x * x
+        if i + 1 < n:
+            num += x * (r[i + 1] - m)
+    return num / den if den > 0 else 0.0
