@@ -1,16 +1,17 @@
 """The measurement core's compiled loops (numba): the per-start arithmetic of FAST-MCD's C-step
-(``start_coefficients``, ``moments_det_lam``) and the crease search's fits, medians and MADs
-(``trimmed_crease_fits``, ``row_scales``).
+(``start_coefficients``, ``moments_det_lam``), the crease search's candidates, fits, medians and MADs
+(``crease_candidates``, ``trimmed_crease_fits``, ``row_scales``), and a 1-D median (``median_1d``) and
+lag-one autocorrelation (``lag_one_correlation``) for ``measure.robust_range`` and ``measure.uncertainty``.
 
 The C-step kernels do, element by element, the float64 operations of the numpy formulation they replaced,
 in the same order (numpy's einsum adds three terms as first + last, then the middle one), so their
-numbers are the same bit for bit; the matrix products around them stay with BLAS. Medians and MADs come
-from a selection (quickselect, long rows first narrowed to a bracket) instead of a sort: order statistics
-are values of the input, the same whatever the algorithm. The crease fits sum their normal equations in
-the loop and solve them by Gaussian elimination instead of BLAS and LAPACK, whose rounding a loop does
-not reproduce: within 1e-9 px of it. tests/measure/test_kernels.py holds each kernel to its numpy
-oracle. Compiled on first use and cached on disk (numba ``cache=True``); measured reasons and the
-first-call cost: docs/decisions/core-speed.md.
+numbers are the same bit for bit. Medians and MADs come from a selection (quickselect, long rows first
+narrowed to a bracket) instead of a sort: order statistics are values of the input, the same whatever
+the algorithm. The crease fits sum their normal equations in the loop (the trimmed second fit's sums
+vectorised) and solve them by Gaussian elimination instead of BLAS and LAPACK, whose rounding a loop
+does not reproduce: within 1e-9 px of it. tests/measure/test_kernels.py and test_mcd_kernels.py hold
+each kernel to its numpy oracle. Compiled on first use and cached on disk (numba ``cache=True``);
+measured reasons and the first-call cost: docs/decisions/core-speed.md.
 """
 
 from __future__ import annotations

@@ -19,7 +19,8 @@ How it runs (inputs in any unit; tolerances are relative to a robust data scale)
 3. C-steps for all starts at once (``measure.cstep.c_step``: one matrix product of per-point
    monomials with per-start coefficients, closed-form 3x3 determinants). Two C-steps per start, keep
    the ten lowest determinants per subsample, two C-steps on the merged subsamples, then iterate
-   the ten best on the full data to convergence and keep the lowest determinant.
+   the ten best on the full data to convergence and keep the lowest determinant (that stage and
+   step 1 compiled, ``measure.mcd_kernels``).
 4. Exact fit (R&VD section 3.4): when an h-subset covariance is singular (its smallest
    eigenvalue below ``(exact_tol * s)²``), at least h points lie on an affine subspace.
    The result then carries that subspace: a hyperplane ``a·x + d = 0`` (unit normal,
