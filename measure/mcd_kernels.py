@@ -9,7 +9,7 @@ order statistics (medians, MADs, the h-th smallest d²) are the values numpy sel
 points are added in an order the compiler may vectorise (``fastmath`` reassociation) where numpy's
 reductions and BLAS add them in theirs, so the last bits can differ from the numpy formulation (moments
 within about 1e-15 relative; the answers: docs/decisions/core-speed.md, sixth round). tests/measure/
-test_mcd_kernels.py holds each to its numpy oracle. Compiled on first use and cached on disk.
+test_mcd_kernels.py and test_mcd.py hold each to its numpy oracle. Compiled on first use and cached on disk.
 """
 
 from __future__ import annotations
