@@ -75,26 +75,16 @@ def hinge_ends(t: np.ndarray, d: np.ndarray, length: float, quantum: float, nois
     if length < 2 * MIN_PIECE_PX or n < 2 * MIN_PIECE_SAMPLES:
         return None
     floor = quantum / math.sqrt(12.0)
-    t0s = np.linspace(MIN_PIECE_PX, length - MIN_PIECE_PX, CANDIDATES)
-    left = np.searchsorted(np.sort(t), t0s)  # samples before each crease
-    t0s = t0s[(left >= MIN_PIECE_SAMPLES) & (n - left >= MIN_PIECE_SAMPLES)]
-    if t0s.size == 0:
-        return None
-    from measure.kernels import row_scales, trimmed_crease_fits  # numba loads on first use: `import measure` stays fast
-    # Row 0 is the one line: a crease beyond the far end (a hinge column of zeros), fitted with the candidates.
-    creases = np.concatenate([[np.inf], t0s])
-    b2 = trimmed_crease_fits(t, d, creases, floor)
-    r1 = _residuals(t, None, d, b2[:1, :2])[0]
-    s1_row, med1 = row_scales(t, d, creases[:1], b2[:1], floor)
-    s1 = float(s1_row[0])
-    if s1 <= floor:
-        return None  # every s2 is floored there too: the crease cannot lower the scale (condition 1)
-    b2 = b2[1:]
+    from measure.kernels import crease_candidates, row_scales  # numba loads on first use: `import measure` stays fast
+    # The one line is fitted with the candidates (a crease beyond the far end: a hinge column of zeros).
+    t0s, b2, b1, s1, med1, parted = crease_candidates(t, d, float(length), float(quantum), floor, MIN_PIECE_PX, MIN_PIECE_SAMPLES,
+                                                      CANDIDATES, DISAGREE_REL)
+    if t0s.size == 0 or s1 <= floor:
+        return None  # s1 at the floor: every s2 is floored there too, the crease cannot lower the scale (condition 1)
     # Condition 3 without its scale term: when no candidate's pieces part by more than a quantum and
     # DISAGREE_REL of its disparity at the crease, the best one's cannot, whatever the scales (most
     # straight profiles end here, without the second pass's residuals and medians).
-    part = np.abs(b2[:, 2]) * np.minimum(t0s, length - t0s)
-    if not (part > np.maximum(quantum, DISAGREE_REL * np.abs(b2[:, 0] + b2[:, 1] * t0s))).any():
+    if not parted:
         return None
     s2, med2 = row_scales(t, d, t0s, b2, floor)
     k = int(np.argmin(s2))
@@ -113,7 +103,8 @@ def hinge_ends(t: np.ndarray, d: np.ndarray, length: float, quantum: float, nois
         return None
     # Where the two models part, the samples must follow the crease: a step to scattered wrong matches past an
     # object's edge lowers the (MAD) scale by threading a steep piece through a few of them (condition 4).
-    one = np.abs(r1 - med1[0]) <= 3.0 * s2[k]
+    r1 = _residuals(t, None, d, b1[None, :2])[0]
+    one = np.abs(r1 - med1) <= 3.0 * s2[k]
     apart = np.abs(r1 - r2k) > 3.0 * s2[k]
     if not (inl & apart).sum() > (one & apart).sum():
         return None

@@ -1,12 +1,13 @@
 """FAST-MCD's batched concentration step (R&VD section 3), for p = 1, 2, 3 and many starts at once.
 
 ``c_step``: Mahalanobis distances of all points to all starts from one matrix product of the
-per-point ``monomials`` (1, x, y, z, x², xy, ...) with per-start coefficient rows; the h smallest per
-start form the next subset; its mean and covariance come from one more matrix product of the subset
-mask with the monomials. Determinants and adjugates of 1x1, 2x2 and 3x3 covariances are closed form
-(``det_adj``; per start in ``measure.kernels``). Many starts on many points are taken in blocks of
-starts (``_CHUNK_BYTES``), row by row the same numbers. Inputs in ``measure.mcd``'s normalised,
-dimensionless units.
+per-point monomials (1, x, y, z, x², xy, ...; ``measure.mcd_kernels.normalised``) with per-start
+coefficient rows; the h smallest per start (numpy's partition) form the next subset; its mean and
+covariance come from the subset's summed monomials (compiled, ``measure.mcd_kernels.masked_sums``). A
+few starts take the whole step in one compiled call. Determinants and adjugates of 1x1, 2x2 and 3x3
+covariances are closed form (``det_adj``; per start in ``measure.kernels``). Many starts on many points
+are taken in blocks of starts (``_CHUNK_BYTES``), row by row the same numbers. Inputs in
+``measure.mcd``'s normalised, dimensionless units.
 """
 
 from __future__ import annotations
@@ -16,20 +17,13 @@ import functools
 import numpy as np
 
 
-_FEW_STARTS = 8  # up to this many starts a C-step's masks come from one compiled call (measure.fit_kernels)
+_FEW_STARTS = 8  # up to this many starts a C-step is one compiled call (measure.mcd_kernels.few_starts_step)
 _CHUNK_BYTES = 1 << 18  # a C-step's distances of more than this many bytes are taken in blocks of starts
 
 
 @functools.lru_cache(maxsize=None)
 def pairs(p: int) -> tuple[np.ndarray, np.ndarray]:
     return np.triu_indices(p)
-
-
-def monomials(z: np.ndarray) -> np.ndarray:
-    """Per point: (1, z_1..z_p, z_j z_k for j <= k); n x m. The leading 1 makes one matrix
-    product give a subset's count and a start's constant term."""
-    j, k = pairs(z.shape[1])
-    return np.concatenate([np.ones((len(z), 1)), z, z[:, j] * z[:, k]], axis=1)
 
 
 def det_adj(cov: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -71,49 +65,42 @@ def mm(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     return np.concatenate([a[..., i : i + c, :] @ b for i in range(0, s, c)], axis=-2)
 
 
-def c_step(mono: np.ndarray, mean: np.ndarray, cov: np.ndarray, lam: np.ndarray, h: int, p: int):
-    """One concentration step for G groups of S starts on G point sets (monomials G x n x m).
+def c_step(mono: np.ndarray, mono_t: np.ndarray, mean: np.ndarray, cov: np.ndarray, lam: np.ndarray, h: int, p: int):
+    """One concentration step for G groups of S starts on G point sets (monomials G x n x m, and
+    ``mono_t`` the same as G x m x n).
 
     ``mean`` is G x S x p, ``cov`` G x S x p x p, ``lam`` their lambda_min estimates (G x S). Returns
     the new subset masks (G x S x n), means, covariances, determinants and lambda_min estimates (each
-    G x S ...). The per-start arithmetic and the moments are compiled (``measure.kernels``); the two
-    matrix products stay with BLAS and the selection with numpy's partition (SIMD, faster than a loop).
+    G x S ...). The per-start arithmetic, the masks and the sums are compiled (``measure.kernels``,
+    ``measure.mcd_kernels``); the distances' matrix product stays with BLAS and the selection with
+    numpy's partition (SIMD, faster than a loop).
     """
     from measure.kernels import moments_det_lam, start_coefficients  # numba loads on first use: `import measure` stays fast
-    if mono.dtype == np.float64 and mean.shape[0] * mean.shape[1] <= _FEW_STARTS:
-        # A few starts (the full data's best five): the masks in one compiled call (the numpy calls
-        # cost more than their arithmetic), the sums by the same BLAS product.
-        from measure.fit_kernels import few_starts_masks
+    from measure.mcd_kernels import few_starts_step, masked_sums
 
-        mask = few_starts_masks(np.ascontiguousarray(mono), mean, cov, lam, h)
-        return (mask,) + moments_det_lam(mm(mask.astype(np.float64), mono), p)
+    g_n, starts = mean.shape[:2]
+    if mono.dtype == np.float64 and g_n * starts <= _FEW_STARTS:
+        # A few starts (the full data's best five): the whole step in one compiled call (the numpy calls
+        # cost more than their arithmetic).
+        return few_starts_step(mono, mono_t, mean, cov, lam, h, p)
     coef = start_coefficients(mean, cov, lam).astype(mono.dtype, copy=False)
-    starts = coef.shape[1]
-    parts = min(starts, -(-coef.shape[0] * starts * mono.shape[1] * mono.itemsize // _CHUNK_BYTES))
-    if parts > 1:
-        # Long segments: the starts in blocks, each block's distances, selection and sums before the
-        # next block's (the same numbers, row by row). One array of all the distances is larger than
-        # the C library's allocator keeps mapped between calls: every C-step paid its page faults
-        # (434 vs 204 us for 104 starts on 480 points).
-        rows = -(-starts // parts)
-        blocks = [_selected(coef[:, i : i + rows], mono, h) for i in range(0, starts, rows)]
-        mask, sums = np.concatenate([b[0] for b in blocks], axis=1), np.concatenate([b[1] for b in blocks], axis=1)
-    else:
-        mask, sums = _selected(coef, mono, h)
-    return (mask,) + moments_det_lam(sums.astype(np.float64, copy=False), p)
+    n = mono.shape[1]
+    mask, sums = np.empty((g_n, starts, n), bool), np.empty((g_n, starts, mono.shape[2]))
+    parts = min(starts, -(-g_n * starts * n * mono.itemsize // _CHUNK_BYTES))
+    # Long segments: the starts in blocks, each block's distances, selection and sums before the next
+    # block's (the same numbers, row by row). One array of all the distances is larger than the C
+    # library's allocator keeps mapped between calls: every C-step paid its page faults (434 vs 204 us
+    # for 104 starts on 480 points).
+    rows = -(-starts // parts)
+    for i in range(0, starts, rows):
+        d2 = mm(coef[:, i : i + rows], mono_t)
+        masked_sums(*_h_smallest(d2, h), mono_t, i, mask, sums)
+    return (mask,) + moments_det_lam(sums, p)
 
 
-def _selected(coef: np.ndarray, mono: np.ndarray, h: int) -> tuple[np.ndarray, np.ndarray]:
-    """The masks and summed monomials of the ``h`` points nearest each start (coefficient rows ``coef``)."""
-    d2 = mm(coef, np.swapaxes(mono, -1, -2))
-    # Expanded in monomials, d² of a point on the start's support can round a hair below zero.
-    np.maximum(d2, 0.0, out=d2)
-    return _h_smallest(d2, h, mono)
-
-
-def _h_smallest(d2: np.ndarray, h: int, mono: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Per start (last axis: the points' d² >= 0), the mask of the ``h`` smallest (with any ties at the
-    h-th) and the summed monomials of those points.
+def _h_smallest(d2: np.ndarray, h: int) -> tuple[np.ndarray, np.ndarray]:
+    """Per start (last axis: the points' d² >= 0), the bit patterns of the d² and the h-th smallest of
+    them: the points at or below it are the ``h`` smallest (with any ties at the h-th).
 
     The bit patterns of non-negative floats read as integers sort like the floats, and an integer
     partition skips the NaN-aware float comparisons. Double-precision d² is selected on its own 64-bit
@@ -121,5 +108,7 @@ def _h_smallest(d2: np.ndarray, h: int, mono: np.ndarray) -> tuple[np.ndarray, n
     32-bit ones (59 vs 16 + 49 us for 104 starts of 270 points), and needs no second selection where
     rounding joins values at the h-th (common on quantized disparities)."""
     key = d2.view(np.int32 if d2.dtype == np.float32 else np.int64)
-    mask = key <= np.partition(key, h - 1, axis=-1)[..., h - 1 : h]
-    return mask, mm(mask.astype(mono.dtype), mono)
+    # Expanded in monomials, d² of a point on the start's support can round a hair below zero: a negative
+    # float's pattern is a negative integer, clamped to 0 (the pattern of +0.0), as max(d², 0) would.
+    np.maximum(key, 0, out=key)
+    return key, np.partition(key, h - 1, axis=-1)[..., h - 1]

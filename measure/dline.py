@@ -29,7 +29,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from measure.mcd import McdResult, fast_mcd, starts_for
-from measure.robust_range import TUKEY_C, median
+from measure.robust_range import median
 
 # See the module docstring: FAST-MCD supplies the start, the IRLS the answer.
 _STARTS = starts_for(2, failure=1e-6)
@@ -101,21 +101,6 @@ def mcd_line(res: McdResult) -> tuple[float, float] | None:
     return float(res.location[1] - slope * res.location[0]), slope
 
 
-def _irls(t: np.ndarray, d: np.ndarray, alpha: float, beta: float, scale: float, iterations: int) -> tuple[float, float, np.ndarray]:
-    """Tukey-bisquare IRLS of d = alpha + beta t from a start, at a fixed ``scale`` (px); returns the
-    line and its residuals. Compiled (``measure.fit_kernels.bisquare_line``): it stops when the line moves
-    by less than 1e-4 of the noise scale anywhere on the segment, far below its own standard error
-    (>= scale / sqrt(n))."""
-    from measure.fit_kernels import bisquare_line  # numba loads on first use: `import measure` stays fast
-
-    return bisquare_line(np.ascontiguousarray(t), np.ascontiguousarray(d), float(alpha), float(beta), float(scale), iterations)
-
-
-def _lts(r: np.ndarray, h: int) -> float:
-    """Least trimmed squares: the sum of the ``h`` smallest squared residuals."""
-    return float(np.partition(r * r, h - 1)[:h].sum())
-
-
 def fit_disparity_line(t: np.ndarray, d: np.ndarray, support_fraction: float, seed: int, quantum: float, iterations: int = 50,
                        alt_start: tuple[float, float] | None = None) -> DisparityLine:
     """Robust d = alpha + beta t of samples at positions ``t`` (px) with disparities ``d`` (px).
@@ -155,33 +140,17 @@ def fit_disparity_line(t: np.ndarray, d: np.ndarray, support_fraction: float, se
     line = mcd_line(res)
     # All support samples at one (t, d), or a vertical line: start flat.
     alpha, beta = line if line is not None else (median(d[res.support]), 0.0)
-    floor = quantum / math.sqrt(12.0)
-    r = d - (alpha + beta * t)
-    scale = max(1.4826 * median(np.abs(r[res.support])), floor, 1e-6)
-    alpha, beta, r = _irls(t, d, alpha, beta, scale, iterations)
-    if alt_start is not None and all(map(math.isfinite, alt_start)):
-        # A second start (e.g. the line through the click windows' medians): at or past half wrong
-        # matches FAST-MCD's half-sample can hold outliers that tilt it. Its IRLS runs at the scale
-        # of its own better half, then again at the tighter of the two scales (a wide scale takes
-        # wrong matches into the fit); it wins when both its least trimmed squares (h smallest squared
-        # residuals) are smaller and it supports more samples within the tight band.
-        h = max(2, int(math.ceil(support_fraction * t.size)))
-        ra = d - (alt_start[0] + alt_start[1] * t)
-        scale_a = max(1.4826 * median(np.partition(np.abs(ra), h - 1)[:h]), floor, 1e-6)
-        tight = min(scale, scale_a)
-        ends = np.array([t.min(), t.max()])
-        # A start within the tight band of the line at both ends converges to the same line: skip it.
-        if np.abs(alt_start[0] + alt_start[1] * ends - (alpha + beta * ends)).max() > TUKEY_C * tight:
-            a2, b2, r2 = _irls(t, d, alt_start[0], alt_start[1], scale_a, iterations)
-            a2, b2, r2 = _irls(t, d, a2, b2, tight, iterations)
-            band = TUKEY_C * tight
-            if _lts(r2, h) < _lts(r, h) and int((np.abs(r2) < band).sum()) > int((np.abs(r) < band).sum()):
-                alpha, beta, r, scale = a2, b2, r2, tight
-    support = np.abs(r) < TUKEY_C * scale
-    ns = int(support.sum())
-    sigma = max(float(np.sqrt((r[support] ** 2).mean())) if ns else scale, floor)
-    ts = t[support]
-    st, stt = float(ts.sum()), float(ts @ ts)
+    has_alt = alt_start is not None and all(map(math.isfinite, alt_start))
+    a_alt, b_alt = alt_start if has_alt else (0.0, 0.0)
+    h = max(2, int(math.ceil(support_fraction * t.size)))
+    from measure.fit_kernels import robust_line  # numba loads on first use: `import measure` stays fast
+
+    # Steps 2 and 3 (the second start's IRLS at the scale of its own better half, then at the tighter of
+    # the two scales: at or past half wrong matches FAST-MCD's half-sample can hold outliers that tilt
+    # it; a wide scale takes wrong matches into the fit) in one compiled call.
+    alpha, beta, _, support, sigma, ns, st, stt = robust_line(
+        np.ascontiguousarray(t), np.ascontiguousarray(d), res.support, float(alpha), float(beta), quantum / math.sqrt(12.0),
+        has_alt, float(a_alt), float(b_alt), h, iterations)
     det = ns * stt - st * st
     # (X^T X)^-1 of the 2x2 normal equations, closed form.
     cov = sigma * sigma / det * np.array([[stt, -st], [-st, ns]]) if det > 0 else np.full((2, 2), np.inf)

@@ -1,14 +1,15 @@
 """The robust line's and FAST-MCD's compiled loops (numba) beside ``measure.kernels``: the Tukey IRLS of
-the disparity line (``bisquare_line``), FAST-MCD's consistency correction and reweighting
-(``mcd_finish``), the subset masks of a C-step with few starts (``few_starts_masks``) and Tukey's
-bisquare location of a run of values (``bisquare_location``, ``measure.robust_range.tukey_location``:
-its sums in numpy's pairwise order, so the same bits as the numpy loop).
+the disparity line (``bisquare_line``) and the line's steps after its FAST-MCD start (``robust_line``:
+the scales, the second start and the support), FAST-MCD's consistency correction and reweighting
+(``mcd_finish``), a C-step's distances for a few starts (``_distances``) and Tukey's bisquare location
+of a run of values (``bisquare_location``, ``measure.robust_range.tukey_location``: its sums in numpy's
+pairwise order, so the same bits as the numpy loop).
 
 Each does numpy's element-wise operations; sums over the samples are added in sample order, where a
 BLAS product adds them in another, so their last bits can differ from the numpy formulation they
-replaced (answers within 5e-13 relative; no verdict, fit or gap changed: docs/decisions/core-speed.md).
-The C-step's distances are summed with fused multiply-adds in OpenBLAS's order: the same bits, so the
-same masks. Compiled on first use and cached on disk (numba ``cache=True``).
+replaced (docs/decisions/core-speed.md: no verdict, fit or gap changed). Medians and the least trimmed
+squares' h smallest come from a selection (the same order statistics). Compiled on first use and
+cached on disk (numba ``cache=True``).
 """
 
 from __future__ import annotations
@@ -16,7 +17,7 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
-from measure.kernels import _ends, _select, start_coefficients
+from measure.kernels import _ends, _select
 from measure.robust_range import TUKEY_C
 
 
@@ -180,27 +181,6 @@ def _distances(coef: np.ndarray, mono: np.ndarray, out: np.ndarray) -> None:
 
 
 @njit(cache=True, nogil=True, error_model="numpy")
-def few_starts_masks(mono: np.ndarray, mean: np.ndarray, cov: np.ndarray, lam: np.ndarray, h: int) -> np.ndarray:
-    """The subset masks (G, S, n) of one C-step (``measure.cstep.c_step``) in double precision for G x S
-    starts on G point sets (``mono`` G x n x m), in one call: each start's coefficients
-    (``start_coefficients``), every point's d² (the bits of the BLAS product) and the points at or below
-    the h-th smallest (a selection: the set the partition of the bit patterns gives)."""
-    g_n, s_n, _ = mean.shape
-    n = mono.shape[1]
-    coef = start_coefficients(mean, cov, lam)
-    masks = np.empty((g_n, s_n, n), np.bool_)
-    d2, work = np.empty(n), np.empty(n)
-    for g in range(g_n):
-        for s in range(s_n):
-            _distances(coef[g, s], mono[g], d2)
-            work[:] = d2
-            kth = _select(work, 0, n - 1, h - 1)
-            for i in range(n):
-                masks[g, s, i] = d2[i] <= kth
-    return masks
-
-
-@njit(cache=True, nogil=True, error_model="numpy")
 def _block_sum(a: np.ndarray, lo: int, n: int) -> float:
     """numpy's sum of ``a[lo:lo + n]`` for n <= 128: one by one below 8, else eight running sums."""
     if n < 8:
@@ -290,3 +270,73 @@ def bisquare_location(v: np.ndarray, m: float, c: float, s: float, iterations: i
             count += 1
     spread = np.sqrt(_pairwise_sum(w, count) / count) if count else 0.0
     return m, (spread if spread > 0 else s) / np.sqrt(max(1, count))
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
+def _middle(a: np.ndarray, k: int) -> float:
+    """The median of the ``k`` smallest values of ``a`` (reordered): the mean of its order statistics
+    (k - 1) // 2 and k // 2, as ``np.median`` of those k values gives them."""
+    lo, hi = _ends(a, (k - 1) // 2, k // 2)
+    return (lo + hi) / 2.0
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
+def _lts(r: np.ndarray, h: int, work: np.ndarray) -> float:
+    """Least trimmed squares: the sum of the ``h`` smallest r²."""
+    for i in range(r.size):
+        work[i] = r[i] * r[i]
+    _select(work, 0, r.size - 1, h - 1)  # the h smallest end up first
+    total = 0.0
+    for i in range(h):
+        total += work[i]
+    return total
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
+def robust_line(t: np.ndarray, d: np.ndarray, start_support: np.ndarray, alpha: float, beta: float, floor: float, has_alt: bool,
+                alt_alpha: float, alt_beta: float, h: int, iterations: int):  # fmt: skip
+    """Steps 2 and 3 of ``measure.dline.fit_disparity_line`` after FAST-MCD's start (``alpha``, ``beta``;
+    ``start_support``: its support): the IRLS (``bisquare_line``) at the scale max(1.4826 MAD of the start's
+    support residuals, ``floor``, 1e-6); with ``has_alt``, the second start's two IRLS runs (at the scale of
+    its ``h`` best residuals, then at the tighter scale) unless it lies within the tight band of the line at
+    both ends, and the winner by least trimmed squares and support. Returns alpha, beta, the scale (px),
+    the support |r| < ``TUKEY_C`` scale, the RMS residual on it (at least ``floor``; the scale when empty),
+    its count and the sum of its t and t² (the normal equations' terms)."""
+    n = t.size
+    work = np.empty(n)
+    k = 0
+    for i in range(n):
+        if start_support[i]:
+            work[k] = abs(d[i] - (alpha + beta * t[i]))
+            k += 1
+    scale = max(max(1.4826 * _middle(work[:k], k), floor), 1e-6)
+    alpha, beta, r = bisquare_line(t, d, alpha, beta, scale, iterations)
+    if has_alt:
+        for i in range(n):
+            work[i] = abs(d[i] - (alt_alpha + alt_beta * t[i]))
+        scale_a = max(max(1.4826 * _middle(work, h), floor), 1e-6)
+        tight = min(scale, scale_a)
+        lo, hi = t.min(), t.max()
+        apart = max(abs(alt_alpha + alt_beta * lo - (alpha + beta * lo)), abs(alt_alpha + alt_beta * hi - (alpha + beta * hi)))
+        if apart > TUKEY_C * tight:
+            a2, b2, r2 = bisquare_line(t, d, alt_alpha, alt_beta, scale_a, iterations)
+            a2, b2, r2 = bisquare_line(t, d, a2, b2, tight, iterations)
+            band = TUKEY_C * tight
+            in1, in2 = 0, 0
+            for i in range(n):
+                in1 += int(abs(r[i]) < band)
+                in2 += int(abs(r2[i]) < band)
+            if _lts(r2, h, work) < _lts(r, h, work) and in2 > in1:
+                alpha, beta, r, scale = a2, b2, r2, tight
+    support = np.empty(n, np.bool_)
+    limit = TUKEY_C * scale
+    ns, ss, st, stt = 0, 0.0, 0.0, 0.0
+    for i in range(n):
+        support[i] = abs(r[i]) < limit
+        if support[i]:
+            ns += 1
+            ss += r[i] * r[i]
+            st += t[i]
+            stt += t[i] * t[i]
+    sigma = max(np.sqrt(ss / ns) if ns else scale, floor)
+    return alpha, beta, scale, support, sigma, ns, st, stt

@@ -1,16 +1,17 @@
 """The measurement core's compiled loops (numba): the per-start arithmetic of FAST-MCD's C-step
-(``start_coefficients``, ``moments_det_lam``) and the crease search's fits, medians and MADs
-(``trimmed_crease_fits``, ``row_scales``).
+(``start_coefficients``, ``moments_det_lam``), the crease search's candidates, fits, medians and MADs
+(``crease_candidates``, ``trimmed_crease_fits``, ``row_scales``), and a 1-D median (``median_1d``) and
+lag-one autocorrelation (``lag_one_correlation``) for ``measure.robust_range`` and ``measure.uncertainty``.
 
 The C-step kernels do, element by element, the float64 operations of the numpy formulation they replaced,
 in the same order (numpy's einsum adds three terms as first + last, then the middle one), so their
-numbers are the same bit for bit; the matrix products around them stay with BLAS. Medians and MADs come
-from a selection (quickselect, long rows first narrowed to a bracket) instead of a sort: order statistics
-are values of the input, the same whatever the algorithm. The crease fits sum their normal equations in
-the loop and solve them by Gaussian elimination instead of BLAS and LAPACK, whose rounding a loop does
-not reproduce: within 1e-9 px of it. tests/measure/test_kernels.py holds each kernel to its numpy
-oracle. Compiled on first use and cached on disk (numba ``cache=True``); measured reasons and the
-first-call cost: docs/decisions/core-speed.md.
+numbers are the same bit for bit. Medians and MADs come from a selection (quickselect, long rows first
+narrowed to a bracket) instead of a sort: order statistics are values of the input, the same whatever
+the algorithm. The crease fits sum their normal equations in the loop (the trimmed second fit's sums
+vectorised) and solve them by Gaussian elimination instead of BLAS and LAPACK, whose rounding a loop
+does not reproduce: within 1e-9 px of it. tests/measure/test_kernels.py and test_mcd_kernels.py hold
+each kernel to its numpy oracle. Compiled on first use and cached on disk (numba ``cache=True``);
+measured reasons and the first-call cost: docs/decisions/core-speed.md.
 """
 
 from __future__ import annotations
@@ -312,24 +313,36 @@ def _hinge_fit(t: np.ndarray, d: np.ndarray, t0: float, r: np.ndarray, m: float,
                y: np.ndarray) -> tuple[float, float, float]:  # fmt: skip
     """Least squares of d on 1, t and max(t - t0, 0) over the samples with |r - m| <= ``limit``, from the
     normal equations (a ridge of 1e-9 on the diagonal, as an infinite ``t0``'s zero column needs)."""
-    a[:] = 0.0
-    y[:] = 0.0
-    for i in range(t.size):
-        if abs(r[i] - m) <= limit:
-            ti, di, h = t[i], d[i], max(t[i] - t0, 0.0)
-            a[0, 0] += 1.0
-            a[0, 1] += ti
-            a[1, 1] += ti * ti
-            a[0, 2] += h
-            a[1, 2] += ti * h
-            a[2, 2] += h * h
-            y[0] += di
-            y[1] += ti * di
-            y[2] += h * di
+    s = _trimmed_sums(t, d, t0, r, m, limit)
+    a[0, 0], a[0, 1], a[1, 1], a[0, 2], a[1, 2], a[2, 2] = s[0], s[1], s[2], s[3], s[4], s[5]
+    y[0], y[1], y[2] = s[6], s[7], s[8]
     a[1, 0], a[2, 0], a[2, 1] = a[0, 1], a[0, 2], a[1, 2]
     for j in range(3):
         a[j, j] += 1e-9
     return _solve3(a, y)
+
+
+@njit(cache=True, nogil=True, error_model="numpy", fastmath={"reassoc", "contract"})
+def _trimmed_sums(t: np.ndarray, d: np.ndarray, t0: float, r: np.ndarray, m: float, limit: float):
+    """The normal equations' sums of :func:`_hinge_fit` (1, t, t², h, t h, h², d, t d, h d with
+    h = max(t - t0, 0)) over the samples with |r - m| <= ``limit``: 0/1 weights without branches, added in
+    the order the compiler vectorises."""
+    s0 = s1 = s2 = s3 = s4 = s5 = s6 = s7 = s8 = 0.0
+    for i in range(t.size):
+        w = 1.0 if abs(r[i] - m) <= limit else 0.0
+        ti, di = t[i], d[i]
+        h = max(ti - t0, 0.0)
+        wt, wh = w * ti, w * h
+        s0 += w
+        s1 += wt
+        s2 += wt * ti
+        s3 += wh
+        s4 += wt * h
+        s5 += wh * h
+        s6 += w * di
+        s7 += wt * di
+        s8 += wh * di
+    return s0, s1, s2, s3, s4, s5, s6, s7, s8
 
 
 @njit(cache=True, nogil=True, error_model="numpy")
@@ -382,3 +395,62 @@ def trimmed_crease_fits(t: np.ndarray, d: np.ndarray, t0: np.ndarray, floor: flo
         s, m, mad = _scale_of(r, floor, work, window, m, mad)
         beta[k, 0], beta[k, 1], beta[k, 2] = _hinge_fit(t, d, t0[k], r, m, 3.0 * s, a, y)
     return beta
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
+def crease_candidates(t: np.ndarray, d: np.ndarray, length: float, quantum: float, floor: float, min_px: float, min_samples: int,
+                      candidates: int, disagree: float):  # fmt: skip
+    """The crease search's first part (``measure.bend.hinge_ends``): ``candidates`` creases evenly from
+    ``min_px`` to ``length`` - ``min_px`` (as ``np.linspace``), those with ``min_samples`` samples on each
+    side; the one line's and every crease's trimmed fits (``trimmed_crease_fits``); the one line's robust
+    scale and median. Returns the creases (K,), their fits (K, 3), the one line's (3,), scale and median,
+    and whether any crease's pieces part by more than ``quantum`` and ``disagree`` of the disparity at the
+    crease (condition 3 without its scale term)."""
+    n = t.size
+    ts = np.sort(t)
+    step = ((length - min_px) - min_px) / (candidates - 1)
+    creases = np.empty(candidates + 1)
+    creases[0] = np.inf
+    k = 1
+    for i in range(candidates):
+        t0 = i * step + min_px if i < candidates - 1 else length - min_px
+        left = np.searchsorted(ts, t0)
+        if left >= min_samples and n - left >= min_samples:
+            creases[k] = t0
+            k += 1
+    beta = trimmed_crease_fits(t, d, creases[:k], floor)
+    scale, med = row_scales(t, d, creases[:1], beta[:1], floor)
+    parted = False
+    for j in range(1, k):
+        t0 = creases[j]
+        part = abs(beta[j, 2]) * min(t0, length - t0)
+        parted |= part > max(quantum, disagree * abs(beta[j, 0] + beta[j, 1] * t0))
+    return creases[1:k], beta[1:], beta[0], scale[0], med[0], parted
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
+def median_1d(v: np.ndarray) -> float:
+    """``np.median`` of a non-empty 1-D ``v`` by selection: its middle value, or the mean of the two
+    middle ones (the same order statistics, the same bits)."""
+    n = v.size
+    work = v.copy()
+    a, b = _ends(work, (n - 1) // 2, n // 2)
+    return (a + b) / 2.0 if n % 2 == 0 else a
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
+def lag_one_correlation(r: np.ndarray) -> float:
+    """The lag-one autocorrelation sum (r_i - m)(r_i+1 - m) / sum (r_i - m)² of ``r`` (m its mean;
+    0 when every value is the mean), summed in order."""
+    n = r.size
+    m = 0.0
+    for i in range(n):
+        m += r[i]
+    m /= n
+    den, num = 0.0, 0.0
+    for i in range(n):
+        x = r[i] - m
+        den += x * x
+        if i + 1 < n:
+            num += x * (r[i + 1] - m)
+    return num / den if den > 0 else 0.0

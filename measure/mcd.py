@@ -19,7 +19,8 @@ How it runs (inputs in any unit; tolerances are relative to a robust data scale)
 3. C-steps for all starts at once (``measure.cstep.c_step``: one matrix product of per-point
    monomials with per-start coefficients, closed-form 3x3 determinants). Two C-steps per start, keep
    the ten lowest determinants per subsample, two C-steps on the merged subsamples, then iterate
-   the ten best on the full data to convergence and keep the lowest determinant.
+   the ten best on the full data to convergence and keep the lowest determinant (that stage and
+   step 1 compiled, ``measure.mcd_kernels``).
 4. Exact fit (R&VD section 3.4): when an h-subset covariance is singular (its smallest
    eigenvalue below ``(exact_tol * s)²``), at least h points lie on an affine subspace.
    The result then carries that subspace: a hyperplane ``a·x + d = 0`` (unit normal,
@@ -43,7 +44,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from measure.cstep import c_step, det_adj, monomials
+from measure.cstep import c_step, det_adj
 from measure.robust_range import median
 from measure.types import MeasureError
 
@@ -88,8 +89,21 @@ class McdResult:
         """Unit eigenvector of the largest eigenvalue of ``covariance`` (sign: largest |component| > 0)."""
         if self.line_direction is not None:
             return self.line_direction
+        if self.covariance.shape == (2, 2):
+            return _canonical_sign(_axis_2x2(*(float(v) for v in self.covariance.ravel()[[0, 1, 3]])))
         _, vecs = np.linalg.eigh(self.covariance)
         return _canonical_sign(vecs[:, -1])
+
+
+def _axis_2x2(a: float, b: float, d: float) -> np.ndarray:
+    """Unit eigenvector of the larger eigenvalue of the symmetric [[a, b], [b, d]], closed form (a LAPACK
+    call costs more than the arithmetic): lambda = (a + d) / 2 + hypot((a - d) / 2, b), the vector
+    (lambda - d, b) or (b, lambda - a), whichever is longer; (0, 1) for a multiple of the identity
+    (as LAPACK's last eigenvector)."""
+    lam = 0.5 * (a + d) + math.hypot(0.5 * (a - d), b)
+    v = (lam - d, b) if a >= d else (b, lam - a)
+    norm = math.hypot(*v)
+    return np.array([v[0] / norm, v[1] / norm]) if norm > 0 else np.array([0.0, 1.0])
 
 
 def _canonical_sign(v: np.ndarray) -> np.ndarray:
@@ -211,14 +225,9 @@ def fast_mcd(
         raise MeasureError(f"h={h} must lie in [1, n={n}]")
     if min(n_starts, n_best, max_iter) < 1:
         raise MeasureError(f"n_starts={n_starts}, n_best={n_best} and max_iter={max_iter} must each be at least 1")
-    center = median(x.T)
-    dev = np.abs(x - center)
-    mad = 1.4826 * median(dev.T)
-    s = float(np.sqrt((mad**2).sum()))
-    if s == 0.0:
-        s = float(np.sqrt(x.var(axis=0).sum()))
-    s = max(s, float(dev.max()) / _MAX_SPREAD)
-    z = (x - center) / s if s > 0 else np.zeros_like(x)
+    from measure.mcd_kernels import full_data_stage, keep_best, normalised, start_moments  # numba loads on first use: `import measure` stays fast
+
+    center, s, z, mono, mono_t = normalised(x, _MAX_SPREAD)
     tol = exact_tol
 
     if s == 0.0 or h == n or n <= p:
@@ -226,9 +235,6 @@ def fast_mcd(
         if sub.basis.shape[1] < p and sub.on.any():
             return _exact_fit_result(x, s, sub, h)
         return _finish(x, z, center, s, np.ones(n, bool), h)
-
-    from measure.kernels import moments_det_lam  # numba loads on first use: `import measure` stays fast
-    mono = monomials(z)
 
     def exact(lam: np.ndarray, masks: np.ndarray, idx: np.ndarray, mean: np.ndarray, cov: np.ndarray) -> McdResult | None:
         # Count, for every singular start at once, the points of all data on its hyperplane;
@@ -251,67 +257,41 @@ def fast_mcd(
     # Stage 1: random starts on up to five disjoint subsamples (all of the data when n is small).
     perm, draw = (_draws if isinstance(seed, int) else _draws.__wrapped__)(n, p, n_starts, seed)
     groups, m = perm.shape
-    per_group = draw.shape[1] // (p + 1)
-    mean, cov, _, lam = moments_det_lam(mono[draw].reshape(groups, per_group, p + 1, -1).sum(axis=2), p)
-    stages = [(perm, max(p + 1, int(math.ceil(h * m / n))), 2, False)]
+    mean, cov, _, lam = start_moments(mono, draw, p)
+    stages = [(perm, max(p + 1, int(math.ceil(h * m / n))))]
     if groups > 1:
         merged = perm.reshape(1, -1)
-        stages.append((merged, max(p + 1, int(math.ceil(h * merged.shape[1] / n))), 2, False))
-    stages.append((np.arange(n)[None, :], h, max_iter, True))
-    best_det, best_mask = math.inf, None
-    # Stage 2: the ten best per subsample on the merged subsamples, then the ten best on all data.
-    for idx, hs, iters, final in stages:
-        # Subsample stages only rank candidates: single precision halves their cost; the
-        # full-data stage (which decides exact fits) runs in double precision.
-        sm = mono[None] if final else mono[idx] if idx.shape[1] == n else mono[idx].astype(np.float32)
-        prev = None
-        for step in range(iters):
-            masks, mean, cov, det, lam = c_step(sm, mean, cov, lam, hs, p)
+        stages.append((merged, max(p + 1, int(math.ceil(h * merged.shape[1] / n)))))
+    # Stage 2: two C-steps per start; the n_best best per subsample go on to the merged subsamples, their
+    # n_best best to all the data.
+    for idx, hs in stages:
+        if idx.shape[1] == n:
+            sm, sm_t = mono[None], mono_t[None]
+        else:
+            # Subsample stages only rank candidates: single precision halves their cost; the full-data
+            # stage (which decides exact fits) runs in double precision.
+            sm = mono[idx].astype(np.float32)
+            sm_t = np.ascontiguousarray(np.swapaxes(sm, 1, 2))
+        for _ in range(2):
+            masks, mean, cov, det, lam = c_step(sm, sm_t, mean, cov, lam, hs, p)
             if (lam <= tol * tol).any():
                 found = exact(lam, masks, idx, mean, cov)
                 if found is not None:
                     return _lowest_rank(found, x, z, s, h, seed, exact_tol)
-            if not final:
-                # (After the last step stopping changes nothing.)
-                if prev is not None and step < iters - 1 and np.array_equal(prev, masks):
-                    break
-                prev = masks
-                continue
-            # Full data: a candidate whose subset did not change has reached its fixed point (its
-            # determinant is final), and candidates on the same subset share their future: only
-            # one of each that moved takes further C-steps. Same answer, fewer products.
-            live = np.ones(masks.shape[1], bool)
-            if prev is not None:
-                live = (masks[0] != prev[0]).any(axis=-1)
-                done = np.flatnonzero(~live)
-                if done.size:
-                    k = done[np.argmin(det[0, done])]
-                    if det[0, k] < best_det:
-                        best_det, best_mask = det[0, k], masks[0, k]
-            if step == iters - 1:
-                # The last step: the lowest determinant of all is taken below; the ones set aside here
-                # (converged: counted above; repeats of another subset) cannot change it.
-                continue
-            order = np.argsort(det[0], kind="stable")
-            a, b = order[1:], order[:-1]
-            tie = det[0, a] == det[0, b]
-            if tie.any():
-                a, b = a[tie], b[tie]
-                live[a[(masks[0, a] == masks[0, b]).all(axis=-1)]] = False
-            if not live.any():
-                break
-            if not live.all():
-                masks, mean, cov, det, lam = masks[:, live], mean[:, live], cov[:, live], det[:, live], lam[:, live]
-            prev = masks
-        else:
-            if final:  # out of iterations: take the unconverged candidates as they stand
-                k = int(np.argmin(det[0]))
-                if det[0, k] < best_det:
-                    best_mask = masks[0, k]
-        if not final:
-            keep = np.argsort(det, axis=1, kind="stable")[:, :n_best]
-            rows = np.arange(len(keep))[:, None]
-            mean, cov, lam = mean[rows, keep].reshape(1, -1, p), cov[rows, keep].reshape(1, -1, p, p), lam[rows, keep].reshape(1, -1)
+        mean, cov, lam = keep_best(mean, cov, det, lam, n_best)
+    # Stage 3: at most max_iter C-steps on all the data, compiled with their bookkeeping
+    # (measure.mcd_kernels.full_data_stage); it hands singular starts back for the exact-fit test.
+    state = (np.zeros((1, 0, n), bool), mean, cov, np.zeros((1, 0)), lam, np.zeros((1, 0, n), bool), math.inf, np.zeros(0, bool), 0)
+    stepped = False
+    while True:
+        status, step, masks, mean, cov, det, lam, prev, best_det, best_mask = full_data_stage(
+            mono[None], mono_t[None], *state[:8], state[8], max_iter, h, p, tol * tol, stepped)
+        if status == 0:
+            break
+        found = exact(lam, masks, np.arange(n)[None, :], mean, cov)
+        if found is not None:
+            return _lowest_rank(found, x, z, s, h, seed, exact_tol)
+        state, stepped = (masks, mean, cov, det, lam, prev, best_det, best_mask, step), True
     return _finish(x, z, center, s, best_mask, h)
 
 

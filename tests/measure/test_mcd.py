@@ -129,27 +129,36 @@ def test_default_h():
 def test_h_smallest_is_the_double_precision_selection():
     """The C-step's h smallest d² (selected on their 64-bit patterns) are the h smallest doubles, with any
     ties at the h-th: on rows whose values around the h-th differ only below single precision, on exact
-    ties, on values beyond single precision's range and on ordinary rows; the summed monomials are those
-    of that mask, and single-precision d² (the subsample stages) are selected as single-precision values."""
-    from measure.cstep import _h_smallest, monomials
+    ties, on values beyond single precision's range, on values rounded a hair below zero (as 0) and on
+    ordinary rows; the summed monomials (``masked_sums``) are those of that mask to 1e-12, and
+    single-precision d² (the subsample stages) are selected as single-precision values."""
+    from measure.cstep import _h_smallest
+    from measure.mcd_kernels import masked_sums, normalised
 
     rng = np.random.default_rng(5)
     n, h = 200, 101
-    mono = monomials(rng.normal(size=(n, 2)))[None]
+    mono = normalised(rng.normal(size=(n, 2)), 1e6)[3][None]
+    mono_t = np.ascontiguousarray(np.swapaxes(mono, 1, 2))
     rows = [rng.uniform(0, 10, n) for _ in range(4)]
     near = rng.uniform(0, 10, n)
     near[rng.choice(n, 40, replace=False)] = 5.0 + rng.integers(-3, 4, 40) * 1e-12  # joined by single rounding
     tied = np.round(rng.uniform(0, 10, n), 1)  # exact ties at the h-th
     huge = rng.uniform(0, 10, n)
     huge[:150] = 1e300 * (1 + rng.uniform(0, 1e-9, 150))  # single precision: all infinite
-    d2 = np.stack(rows + [near, tied, huge])[None]
-    mask, sums = _h_smallest(d2, h, mono)
-    key = d2.view(np.int64)
-    expected = key <= np.partition(key, h - 1, axis=-1)[..., h - 1 : h]
+    zeros = rng.uniform(0, 10, n)
+    zeros[:120] = -rng.uniform(0, 1e-15, 120)  # on the start's support, rounded below zero: all tie at 0
+    d2 = np.stack(rows + [near, tied, huge, zeros])[None]
+    clamped = np.maximum(d2, 0.0)
+    key, kth = _h_smallest(d2.copy(), h)
+    mask, sums = np.empty(d2.shape, bool), np.full(d2.shape[:2] + (mono.shape[2],), np.nan)
+    masked_sums(key, kth, mono_t, 0, mask, sums)
+    expected = clamped <= np.sort(clamped, axis=-1)[..., h - 1 : h]
     assert np.array_equal(mask, expected)
-    assert (mask.sum(axis=-1) >= h).all() and (mask.sum(axis=-1)[0, 4:6] >= h).all()
-    assert np.array_equal(sums, expected.astype(np.float64) @ mono)
+    assert (mask.sum(axis=-1) >= h).all() and mask[0, 7].sum() == 120
+    np.testing.assert_allclose(sums, expected.astype(np.float64) @ mono, rtol=1e-12, atol=1e-12)
     single = d2[:, :4].astype(np.float32)
-    mask32, sums32 = _h_smallest(single, h, mono.astype(np.float32))
+    key32, kth32 = _h_smallest(single.copy(), h)
+    mask32, sums32 = np.empty(single.shape, bool), np.empty(single.shape[:2] + (mono.shape[2],))
+    masked_sums(key32, kth32, mono_t.astype(np.float32), 0, mask32, sums32)
     assert np.array_equal(mask32, single <= np.sort(single, axis=-1)[..., h - 1 : h])
-    assert np.array_equal(sums32, mask32.astype(np.float32) @ mono.astype(np.float32))
+    np.testing.assert_allclose(sums32, mask32.astype(np.float64) @ mono.astype(np.float32).astype(np.float64), rtol=1e-12, atol=1e-9)
