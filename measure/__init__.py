@@ -20,6 +20,7 @@ from measure.shape import measure_shape
 from measure.options import METHODS
 from measure.shape_types import SHAPE_KINDS, BoxMeasurement, ShapeMeasurement, outlines
 from measure.types import MAX_CLICK_PX, Frame, MeasureError, MeasureOptions, Measurement, PinholeCamera
+from measure.warm_up import warm_up
 from measure.zonly import measure_z_only
 
 __all__ = [
@@ -53,5 +54,6 @@ __all__ = [
     "ray",
     "robust_with_terms",
     "signed_error_pct",
+    "warm_up",
     "weak_stretches",
 ]

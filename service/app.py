@@ -17,13 +17,12 @@ from contextlib import asynccontextmanager
 from pathlib import Path
 from typing import Any
 
-import numpy as np
 from fastapi import FastAPI, Request
 from fastapi.responses import JSONResponse, Response
 from fastapi.staticfiles import StaticFiles
 
 from device import Source, make_source
-from measure import Frame, MeasureOptions, PinholeCamera, measure_distance
+from measure import warm_up
 
 from history.store import Store
 
@@ -38,17 +37,6 @@ from service.state import ServiceState
 from service.workers import MeasurePool
 
 STATIC_DIR = Path(__file__).resolve().parent / "static"
-
-
-def _warm_up_measurement() -> None:
-    """Measure once on a tiny tilted plane so the first person's click does not pay for imports and
-    lazily built constants (docs/decisions/service-speed.md)."""
-    h, w = 48, 64
-    camera = PinholeCamera(fx=60.0, fy=60.0, cx=(w - 1) / 2, cy=(h - 1) / 2, width=w, height=h)
-    disparity = np.tile(np.linspace(8.0, 12.0, w, dtype=np.float32), (h, 1))
-    frame = Frame(image=np.zeros((h, w, 3), np.uint8), disparity=disparity, camera=camera, baseline_m=0.1)
-    for method in ("robust", "paper"):
-        measure_distance(frame, (5.0, 20.0), (58.0, 28.0), MeasureOptions(method=method))
 
 
 # create_app's keyword names that differ from ServerConfig's, with the conversion
@@ -88,7 +76,7 @@ def create_app(source: str | Callable[[], Source], settings: ServerConfig | None
 
     @asynccontextmanager
     async def lifespan(_: FastAPI) -> AsyncIterator[None]:
-        _warm_up_measurement()
+        warm_up()  # the first person's click pays neither imports nor loading compiled kernels (docs/decisions/service-speed.md)
         # The objects of the imports and the app live as long as the process: keep them out of the
         # collector's full passes, which otherwise stop every thread (docs/decisions/service-speed.md).
         # Frozen already (by the program that runs this app, or by an app serving in this process):
