@@ -220,7 +220,7 @@ def protocol_class(http: str = "auto") -> type[asyncio.Protocol]:
 
 
 M_MMAP_THRESHOLD, M_ARENA_MAX = -3, -8  # glibc's mallopt parameters
-MMAP_THRESHOLD_BYTES = 1 << 17
+MMAP_THRESHOLD_BYTES = 1 << 20
 MALLOC_ARENAS = 2  # one per core: each arena of the ~16 threads otherwise keeps what its thread freed
 
 

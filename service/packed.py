@@ -16,6 +16,7 @@ thread per frame (docs/decisions/measure-pool.md).
 
 from __future__ import annotations
 
+import mmap
 import threading
 import weakref
 from collections.abc import Mapping
@@ -42,9 +43,11 @@ _CODECS = threading.local()  # a zstd context is for one thread at a time: one p
 @dataclass(frozen=True, eq=False)
 class Squeezed:
     """Integer codes (an H x W uint8 or int16 array) compressed with zstd: ``array()`` gives them back
-    byte for byte."""
+    byte for byte. The compressed bytes live in a mapping of their own (``mmap``), not in malloc's
+    arenas: a ring of them, each kept for seconds, would otherwise pin the arenas' memory between the
+    frame-sized temporaries made and dropped around them (docs/decisions/measure-pool.md)."""
 
-    data: bytes
+    data: mmap.mmap
     dtype: np.dtype
     shape: tuple[int, ...]
 
@@ -72,7 +75,9 @@ def _squeeze(codes: np.ndarray) -> np.ndarray | Squeezed:
     data = compressor.compress(np.ascontiguousarray(codes).data)
     if len(data) > KEEP_IF_AT_MOST * codes.nbytes:
         return codes
-    return Squeezed(data, codes.dtype, codes.shape)
+    own = mmap.mmap(-1, len(data))
+    own.write(data)
+    return Squeezed(own, codes.dtype, codes.shape)
 
 
 def _codes(held: np.ndarray | Squeezed) -> np.ndarray:
