@@ -429,13 +429,19 @@ def crease_candidates(t: np.ndarray, d: np.ndarray, length: float, quantum: floa
 
 
 @njit(cache=True, nogil=True, error_model="numpy")
-def median_1d(v: np.ndarray) -> float:
-    """``np.median`` of a non-empty 1-D ``v`` by selection: its middle value, or the mean of the two
-    middle ones (the same order statistics, the same bits)."""
+def _median(v: np.ndarray, work: np.ndarray) -> float:
+    """``np.median`` of a non-empty 1-D ``v`` by selection in ``work`` (at least ``v.size`` long): its
+    middle value, or the mean of the two middle ones (the same order statistics, the same bits)."""
     n = v.size
-    work = v.copy()
-    a, b = _ends(work, (n - 1) // 2, n // 2)
+    work[:n] = v
+    a, b = _ends(work[:n], (n - 1) // 2, n // 2)
     return (a + b) / 2.0 if n % 2 == 0 else a
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
+def median_1d(v: np.ndarray) -> float:
+    """``np.median`` of a non-empty 1-D ``v`` (:func:`_median`)."""
+    return _median(v, np.empty(v.size))
 
 
 @njit(cache=True, nogil=True, error_model="numpy")

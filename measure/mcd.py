@@ -285,7 +285,7 @@ def fast_mcd(
     stepped = False
     while True:
         status, step, masks, mean, cov, det, lam, prev, best_det, best_mask = full_data_stage(
-            mono[None], mono_t[None], *state[:8], state[8], max_iter, h, p, tol * tol, stepped)
+            mono[None], mono_t[None], *state, max_iter, h, p, tol * tol, stepped)
         if status == 0:
             break
         found = exact(lam, masks, np.arange(n)[None, :], mean, cov)

@@ -18,16 +18,7 @@ import numpy as np
 from numba import njit
 
 from measure.fit_kernels import _distances
-from measure.kernels import _ends, _pair, moments_det_lam, start_coefficients
-
-
-@njit(cache=True, nogil=True, error_model="numpy")
-def _median(v: np.ndarray, work: np.ndarray) -> float:
-    """``np.median`` of ``v`` (non-empty): the middle value, or the mean of the two middle ones."""
-    n = v.size
-    work[:n] = v
-    a, b = _ends(work[:n], (n - 1) // 2, n // 2)
-    return (a + b) / 2.0 if n % 2 == 0 else a
+from measure.kernels import _median, _pair, moments_det_lam, start_coefficients
 
 
 @njit(cache=True, nogil=True, error_model="numpy")
@@ -111,6 +102,17 @@ def _row_sums(w: np.ndarray, mono_t: np.ndarray, out: np.ndarray) -> None:
 
 
 @njit(cache=True, nogil=True, error_model="numpy")
+def _subset_sums(values: np.ndarray, kth, mono_t: np.ndarray, mask: np.ndarray, w: np.ndarray, sums: np.ndarray) -> None:
+    """The subset of the points whose ``values`` (n) are at most ``kth`` into ``mask`` (n bools) and their
+    summed monomials (``mono_t`` (m, n)) into ``sums`` (m); ``w`` (n) is scratch for the 0/1 weights."""
+    for i in range(values.size):
+        b = values[i] <= kth
+        mask[i] = b
+        w[i] = 1.0 if b else 0.0
+    _row_sums(w, mono_t, sums)
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
 def masked_sums(key: np.ndarray, kth: np.ndarray, mono_t: np.ndarray, s0: int, mask: np.ndarray, sums: np.ndarray) -> None:
     """A C-step's subsets after the selection (``measure.cstep.c_step``): for G groups of S starts from
     start ``s0`` on, the points whose d² bit pattern ``key`` (G, S, n) is at most the h-th smallest ``kth``
@@ -120,13 +122,7 @@ def masked_sums(key: np.ndarray, kth: np.ndarray, mono_t: np.ndarray, s0: int, m
     w = np.empty(n)
     for g in range(g_n):
         for s in range(s_n):
-            k = kth[g, s]
-            row, out = key[g, s], mask[g, s0 + s]
-            for i in range(n):
-                b = row[i] <= k
-                out[i] = b
-                w[i] = 1.0 if b else 0.0
-            _row_sums(w, mono_t[g], sums[g, s0 + s])
+            _subset_sums(key[g, s], kth[g, s], mono_t[g], mask[g, s0 + s], w, sums[g, s0 + s])
 
 
 @njit(cache=True, nogil=True, error_model="numpy")
@@ -146,12 +142,7 @@ def few_starts_step(mono: np.ndarray, mono_t: np.ndarray, mean: np.ndarray, cov:
         for s in range(s_n):
             _distances(coef[g, s], mono[g], d2)
             work[:] = d2
-            kth = _pair(work, h - 1, h - 1, window)[0]
-            for i in range(n):
-                b = d2[i] <= kth
-                masks[g, s, i] = b
-                w[i] = 1.0 if b else 0.0
-            _row_sums(w, mono_t[g], sums[g, s])
+            _subset_sums(d2, _pair(work, h - 1, h - 1, window)[0], mono_t[g], masks[g, s], w, sums[g, s])
     return (masks,) + moments_det_lam(sums, p)
 
 

@@ -18,7 +18,6 @@ from dataclasses import dataclass
 import pytest
 
 
-
 @dataclass(frozen=True)
 class Warmed:
     """What the session start took: wall and CPU seconds."""
