@@ -93,6 +93,7 @@ def create_app(source: str | Callable[[], Source], settings: ServerConfig | None
                 recorder.stop()
             capture.stop()
             measures.close()
+            state.live_images.shutdown(wait=True, cancel_futures=True)
             store.close()
             if freezes:
                 gc.unfreeze()  # a process that builds apps one after another can free them again

@@ -224,7 +224,7 @@ MMAP_THRESHOLD_BYTES = 1 << 20
 MALLOC_ARENAS = 2  # one per core: each arena of the ~16 threads otherwise keeps what its thread freed
 
 
-def _return_large_blocks() -> None:
+def return_large_blocks() -> None:
     """Have glibc map every block of ``MMAP_THRESHOLD_BYTES`` or more on its own, so a freed frame
     array goes back to the system: its threshold otherwise grows to the largest freed block (32 MB at
     most) and frame-sized arrays, made and dropped by many threads, stay in its arenas. No-op off glibc."""
@@ -242,7 +242,7 @@ def serve(app: Any, host: str, port: int, limits: ConnectionLimits, *, log_level
 
     cap = connection_cap(limits, raise_fd_limit())
     sys.setswitchinterval(SWITCH_INTERVAL_S)
-    _return_large_blocks()
+    return_large_blocks()
     uvicorn.run(
         app, host=host, port=port, log_level=log_level, access_log=False,
         http=guarded(protocol_class(http), limits, cap), timeout_keep_alive=limits.keep_alive_s,  # type: ignore[arg-type]

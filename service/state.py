@@ -1,5 +1,5 @@
-"""What the routers share: the frame ring, the capture thread, the history store, the recorder and
-the measurement workers.
+"""What the routers share: the frame ring, the capture thread, the history store, the recorder, the
+measurement workers and the live view's image thread.
 
 One :class:`ServiceState` per app, built by ``create_app`` and handed to each router through the
 dependencies of :mod:`service.deps`, so a route names what it uses instead of reaching into globals.
@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import time
 from collections.abc import Callable
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
 
 from device import Source
@@ -29,3 +30,5 @@ class ServiceState:
     measures: MeasurePool = field(default_factory=MeasurePool)
     started: float = field(default_factory=time.time)
     home: tuple[Callable[[], Source], str] | None = None  # the server's own source (factory, spec)
+    # a live frame's JPEG is made once, never queued behind the routes on the general thread pool: one thread
+    live_images: ThreadPoolExecutor = field(default_factory=lambda: ThreadPoolExecutor(1, thread_name_prefix="live-image"))

@@ -30,6 +30,7 @@ import subprocess
 import sys
 import tempfile
 from collections import Counter
+from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -197,7 +198,38 @@ def report(runs: dict[str, str], fast_text: str | None = None) -> str:
                            for node, s in run.wall.most_common(SLOWEST)]
     if fast_text is not None:
         slowest_tables = ["", *fast_loop_lines(fast_text), *slowest_tables]
-    return "\n".join(lines + ["", *starts] + slowest_tables) + "\n"
+    first = parse_log(Path(next(iter(runs.values()))).read_text(errors="replace"))
+    return "\n".join(lines + ["", *starts] + slowest_tables + what_moves_the_share(first.wall)) + "\n"
+
+
+def folder(node: str) -> str:
+    """The folder of a test's file: ``tests/sim/`` for ``tests/sim/test_box.py::test_x``."""
+    return node.split("::")[0].rsplit("/", 1)[0] + "/"
+
+
+def scaled(per_test: Counter, picked: Callable[[str], bool], factor: float) -> Counter:
+    """``per_test`` with the tests ``picked`` taking ``factor`` of their time."""
+    return Counter({node: s * (factor if picked(node) else 1.0) for node, s in per_test.items()})
+
+
+def what_moves_the_share(per_test: Counter) -> list[str]:
+    """The slowest-22 share if a folder's tests (or several folders', or only the slowest 22) took half
+    their time: a model on the run's own times, not a run."""
+    time_in: Counter = Counter()
+    for node, s in per_test.items():
+        time_in[folder(node)] += s
+    heaviest = [f for f, _ in time_in.most_common(5)]
+    top = {node for node, _ in per_test.most_common(SLOWEST)}
+    rows = [("as run", top_share(per_test))]
+    rows += [(f"`{f}` at half its time", top_share(scaled(per_test, lambda n, f=f: folder(n) == f, 0.5))) for f in heaviest]
+    rows.append((f"those {len(heaviest)} folders at half", top_share(scaled(per_test, lambda n: folder(n) in heaviest, 0.5))))
+    rows.append(("every test at half", top_share(scaled(per_test, lambda n: True, 0.5))))
+    rows.append((f"only the slowest {SLOWEST} at half", top_share(scaled(per_test, top.__contains__, 0.5))))
+    return ["", f"## What moves the slowest-{SLOWEST} share", "",
+            f"A model on the first run's wall times, not a run: the share of the slowest {SLOWEST} (ranked again) if the "
+            "tests of the folders that take the most time took half of it. A share is a ratio: a speed-up of the suite's "
+            "bulk leaves it where it is, and only the slowest tests gaining on the rest move it.", "",
+            "| if | slowest 22 |", "| --- | --- |", *(f"| {label} | {v:.1%} |" for label, v in rows)]
 
 
 def heavy_tests(run: Run) -> list[str]:

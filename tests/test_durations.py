@@ -10,7 +10,9 @@ import textwrap
 
 import pytest
 
-from durations import FAST_LOOP, FAST_LOOP_COMMAND, HEAVY_FILE, ROOT, heavy_tests, heavy_text, parse_log, top_share
+from collections import Counter
+
+from durations import FAST_LOOP, FAST_LOOP_COMMAND, HEAVY_FILE, ROOT, SLOWEST, heavy_tests, heavy_text, parse_log, top_share, what_moves_the_share
 
 LOG = """\
 ........ [100%]
@@ -39,6 +41,16 @@ def test_the_log_gives_wall_cpu_load_and_summary():
 def test_a_log_without_the_plugin_still_reads():
     run = parse_log("1.00s call     tests/t.py::test_x\n1 passed in 1.10s\n")
     assert (dict(run.wall), dict(run.cpu), run.run_cpu, run.load, run.bytecode, run.start) == ({"tests/t.py::test_x": 1.0}, {}, None, None, None, None)
+
+
+def test_the_share_moves_when_the_slowest_gain_on_the_rest_not_when_all_do():
+    # 22 tests of 10 s in tests/slow/, 78 of 1 s in tests/quick/: the slowest 22 are 220 of 298 s
+    per_test = Counter({f"tests/slow/test_s.py::test_{i}": 10.0 for i in range(SLOWEST)})
+    per_test.update({f"tests/quick/test_q.py::test_{i}": 1.0 for i in range(78)})
+    rows = dict(line.strip("| ").split(" | ") for line in what_moves_the_share(per_test) if line.startswith("| ") and "%" in line)
+    assert rows["as run"] == f"{220 / 298:.1%}" == rows["every test at half"] == rows["those 2 folders at half"]
+    assert rows["`tests/slow/` at half its time"] == rows[f"only the slowest {SLOWEST} at half"] == f"{110 / 188:.1%}"
+    assert rows["`tests/quick/` at half its time"] == f"{220 / 259:.1%}"
 
 
 def test_heavy_tests_are_the_costly_unit_tests_and_their_file_reads_back():

@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import asyncio
-from concurrent.futures import ThreadPoolExecutor
 from typing import Annotated, Any
 
 import numpy as np
@@ -55,16 +54,13 @@ def color_png(entry: FrameDep) -> Response:
     return Response(data, media_type="image/png", headers={"Cache-Control": "private, max-age=3600"})
 
 
-_LIVE_IMAGES = ThreadPoolExecutor(1, thread_name_prefix="live-image")  # a frame's JPEG is made once: one thread is enough
-
-
 @router.get("/{frame_id}/color.jpg", **media_doc("image/jpeg"))
-async def color_jpg(entry: FrameDep) -> Response:
+async def color_jpg(state: State, entry: FrameDep) -> Response:
     """The colour image for the live view: JPEG quality 85 (color.png has the exact pixels). Answered
     on the event loop when the JPEG is made already (the capture thread makes it before it shows the
     frame while a page follows every frame), else encoded on the live view's own thread, never queued
     behind the routes on the general thread pool."""
-    data = entry.cached(LIVE_JPEG) or await asyncio.get_running_loop().run_in_executor(_LIVE_IMAGES, live_jpeg, entry)
+    data = entry.cached(LIVE_JPEG) or await asyncio.get_running_loop().run_in_executor(state.live_images, live_jpeg, entry)
     return Response(data, media_type="image/jpeg", headers={"Cache-Control": "private, max-age=3600"})
 
 

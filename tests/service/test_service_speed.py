@@ -8,6 +8,7 @@ import gc
 import io
 import os
 import sys
+import threading
 import time
 
 import cv2
@@ -63,7 +64,12 @@ def test_the_collector_is_frozen_while_serving_once_per_process(tmp_path, monkey
             gc.freeze()
 
 
+def _live_image_threads() -> set[threading.Thread]:
+    return {t for t in threading.enumerate() if t.name.startswith("live-image")}
+
+
 def test_live_view_jpeg_and_exact_png(tmp_path):
+    before = _live_image_threads()  # another app's, alive in this process
     with make_client(tmp_path) as c:
         f = latest(c)
         c.post(f"/api/frames/{f['id']}/freeze", headers=JSON)
@@ -74,6 +80,12 @@ def test_live_view_jpeg_and_exact_png(tmp_path):
         assert img.shape == want.shape and np.abs(img.astype(int) - want).mean() < 3.0
         png = c.get(f"/api/frames/{f['id']}/color.png").content
         np.testing.assert_array_equal(cv2.imdecode(np.frombuffer(png, np.uint8), cv2.IMREAD_COLOR), want)
+        live_images, ours = c.app.state.service.live_images, _live_image_threads() - before
+        assert ours  # the JPEG was made on the app's own thread
+    # the app's end stops its live-image thread: apps built one after another leave none behind
+    with pytest.raises(RuntimeError, match="shutdown"):
+        live_images.submit(int)
+    assert not any(t.is_alive() for t in ours)
 
 
 def test_thumbnail_is_drawn_on_request_not_when_measuring(tmp_path):
