@@ -19,7 +19,7 @@ def discover() -> dict[str, str]:
 
 def bench(
     ctx: typer.Context,
-    name: str = typer.Argument("all", metavar="NAME", help="benchmark to run (e.g. 'measure'), or 'all'"),
+    name: str = typer.Argument("all", metavar="NAME", help=f"benchmark to run: {', '.join(discover())}; or 'all'"),
 ) -> None:
     """Run the benchmarks and print their results; options after NAME go to the benchmark
     (`depthruler bench measure --help` lists them; `--write` records the figures in bench/RESULTS.md)."""

@@ -22,6 +22,11 @@ def test_discovers_the_measure_benchmark():
     assert "measure" in found and found["measure"] == "bench.bench_measure"
 
 
+def test_the_help_names_every_benchmark():
+    out = " ".join(CliRunner().invoke(app, ["bench", "--help"], terminal_width=200).output.split())
+    assert all(name in out for name in discover()) and "memory" in discover()
+
+
 def test_unknown_benchmark_is_a_clear_error():
     result = CliRunner().invoke(app, ["bench", "nope"])
     assert result.exit_code == 2 and "unknown benchmark 'nope'" in result.output
