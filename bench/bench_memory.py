@@ -26,9 +26,7 @@ import time
 from collections import Counter
 from pathlib import Path
 
-import httpx
-
-from bench.bench_service_load import start_server, stop_server
+from bench.bench_service_load import idle_default_server
 from bench.results_file import machine, replace_section
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -91,19 +89,8 @@ def mappings_mb(pid: int) -> dict[str, float]:
 
 def idle_server(settle_s: float) -> dict:
     """`depthruler serve` at its defaults left idle until its ring stops growing: RSS and mappings."""
-    with tempfile.TemporaryDirectory() as tmp:
-        proc, base = start_server(ROOT, "sim", Path(tmp) / "idle.db")
-        try:
-            deadline, frames = time.monotonic() + settle_s, -1
-            while time.monotonic() < deadline:
-                time.sleep(2.0)
-                health = httpx.get(f"{base}/api/health", timeout=60).json()
-                if health["frames"] == frames:
-                    break
-                frames = health["frames"]
-            return {"rss": _status_mb(proc.pid), "mappings": mappings_mb(proc.pid), "ring_mb": health["ring_bytes"] / 1e6}
-        finally:
-            stop_server(proc)
+    with tempfile.TemporaryDirectory() as tmp, idle_default_server(ROOT, Path(tmp), settle_s) as (proc, health):
+        return {"rss": _status_mb(proc.pid), "mappings": mappings_mb(proc.pid), "ring_mb": health["ring_bytes"] / 1e6}
 
 
 def report(stages: list[dict[str, float]], idle: dict, head: str) -> str:

@@ -30,7 +30,9 @@ import sys
 import tempfile
 import threading
 import time
+from collections.abc import Iterator
 from concurrent.futures import ThreadPoolExecutor
+from contextlib import contextmanager
 from pathlib import Path
 
 import httpx
@@ -270,9 +272,10 @@ def extract(rev: str, into: Path) -> Path:
     return into
 
 
-def idle_rss(code: Path, tmp: Path, settle_s: float) -> dict:
-    """`depthruler serve` at its defaults (the simulator) left idle until its ring is full: its RSS
-    (MB) and what /api/health says the ring holds."""
+@contextmanager
+def idle_default_server(code: Path, tmp: Path, settle_s: float) -> Iterator[tuple[subprocess.Popen, dict]]:
+    """`depthruler serve` of ``code`` at its defaults (the simulator), left idle until its ring stops
+    growing (``settle_s`` at most): the process and its last /api/health answer; stopped afterwards."""
     proc, base = start_server(code, "sim", tmp / "idle.db")
     try:
         deadline, frames = time.monotonic() + settle_s, -1
@@ -282,9 +285,15 @@ def idle_rss(code: Path, tmp: Path, settle_s: float) -> dict:
             if health["frames"] == frames:
                 break  # the ring stopped growing: full
             frames = health["frames"]
-        return {"rss_mb": rss_mb(proc.pid), "frames": health["frames"], "ring_mb": health.get("ring_bytes", float("nan")) / 1e6}
+        yield proc, health
     finally:
         stop_server(proc)
+
+
+def idle_rss(code: Path, tmp: Path, settle_s: float) -> dict:
+    """The idle default server's RSS (MB) and what /api/health says the ring holds."""
+    with idle_default_server(code, tmp, settle_s) as (proc, health):
+        return {"rss_mb": rss_mb(proc.pid), "frames": health["frames"], "ring_mb": health.get("ring_bytes", float("nan")) / 1e6}
 
 
 def run_version(code: Path, spec: str, shapes: list[int], clients: list[int], args: argparse.Namespace) -> dict:
