@@ -185,7 +185,7 @@ def serve(
         _fail(str(exc))
     typer.echo(f"depthruler: source {spec}; history {Path(server.db).resolve()}", err=True)
     typer.echo(f"depthruler: open http://{server.host}:{server.port}/ (it answers once the measuring core is loaded: "
-               "seconds, or about half a minute on the first start after an install, which compiles it)", err=True)
+               "seconds, or about half a minute on the first start after an install or an update, which builds it for this machine)", err=True)
     serve_app(app, server.host, server.port, server.limits, log_level=os.environ.get("DEPTHRULER_LOG", "warning"))
 
 

@@ -1,7 +1,8 @@
 """depthruler's measurement core: robust point-to-point 3D distance from registered disparity, and shapes
 (a box's dimensions, a height above a plane, a path, an area) on robust planes.
 
-Pure numpy/scipy; imports nothing else of ours, does no I/O, prints nothing. ``__all__`` is the
+Pure numpy/scipy; imports nothing else of ours, prints nothing, and does no I/O but its compiled
+kernels' cache (``measure.aot``). ``__all__`` is the
 public API (docs/api/measure.md); the submodules are internal and may change without notice.
 """
 

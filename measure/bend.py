@@ -75,7 +75,7 @@ def hinge_ends(t: np.ndarray, d: np.ndarray, length: float, quantum: float, nois
     if length < 2 * MIN_PIECE_PX or n < 2 * MIN_PIECE_SAMPLES:
         return None
     floor = quantum / math.sqrt(12.0)
-    from measure.kernels import crease_candidates, row_scales  # numba loads on first use: `import measure` stays fast
+    from measure.compiled import crease_candidates, row_scales  # loaded on first use: `import measure` stays fast
     # The one line is fitted with the candidates (a crease beyond the far end: a hinge column of zeros).
     t0s, b2, b1, s1, med1, parted = crease_candidates(t, d, float(length), float(quantum), floor, MIN_PIECE_PX, MIN_PIECE_SAMPLES,
                                                       CANDIDATES, DISAGREE_REL)

@@ -75,8 +75,7 @@ def c_step(mono: np.ndarray, mono_t: np.ndarray, mean: np.ndarray, cov: np.ndarr
     ``measure.mcd_kernels``); the distances' matrix product stays with BLAS and the selection with
     numpy's partition (SIMD, faster than a loop).
     """
-    from measure.kernels import moments_det_lam, start_coefficients  # numba loads on first use: `import measure` stays fast
-    from measure.mcd_kernels import few_starts_step, masked_sums
+    from measure.compiled import few_starts_step, masked_sums, moments_det_lam, start_coefficients  # loaded on first use: `import measure` stays fast
 
     g_n, starts = mean.shape[:2]
     if mono.dtype == np.float64 and g_n * starts <= _FEW_STARTS:

@@ -143,7 +143,7 @@ def fit_disparity_line(t: np.ndarray, d: np.ndarray, support_fraction: float, se
     has_alt = alt_start is not None and all(map(math.isfinite, alt_start))
     a_alt, b_alt = alt_start if has_alt else (0.0, 0.0)
     h = max(2, int(math.ceil(support_fraction * t.size)))
-    from measure.fit_kernels import robust_line  # numba loads on first use: `import measure` stays fast
+    from measure.compiled import robust_line  # loaded on first use: `import measure` stays fast
 
     # Steps 2 and 3 (the second start's IRLS at the scale of its own better half, then at the tighter of
     # the two scales: at or past half wrong matches FAST-MCD's half-sample can hold outliers that tilt

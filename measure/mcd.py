@@ -225,7 +225,7 @@ def fast_mcd(
         raise MeasureError(f"h={h} must lie in [1, n={n}]")
     if min(n_starts, n_best, max_iter) < 1:
         raise MeasureError(f"n_starts={n_starts}, n_best={n_best} and max_iter={max_iter} must each be at least 1")
-    from measure.mcd_kernels import full_data_stage, keep_best, normalised, start_moments  # numba loads on first use: `import measure` stays fast
+    from measure.compiled import full_data_stage, keep_best, normalised, start_moments  # loaded on first use: `import measure` stays fast
 
     center, s, z, mono, mono_t = normalised(x, _MAX_SPREAD)
     tol = exact_tol
@@ -370,7 +370,7 @@ def _finish(x: np.ndarray, z: np.ndarray, center: np.ndarray, s: float, subset: 
     """Consistency correction and reweighting (R&VD eq. 1.3 and section 1) of the best h-subset."""
     p = x.shape[1]
     med_q, q, reweight_factor = _chi2_constants(p)
-    from measure.fit_kernels import mcd_finish  # numba loads on first use: `import measure` stays fast
+    from measure.compiled import mcd_finish  # loaded on first use: `import measure` stays fast
 
     ok, raw_mean, raw_cov, support, mean, cov, d2 = mcd_finish(np.ascontiguousarray(z), np.ascontiguousarray(subset), med_q, q, reweight_factor)
     if ok:

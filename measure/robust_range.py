@@ -19,7 +19,7 @@ def median(values: np.ndarray) -> np.ndarray | float:
     a = np.asarray(values, dtype=np.float64)
     if a.ndim == 1 and a.size:
         # One compiled selection: numpy's partition and mean cost several times its work on a few values.
-        from measure.kernels import median_1d  # numba loads on first use: `import measure` stays fast
+        from measure.compiled import median_1d  # loaded on first use: `import measure` stays fast
 
         return float(median_1d(np.ascontiguousarray(a)))
     k = a.shape[-1] // 2
@@ -55,7 +55,7 @@ def tukey_location(values: np.ndarray, c: float = TUKEY_C, iterations: int = 30)
     s = tukey_scale(v)
     if s == 0.0:
         return m, 0.0
-    from measure.fit_kernels import bisquare_location  # numba loads on first use: `import measure` stays fast
+    from measure.compiled import bisquare_location  # loaded on first use: `import measure` stays fast
 
     # The iterations, (1 - u²)² for |u| < 1, else 0, with u = (v - m) / (c s), in one compiled loop.
     return bisquare_location(np.ascontiguousarray(v), float(m), float(c), float(s), int(iterations))

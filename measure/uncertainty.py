@@ -149,7 +149,7 @@ def correlation_inflation(residuals: np.ndarray) -> float:
     r = np.asarray(residuals, dtype=np.float64)
     if r.size < 4:
         return 1.0
-    from measure.kernels import lag_one_correlation  # numba loads on first use: `import measure` stays fast
+    from measure.compiled import lag_one_correlation  # loaded on first use: `import measure` stays fast
 
     rho = min(0.9, max(0.0, float(lag_one_correlation(np.ascontiguousarray(r)))))
     return math.sqrt((1.0 + rho) / (1.0 - rho))

@@ -1,11 +1,14 @@
 """Load the measuring core's compiled kernels before the first measurement that needs them.
 
-numba compiles each kernel the first time it is called after an install (tens of seconds in all,
-cached on disk) and loads it from that cache in every later process (a fraction of a second). A
-kernel is loaded per array type, so a service that measured once on a small frame would still load
-the kernels of a long segment (over 600 samples FAST-MCD subsamples in single precision) or of a
-bent one inside a person's first such click. :func:`warm_up` measures synthetic frames that take
-every path a measurement takes to a kernel (docs/decisions/core-speed.md).
+First the kernels built ahead of time for this machine are chosen (:func:`measure.aot.prepare`: built
+in a subprocess the first time, about half a minute, then loaded from the cache in a fraction of a
+second), or numba's just-in-time kernels where they cannot be built. numba compiles each of its
+kernels the first time it is called after an install (cached on disk) and loads it per array type,
+so a process that measured once on a small frame would still load the kernels of a long segment
+(over 600 samples FAST-MCD subsamples in single precision) or of a bent one inside a person's first
+such click. :func:`warm_up` then measures synthetic frames that take every path a measurement takes
+to a kernel (docs/decisions/core-speed.md); the ahead-of-time build exports the versions those
+measurements compile.
 """
 
 from __future__ import annotations
@@ -30,9 +33,13 @@ def _profiles() -> dict[str, np.ndarray]:
     }
 
 
-def warm_up(seed: int = 0) -> None:
-    """Measure each profile of :func:`_profiles` (1/4 px steps, 0.15 px noise, 5 % outliers) by every
-    method along a short segment and one of 700 px (``seed`` draws the noise)."""
+def warm_up(seed: int = 0) -> str:
+    """Choose the kernels (:func:`measure.aot.prepare`), then measure each profile of :func:`_profiles`
+    (1/4 px steps, 0.15 px noise, 5 % outliers) by every method along a short segment and one of 700 px
+    (``seed`` draws the noise). Returns where the kernels come from (``"aot: <folder>"`` or ``"jit"``)."""
+    from measure.aot import prepare
+
+    origin = prepare()
     rng = np.random.default_rng(seed)
     camera = PinholeCamera(fx=float(_W), fy=float(_W), cx=(_W - 1) / 2, cy=(_H - 1) / 2, width=_W, height=_H)
     image = np.zeros((_H, _W, 3), np.uint8)
@@ -48,3 +55,4 @@ def warm_up(seed: int = 0) -> None:
                     measure_distance(frame, (10.0, y), (x2, y), MeasureOptions(method=method))
                 except MeasureError:
                     pass  # a refusal took its kernels as far as it went
+    return origin

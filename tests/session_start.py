@@ -1,6 +1,6 @@
-"""What a test session does once, before its first test: the measuring kernels compiled by numba, or
-loaded from numba's disk cache when an earlier run wrote it (docs/testing.md, "Where the time goes";
-docs/decisions/test-tail.md).
+"""What a test session does once, before its first test: the measuring kernels built ahead of time for
+this machine (numba compiling them on the way), or loaded from the caches when an earlier run wrote
+them (docs/testing.md, "Where the time goes"; docs/decisions/test-tail.md).
 
 Called by ``tests/conftest.py`` at the session's start in the process that starts the session: with
 pytest-xdist that is the controller, before its workers start, so the workers load what it wrote

@@ -175,7 +175,7 @@ def test_full_data_stage_resumes_after_a_singular_start_without_exact_fit(monkey
     stage hands its singular starts back, the exact-fit test finds no fit, the stage resumes from its
     state; the result is an ordinary MCD whose raw subset holds h points and whose estimates are that
     subset's and the support's moments."""
-    import measure.mcd_kernels as kernels
+    import measure.compiled as kernels  # what measure.mcd calls (built ahead of time, or numba's)
     from measure.mcd import fast_mcd
 
     statuses = []
