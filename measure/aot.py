@@ -32,6 +32,7 @@ from measure import compiled
 
 PACKAGE = Path(__file__).resolve().parent
 BUILD_TIMEOUT_S = 900.0
+KEEP_BUILDS = 4  # builds kept in the cache (the newest): one per recent version of the sources
 LAST_ERROR = ""  # why the last prepare() kept the just-in-time kernels ("" when it did not)
 
 
@@ -79,7 +80,8 @@ def find_built() -> Path | None:
 def prepare(build_missing: bool = True) -> str:
     """Choose this process's kernels before its first measurement: the module built for this machine,
     built first (in a subprocess, about half a minute) when ``build_missing`` and it is not; else numba's.
-    Returns where they come from (``"aot: <folder>"`` or ``"jit"``)."""
+    Returns where they come from: ``"aot: <folder>"``, or ``"jit"`` (``"jit: <why>"`` when the build
+    was wanted and could not be made or loaded)."""
     global LAST_ERROR
     LAST_ERROR = ""
     if compiled.mode() == "jit":
@@ -99,7 +101,7 @@ def prepare(build_missing: bool = True) -> str:
     if compiled.mode() == "aot":
         raise RuntimeError(f"DEPTHRULER_KERNELS=aot: {LAST_ERROR}")
     compiled.use(compiled.Kernels({}, "jit"))
-    return "jit"
+    return f"jit: {LAST_ERROR}"
 
 
 def _build_in_subprocess(folder: Path) -> Path | None:
@@ -114,8 +116,9 @@ def _build_in_subprocess(folder: Path) -> Path | None:
         LAST_ERROR = f"building the kernels ahead of time failed: {exc}"
         return None
     if done.returncode != 0 or not (folder / compiled.MANIFEST).is_file():
-        tail = (done.stderr or done.stdout).strip().splitlines()[-1:] or ["no output"]
-        LAST_ERROR = f"building the kernels ahead of time failed (exit {done.returncode}): {tail[0]}"
+        lines = (done.stderr or done.stdout).strip().splitlines() or ["no output"]
+        cause = next((line for line in reversed(lines) if "Error" in line), lines[-1])  # the exception, not a hint after it
+        LAST_ERROR = f"building the kernels ahead of time failed (exit {done.returncode}): {cause.strip()}"
         return None
     return folder
 
@@ -180,6 +183,16 @@ def build(out: Path) -> None:
                 raise  # not another build's finished folder
     finally:
         shutil.rmtree(tmp, ignore_errors=True)
+    _prune(out)
+
+
+def _prune(current: Path) -> None:
+    """Remove all but the newest ``KEEP_BUILDS`` builds beside ``current`` (a process that loaded one
+    keeps its mapping of the file)."""
+    builds = sorted((p for p in current.parent.iterdir() if p != current and (p / compiled.MANIFEST).is_file()),
+                    key=lambda p: p.stat().st_mtime, reverse=True)  # fmt: skip
+    for old in builds[KEEP_BUILDS - 1 :]:
+        shutil.rmtree(old, ignore_errors=True)
 
 
 def main(argv: list[str] | None = None) -> None:

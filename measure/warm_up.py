@@ -36,7 +36,8 @@ def _profiles() -> dict[str, np.ndarray]:
 def warm_up(seed: int = 0) -> str:
     """Choose the kernels (:func:`measure.aot.prepare`), then measure each profile of :func:`_profiles`
     (1/4 px steps, 0.15 px noise, 5 % outliers) by every method along a short segment and one of 700 px
-    (``seed`` draws the noise). Returns where the kernels come from (``"aot: <folder>"`` or ``"jit"``)."""
+    (``seed`` draws the noise). Returns where the kernels come from: ``"aot: <folder>"``, or ``"jit"``
+    (``"jit: <why>"`` when building them ahead of time failed)."""
     from measure.aot import prepare
 
     origin = prepare()

@@ -12,6 +12,7 @@ for bad input, 429 while every measurement worker is busy, 507 for a full disk),
 from __future__ import annotations
 
 import gc
+import logging
 from collections.abc import AsyncIterator, Callable
 from contextlib import asynccontextmanager
 from pathlib import Path
@@ -37,6 +38,7 @@ from service.state import ServiceState
 from service.workers import MeasurePool
 
 STATIC_DIR = Path(__file__).resolve().parent / "static"
+log = logging.getLogger("depthruler")
 
 
 # create_app's keyword names that differ from ServerConfig's, with the conversion
@@ -76,7 +78,11 @@ def create_app(source: str | Callable[[], Source], settings: ServerConfig | None
 
     @asynccontextmanager
     async def lifespan(_: FastAPI) -> AsyncIterator[None]:
-        warm_up()  # the first person's click pays neither imports nor loading compiled kernels (docs/decisions/service-speed.md)
+        # the first person's click pays neither imports nor loading compiled kernels (docs/decisions/service-speed.md)
+        kernels = warm_up()
+        state.kernels = "numba, just in time" if kernels.startswith("jit") else "built ahead of time"
+        if kernels.startswith("jit: "):
+            log.warning("depthruler: measuring with numba's just-in-time kernels, which keep LLVM in the process: %s", kernels[5:])
         # The objects of the imports and the app live as long as the process: keep them out of the
         # collector's full passes, which otherwise stop every thread (docs/decisions/service-speed.md).
         # Frozen already (by the program that runs this app, or by an app serving in this process):

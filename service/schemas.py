@@ -294,6 +294,7 @@ class HealthOut(_Out):
     next_frame_bytes: int | None
     frames: int
     ring_bytes: int  # the frames' arrays and cached encodings the ring holds (bytes)
+    kernels: Literal["built ahead of time", "numba, just in time", ""]  # the measuring kernels ("" before the warm-up)
     uptime_s: float
 
 

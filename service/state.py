@@ -30,5 +30,6 @@ class ServiceState:
     measures: MeasurePool = field(default_factory=MeasurePool)
     started: float = field(default_factory=time.time)
     home: tuple[Callable[[], Source], str] | None = None  # the server's own source (factory, spec)
+    kernels: str = ""  # where the measuring kernels come from, once the app's start chose them (health)
     # a live frame's JPEG is made once, never queued behind the routes on the general thread pool: one thread
     live_images: ThreadPoolExecutor = field(default_factory=lambda: ThreadPoolExecutor(1, thread_name_prefix="live-image"))

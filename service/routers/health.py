@@ -45,6 +45,7 @@ async def health(state: State) -> dict[str, Any]:
         "next_frame_bytes": disk["need_bytes"],
         "frames": len(state.ring),
         "ring_bytes": state.ring.nbytes,
+        "kernels": state.kernels,
         "uptime_s": time.time() - state.started,
     }
 

@@ -14,6 +14,7 @@ import sys
 from pathlib import Path
 
 import pytest
+from build_tools import missing_build_tools
 
 ROOT = Path(__file__).resolve().parents[2]
 
@@ -65,5 +66,5 @@ def test_after_the_warm_up_no_measurement_loads_a_kernel(mode):
     assert done.returncode == 0, done.stderr[-2000:]
     got = json.loads(done.stdout.strip().splitlines()[-1])
     assert got["loaded_later"] == {}, f"kernels (signatures before -> after) measure.warm_up does not reach: {got['loaded_later']}"
-    if mode == "auto":  # the session start built the module for this machine (tests/measure/test_aot.py holds its answers)
+    if mode == "auto" and not missing_build_tools():  # the session start built the module (tests/measure/test_aot.py holds its answers)
         assert got["origin"] == "aot" and got["fallbacks"] == {} and not got["numba"], got

@@ -104,7 +104,9 @@ def test_frozen_frame_answers_after_a_minute_of_newer_frames_and_is_released_aft
         ring.get(kept)
 
 
-def test_health_states_the_ring_bytes(tmp_path):
+def test_health_states_the_ring_bytes_and_the_kernels(tmp_path):
+    from build_tools import missing_build_tools
+
     with make_client(tmp_path) as c:
         from service_client import latest
 
@@ -113,6 +115,8 @@ def test_health_states_the_ring_bytes(tmp_path):
         body = c.get("/api/health").json()
         assert body["ring_bytes"] > 0
         assert body["ring_bytes"] <= ring.nbytes + 10 * 48 * 64 * 8  # frames may arrive between the two reads
+        # the session start built them for this machine where it can (tests/measure/test_aot.py); never a path or a reason
+        assert body["kernels"] == ("numba, just in time" if missing_build_tools() else "built ahead of time")
 
 
 def test_wide_disparity_in_fine_steps_is_held_as_int16_codes():
