@@ -148,7 +148,7 @@ def build(out: Path) -> None:
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")  # numba.pycc is pending deprecation; the just-in-time kernels remain
         from numba.core import codegen
-        from numba.pycc import CC
+        from numba.pycc import CC, compiler
 
     from measure.warm_up import warm_up
 
@@ -157,6 +157,16 @@ def build(out: Path) -> None:
     # asks the CPU. On a virtual machine they differ, and code for an implied feature the CPU lacks
     # would not run: give it the features the just-in-time kernels are compiled for.
     codegen.AOTCPUCodegen._customize_tm_features = lambda self: self._get_host_cpu_features()
+    # Exported functions release the interpreter's lock while they run, as the just-in-time kernels do
+    # (``nogil=True``): the service's event loop and capture thread run beside two measuring threads.
+    plain_flags = compiler.Flags
+
+    def flags_releasing_the_lock():
+        flags = plain_flags()
+        flags.release_gil = True
+        return flags
+
+    compiler.Flags = flags_releasing_the_lock
     out.parent.mkdir(parents=True, exist_ok=True)
     tmp = Path(tempfile.mkdtemp(prefix=out.name + ".", dir=out.parent))  # beside it: published by a rename
     try:
