@@ -151,3 +151,12 @@ def test_old_builds_are_removed_but_the_newest(tmp_path):
     (tmp_path / "build2.tmp").mkdir()  # an unfinished build (no manifest) is another process's: left alone
     aot._prune(folders[0])  # the one just built, whatever its time
     assert sorted(p.name for p in tmp_path.iterdir()) == ["build0", "build2.tmp", "build4", "build5", "build6"]
+
+
+def test_built_kernels_release_the_interpreters_lock(built):
+    """The service measures on two threads beside its event loop: a built kernel's wrapper releases
+    the interpreter's lock around the call, as numba's ``nogil`` kernels do. (A count of another
+    thread's steps during a call does not tell the two apart reliably: the hand-over of the lock
+    before the call takes as long as a short kernel.)"""
+    manifest = json.loads((built / compiled.MANIFEST).read_text())
+    assert b"PyEval_SaveThread" in (built / manifest["file"]).read_bytes()
