@@ -9,7 +9,7 @@ report, so a run with pytest-xdist lists its workers' tests as well.
 
 With ``--durations`` given, the run ends with one line per test, ``1.23s cpu <node id>`` (slowest
 first, all of them with ``--durations=0``), the seconds the session spent before its first test
-compiling the measuring kernels (tests/session_start.py; in no test's time), and a line with the
+building the measuring kernels (tests/session_start.py; in no test's time), and a line with the
 run's wall and CPU seconds and the host's 1-minute load average sampled every few seconds (the
 machine is shared: a wall time means little without it), and whether Python writes its compiled files (not under PYTHONDONTWRITEBYTECODE:
 then each process rewrites the test modules and compiles the project again unless an earlier run
@@ -106,7 +106,7 @@ class CpuTimes:
             terminalreporter.write_line(f"{seconds:.2f}s cpu {node}")
         if self.session_start is not None:
             terminalreporter.write_line(f"session start: {self.session_start[0]:.1f}s wall, {self.session_start[1]:.1f}s cpu "
-                                        "compiling the measuring kernels (or loading them from numba's cache), in no test")
+                                        "building the measuring kernels (or loading them from the caches), in no test")
         # This process's CPU since configure includes the workers only once they have exited; the
         # per-test sum is the figure that holds with and without xdist.
         terminalreporter.write_line(

@@ -39,7 +39,7 @@ DURATION = re.compile(r"^(\d+\.\d+)s (setup|call|teardown)\s+(\S.*)$")
 CPU = re.compile(r"^(\d+\.\d+)s cpu (\S.*)$")  # tests/cpu_times.py's line per test
 # ... and its closing line: the CPU of the whole run (with xdist's workers, once they have ended) and the load
 RUN_LINE = re.compile(r"^run: .*, (\d+\.\d+)s cpu in this process and its ended children, load (\d+\.\d+)-(\d+\.\d+) ")
-# ... and before it, the seconds the session spent compiling the measuring kernels before its first test
+# ... and before it, the seconds the session spent building the measuring kernels before its first test
 SESSION_START = re.compile(r"^session start: (\d+\.\d+)s wall, (\d+\.\d+)s cpu ")
 BYTECODE = re.compile(r"; compiled files (written|not written)")  # ... which ends with whether Python wrote its compiled files
 # the summary line, framed by "=" or, with -q (addopts), bare
@@ -63,7 +63,7 @@ class Run:
     """One ``--durations=0`` log: per node id its wall seconds (setup + call + teardown) and CPU seconds,
     the final summary ("663 passed, ..."), pytest's session seconds, the whole run's CPU seconds
     (collection included), the load average's range, whether Python wrote its compiled files and the
-    (wall, CPU) seconds spent compiling the measuring kernels before the first test (tests/session_start.py)."""
+    (wall, CPU) seconds spent building the measuring kernels before the first test (tests/session_start.py)."""
 
     wall: Counter
     cpu: Counter
@@ -140,7 +140,7 @@ def fast_loop_lines(text: str) -> list[str]:
     run = parse_log(text)
     load = f"{run.load[0]:.1f}-{run.load[1]:.1f}" if run.load else "not logged"
     command = " ".join(f'"{a}"' if " " in a else a for a in FAST_LOOP_COMMAND)
-    starting = (f", and {run.start[1]:.1f} s compiling the measuring kernels or loading them from numba's cache before "
+    starting = (f", and {run.start[1]:.1f} s building the measuring kernels or loading them from the caches before "
                 "the workers started" if run.start else "")
     return [
         "## The fast loop",
@@ -188,8 +188,8 @@ def report(runs: dict[str, str], fast_text: str | None = None) -> str:
                      f"{load} | {total:.1f} | {cpu} | {top_share(run.wall):.1%} | {cpu_top} | {share(run.wall, not_slow):.1%} | "
                      f"{share(run.wall, fast):.1%} |")
         starts.append(f"Before its first test, run {label} spent "
-                      + (f"{run.start[0]:.1f} s wall ({run.start[1]:.1f} s CPU) compiling the measuring kernels or loading them "
-                         "from numba's cache (tests/session_start.py): in no test's time nor in pytest's session seconds, so "
+                      + (f"{run.start[0]:.1f} s wall ({run.start[1]:.1f} s CPU) building the measuring kernels or loading them "
+                         "from the caches (tests/session_start.py): in no test's time nor in pytest's session seconds, so "
                          "not in the shares above."
                          if run.start else "nothing logged compiling the measuring kernels (an older log: the first test that "
                          "measured carried it)."))

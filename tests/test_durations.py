@@ -19,7 +19,7 @@ LOG = """\
 ========================== cpu seconds per test (all) ==========================
 2.50s cpu tests/a/test_a.py::test_burn
 0.01s cpu tests/a/test_a.py::test_sleep[x y]
-session start: 11.6s wall, 11.5s cpu compiling the measuring kernels (or loading them from numba's cache), in no test
+session start: 11.6s wall, 11.5s cpu building the measuring kernels (or loading them from the caches), in no test
 run: 4.0s wall, 2.5s cpu in tests, 3.1s cpu in this process and its ended children, load 1.5-7.2 (1-minute average, 2 samples, start 1.5, end 7.2); compiled files not written (PYTHONDONTWRITEBYTECODE)
 ============================== slowest durations ===============================
 2.40s call     tests/a/test_a.py::test_burn
