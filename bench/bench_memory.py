@@ -18,7 +18,6 @@ bench/RESULTS.md "## Service memory".
 from __future__ import annotations
 
 import argparse
-import json
 import os
 import re
 import subprocess
@@ -28,7 +27,7 @@ import time
 from collections import Counter
 from pathlib import Path
 
-from bench.bench_service_load import idle_default_server
+from bench.bench_service_load import idle_default_server, rss_mb
 from bench.results_file import machine, replace_section
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -43,28 +42,20 @@ STAGES = [
      "from device import open_source; src = open_source('sim?fps=0'); src.open()\nfor _ in range(3): frame = src.read()"),
 ]
 KERNELS = {"built ahead of time": "auto", "numba's (just in time)": "jit"}
-STATUS = ("VmRSS", "RssAnon", "RssFile")
+# The stage's own RSS, read with what it imported already (importing a bench module would add its imports).
+_PRINT_RSS = "print(next(int(line.split()[1]) for line in open('/proc/self/status') if line.startswith('VmRSS:')) / 1024)"
 
 
-def _status_mb(pid: int | str = "self") -> dict[str, float]:
-    out = {}
-    for line in Path(f"/proc/{pid}/status").read_text().splitlines():
-        key = line.split(":", 1)[0]
-        if key in STATUS:
-            out[key] = int(line.split()[1]) / 1024
-    return out
-
-
-def stage(k: int, kernels: str) -> dict[str, float]:
+def stage(k: int, kernels: str) -> float:
     """RSS (MB) of a fresh interpreter that ran stages 0..k with ``DEPTHRULER_KERNELS=kernels``."""
     code = "\n".join(
-        ["import json, sys", "from service.connections import return_large_blocks", "return_large_blocks()"]
+        ["from service.connections import return_large_blocks", "return_large_blocks()"]
         + [c for _, c in STAGES[: k + 1]]
-        + ["from bench.bench_memory import _status_mb", "print(json.dumps(_status_mb()))"]
+        + [_PRINT_RSS]
     )
     env = {**os.environ, "DEPTHRULER_KERNELS": kernels}
     res = subprocess.run([sys.executable, "-c", code], cwd=ROOT, env=env, capture_output=True, text=True, check=True)
-    return json.loads(res.stdout.strip().splitlines()[-1])
+    return float(res.stdout.strip().splitlines()[-1])
 
 
 def mappings_mb(pid: int) -> dict[str, float]:
@@ -91,18 +82,17 @@ def mappings_mb(pid: int) -> dict[str, float]:
 def idle_server(settle_s: float) -> dict:
     """`depthruler serve` at its defaults left idle until its ring stops growing: RSS and mappings."""
     with tempfile.TemporaryDirectory() as tmp, idle_default_server(ROOT, Path(tmp), settle_s) as (proc, health):
-        maps = mappings_mb(proc.pid)
-        kernels = "numba's (LLVM mapped)" if "libllvmlite.so (LLVM)" in maps else "built ahead of time"
-        return {"rss": _status_mb(proc.pid), "mappings": maps, "ring_mb": health["ring_bytes"] / 1e6, "kernels": kernels}
+        return {"rss_mb": rss_mb(proc.pid), "mappings": mappings_mb(proc.pid), "ring_mb": health["ring_bytes"] / 1e6,
+                "kernels": health["kernels"]}  # fmt: skip
 
 
-def report(stages: dict[str, list[dict[str, float]]], idle: dict, head: str) -> str:
+def report(stages: dict[str, list[float]], idle: dict, head: str) -> str:
     names = list(stages)
     rows = []
     for k, (label, _) in enumerate(STAGES):
         cells = []
         for name in names:
-            now, before = stages[name][k]["VmRSS"], stages[name][k - 1]["VmRSS"] if k else 0.0
+            now, before = stages[name][k], stages[name][k - 1] if k else 0.0
             cells.append(f"{now:.0f} ({now - before:+.0f})")
         rows.append(f"| {label} | {' | '.join(cells)} |\n")
     maps = "".join(f"| {k} | {v:.0f} |\n" for k, v in sorted(idle["mappings"].items(), key=lambda kv: -kv[1]))
@@ -113,7 +103,7 @@ def report(stages: dict[str, list[dict[str, float]]], idle: dict, head: str) -> 
         "and with numba's just-in-time kernels (`DEPTHRULER_KERNELS=jit`).\n\n"
         f"| stage | {' | '.join(f'kernels {n}' for n in names)} |\n| --- |{' --- |' * len(names)}\n" + "".join(rows)
         + f"\n`depthruler serve` at its defaults (the simulator, kernels as it chose them: {idle['kernels']}), idle until its "
-        f"ring is full: RSS {idle['rss']['VmRSS']:.0f} MB (ring {idle['ring_mb']:.0f} MB by /api/health), its resident pages "
+        f"ring is full: RSS {idle['rss_mb']:.0f} MB (ring {idle['ring_mb']:.0f} MB by /api/health), its resident pages "
         "by mapping (MB):\n\n| mapping | MB |\n| --- | --- |\n" + maps
         + f"\nMachine: {machine()}; {time.strftime('%Y-%m-%d %H:%M UTC', time.gmtime())}.\n"
     )
@@ -125,12 +115,12 @@ def main(argv: list[str] | None = None) -> None:
     ap.add_argument("--write", action="store_true", help="record the figures in bench/RESULTS.md")
     args = ap.parse_args(argv)
     head = subprocess.run(["git", "-C", str(ROOT), "rev-parse", "--short", "HEAD"], capture_output=True, text=True).stdout.strip()
-    stages: dict[str, list[dict[str, float]]] = {}
+    stages: dict[str, list[float]] = {}
     for name, kernels in KERNELS.items():
         stages[name] = []
         for k, (label, _) in enumerate(STAGES):
             stages[name].append(stage(k, kernels))
-            print(f"kernels {name}: {label}: {stages[name][-1]['VmRSS']:.0f} MB", flush=True)
+            print(f"kernels {name}: {label}: {stages[name][-1]:.0f} MB", flush=True)
     idle = idle_server(args.settle)
     body = report(stages, idle, head)
     print(body)

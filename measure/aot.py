@@ -71,10 +71,15 @@ def key() -> str:
     return h.hexdigest()[:20]
 
 
+def _is_built(folder: Path) -> bool:
+    """Whether ``folder`` holds a finished build (its manifest is written last, before the rename)."""
+    return (folder / compiled.MANIFEST).is_file()
+
+
 def find_built() -> Path | None:
     """The folder of the module built for :func:`key`, or None."""
     folder = cache_root() / key()
-    return folder if (folder / compiled.MANIFEST).is_file() else None
+    return folder if _is_built(folder) else None
 
 
 def prepare(build_missing: bool = True) -> str:
@@ -87,9 +92,8 @@ def prepare(build_missing: bool = True) -> str:
     if compiled.mode() == "jit":
         compiled.use(compiled.Kernels({}, "jit"))
         return "jit"
-    folder = find_built()
-    if folder is None and build_missing:
-        folder = _build_in_subprocess(cache_root() / key())
+    target = cache_root() / key()
+    folder = target if _is_built(target) else _build_in_subprocess(target) if build_missing else None
     if folder is not None:
         try:
             compiled.use(compiled.load_aot(folder))
@@ -115,7 +119,7 @@ def _build_in_subprocess(folder: Path) -> Path | None:
     except (OSError, subprocess.TimeoutExpired) as exc:
         LAST_ERROR = f"building the kernels ahead of time failed: {exc}"
         return None
-    if done.returncode != 0 or not (folder / compiled.MANIFEST).is_file():
+    if done.returncode != 0 or not _is_built(folder):
         lines = (done.stderr or done.stdout).strip().splitlines() or ["no output"]
         cause = next((line for line in reversed(lines) if "Error" in line), lines[-1])  # the exception, not a hint after it
         LAST_ERROR = f"building the kernels ahead of time failed (exit {done.returncode}): {cause.strip()}"
@@ -189,7 +193,7 @@ def build(out: Path) -> None:
         try:
             tmp.rename(out)  # published whole: a reader sees the folder with its manifest or nothing
         except OSError:
-            if not (out / compiled.MANIFEST).is_file():
+            if not _is_built(out):
                 raise  # not another build's finished folder
     finally:
         shutil.rmtree(tmp, ignore_errors=True)
@@ -199,7 +203,7 @@ def build(out: Path) -> None:
 def _prune(current: Path) -> None:
     """Remove all but the newest ``KEEP_BUILDS`` builds beside ``current`` (a process that loaded one
     keeps its mapping of the file)."""
-    builds = sorted((p for p in current.parent.iterdir() if p != current and (p / compiled.MANIFEST).is_file()),
+    builds = sorted((p for p in current.parent.iterdir() if p != current and _is_built(p)),
                     key=lambda p: p.stat().st_mtime, reverse=True)  # fmt: skip
     for old in builds[KEEP_BUILDS - 1 :]:
         shutil.rmtree(old, ignore_errors=True)

@@ -55,6 +55,7 @@ class Kernels:
         self.variants = variants
         self.origin = origin  # "aot: <folder>" or "jit"
         self.fallbacks: dict[str, int] = {}  # calls the ahead-of-time module had no variant for, by kernel
+        self._jit: dict[str, Callable[..., Any]] = {}  # numba's dispatchers, looked up once each
 
     def call(self, name: str, args: tuple) -> Any:
         for check, fn in self.variants.get(name, ()):
@@ -62,7 +63,10 @@ class Kernels:
                 return fn(*args)
         if self.variants:
             self.fallbacks[name] = self.fallbacks.get(name, 0) + 1
-        return jit(name)(*args)
+        kernel = self._jit.get(name)
+        if kernel is None:
+            kernel = self._jit[name] = jit(name)
+        return kernel(*args)
 
 
 def jit(name: str) -> Callable[..., Any]:
@@ -136,16 +140,13 @@ def use(kernels: Kernels) -> None:
 
 
 def active() -> Kernels:
-    """This process's kernels, chosen on first use: the built module for this machine when there is
-    one (``auto``, ``aot``), else numba's."""
-    global _active
+    """This process's kernels, chosen on first use (:func:`measure.aot.prepare`, without building):
+    the built module for this machine when there is one (``auto``, ``aot``), else numba's."""
     if _active is None:
-        from measure.aot import find_built
+        from measure.aot import prepare
 
-        folder = find_built() if mode() != "jit" else None
-        if folder is None and mode() == "aot":
-            raise RuntimeError("DEPTHRULER_KERNELS=aot but no kernels are built for this machine; run measure.warm_up() once")
-        _active = load_aot(folder) if folder is not None else Kernels({}, "jit")
+        prepare(build_missing=False)
+    assert _active is not None  # prepare() chose them, or raised
     return _active
 
 

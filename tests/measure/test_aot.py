@@ -51,10 +51,14 @@ print(json.dumps({"origin": origin.split(":")[0], "fallbacks": compiled.active()
 """
 
 
-def _run(mode: str, **env: str) -> dict:
-    environ = {**os.environ, "DEPTHRULER_KERNELS": mode, **env,
-               "PYTHONPATH": os.pathsep.join(p for p in (str(ROOT), os.environ.get("PYTHONPATH", "")) if p)}  # fmt: skip
-    done = subprocess.run([sys.executable, "-c", SCRIPT], cwd=ROOT, env=environ, capture_output=True, text=True, timeout=900)
+def _env(**extra: str) -> dict[str, str]:
+    """This process's environment, with this checkout first on the path and ``extra`` set."""
+    return {**os.environ, **extra, "PYTHONPATH": os.pathsep.join(p for p in (str(ROOT), os.environ.get("PYTHONPATH", "")) if p)}
+
+
+def _run(mode: str) -> dict:
+    done = subprocess.run([sys.executable, "-c", SCRIPT], cwd=ROOT, env=_env(DEPTHRULER_KERNELS=mode), capture_output=True,
+                          text=True, timeout=900)  # fmt: skip
     assert done.returncode == 0, done.stderr[-3000:]
     return json.loads(done.stdout.strip().splitlines()[-1])
 
@@ -115,8 +119,7 @@ def test_the_argument_check_takes_exactly_the_built_types():
 
 def test_a_build_that_cannot_run_keeps_numbas_kernels(tmp_path):
     """No C compiler (CC fails): the process measures with numba's kernels and says why."""
-    env = {**os.environ, "DEPTHRULER_CACHE_DIR": str(tmp_path), "CC": "/bin/false", "DEPTHRULER_KERNELS": "auto",
-           "PYTHONPATH": os.pathsep.join(p for p in (str(ROOT), os.environ.get("PYTHONPATH", "")) if p)}  # fmt: skip
+    env = _env(DEPTHRULER_CACHE_DIR=str(tmp_path), CC="/bin/false", DEPTHRULER_KERNELS="auto")
     script = "import measure; from measure import aot; print(measure.warm_up()); print(aot.LAST_ERROR)"
     done = subprocess.run([sys.executable, "-c", script], cwd=ROOT, env=env, capture_output=True, text=True, timeout=900)
     assert done.returncode == 0, done.stderr[-2000:]
